@@ -1,0 +1,98 @@
+"""The ``asg`` command: one entry, subcommands. Holds no logic: it parses, calls, and prints.
+
+A user mistake (bad file, unknown name, bad value) prints one line ``asg: error: ...`` and exits
+with code 2; Ctrl-C exits with 130 and leaves no half-written file.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+from sumo_scenarios.errors import InputError
+
+from . import commands
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage mistake is one line (what is wrong, where to look) and exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        sys.stderr.write(f"asg: error: {message} (see '{self.prog} --help')\n")
+        raise SystemExit(2)
+
+
+def _add(sub, name: str, help_text: str, func: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:
+    p = sub.add_parser(name, help=help_text, description=help_text)
+    p.set_defaults(func=func)
+    return p
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="asg", description="Adversarial scene generation for cooperative V2X LiDAR perception.")
+    parser.add_argument("--version", action="version", version="asg 0.1.0")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    towns = sub.add_parser("towns", help="build or list the bundled SUMO towns", description="Build or list the SUMO towns in nets/.")
+    tsub = towns.add_subparsers(dest="towns_command", metavar="ACTION", parser_class=_Parser)
+    p = _add(tsub, "build", "rebuild nets/NAME.net.xml and NAME.poly.xml from configs/towns.yaml", commands.towns_build)
+    p.add_argument("--config", type=Path, default=None, help="towns yaml (default configs/towns.yaml)")
+    p.add_argument("--out", type=Path, default=None, help="folder for the nets (default nets/)")
+    p.add_argument("--only", nargs="*", default=None, help="build only these towns")
+    p = _add(tsub, "list", "print name, area, lanes, junctions and buildings of each town", commands.towns_list)
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--dir", type=Path, default=None, help="folder of nets (default nets/)")
+    towns.set_defaults(func=lambda a: (towns.print_help(), 2)[1])
+
+    p = _add(sub, "simulate", "run dense traffic in a town and record a SUMO fcd-output log", commands.simulate)
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--town", help="a bundled town name (see 'asg towns list')")
+    where.add_argument("--net", type=Path, help="any SUMO .net.xml")
+    p.add_argument("--source", choices=["sumo", "highway-env"], default="sumo", help="traffic source (default sumo)")
+    p.add_argument("--env", default="highway-v0", help="highway-env scenario: highway-v0, merge-v0, roundabout-v0, intersection-v0")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--duration", type=float, default=60.0, help="recorded seconds (default 60)")
+    p.add_argument("--warmup", type=float, default=None, help="seconds simulated before recording (default 90 for SUMO, 0 for highway-env)")
+    p.add_argument("--density", choices=["normal", "dense"], default="normal")
+    p.add_argument("--step", type=float, default=0.1, help="simulation step, s (default 0.1)")
+    p.add_argument("--record-period", type=float, default=0.5, help="seconds between recorded frames (default 0.5)")
+    p.add_argument("--out", type=Path, required=True, help="log folder to write")
+
+    scenes = sub.add_parser("scenes", help="extract scenes (one frame each) from a traffic log", description="Scenes from traffic logs.")
+    ssub = scenes.add_subparsers(dest="scenes_command", metavar="ACTION", parser_class=_Parser)
+    p = _add(ssub, "extract", "write every N-th frame of a log as a scene yaml", commands.scenes_extract)
+    p.add_argument("log", type=Path, help="log folder written by 'asg simulate'")
+    p.add_argument("--every", type=int, default=10, help="take every N-th recorded frame (default 10)")
+    p.add_argument("--ego", choices=["rsu", "vehicle"], default="rsu", help="ego agent kind (default rsu: V2I)")
+    p.add_argument("--radius", type=float, default=120.0, help="keep agents within this many metres of the ego")
+    p.add_argument("--min-vehicles", type=int, default=1, help="skip frames with fewer vehicles within 48 m of the ego")
+    p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
+    scenes.set_defaults(func=lambda a: (scenes.print_help(), 2)[1])
+
+    p = _add(sub, "demo", "simulate a bundled town and extract scenes (the quick-start job)", commands.demo)
+    p.add_argument("--town", default="grid_small")
+    p.add_argument("--out", type=Path, default=Path("runs/demo"))
+    p.add_argument("--seed", type=int, default=1)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except InputError as exc:
+        sys.stderr.write(f"asg: error: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("asg: interrupted; nothing half-written was left behind\n")
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,136 @@
+"""A Scene: one frame of traffic with an ego agent, buildings and lane geometry; saved as YAML.
+
+Schema (every key required unless marked optional)::
+
+    scene_id: str
+    town: str            # town or net name
+    source: sumo | highway-env
+    time_s: float        # simulation time of the frame
+    ego: str             # agent id of the ego (an RSU or a vehicle)
+    collaborators: [str] # optional: sensing agents besides the ego
+    log: str | null      # optional: the log folder it came from
+    agents: [Agent]      # see agent.py; vehicles and RSUs
+    buildings: [{id, height_m, footprint: [[x, y], ...]}]
+    lanes: {lanes: [...], junctions: [...]}   # sumo_scenarios.lanes.LaneMap.to_dict()
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Sequence
+
+import yaml
+
+from sumo_scenarios.atomic import write_text_atomic
+from sumo_scenarios.buildings import Building
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.lanes import LaneMap
+
+from .agent import Agent
+
+REQUIRED_KEYS = ("scene_id", "town", "source", "time_s", "ego", "agents", "buildings", "lanes")
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    scene_id: str
+    town: str
+    source: str
+    time_s: float
+    ego_id: str
+    agents: tuple[Agent, ...]
+    buildings: tuple[Building, ...]
+    lane_map: LaneMap
+    collaborators: tuple[str, ...] = ()
+    log: str | None = None
+
+    # ---- lookups ---------------------------------------------------------------------------
+    def agent(self, agent_id: str) -> Agent:
+        for a in self.agents:
+            if a.agent_id == agent_id:
+                return a
+        raise KeyError(agent_id)
+
+    @property
+    def ego(self) -> Agent:
+        return self.agent(self.ego_id)
+
+    @property
+    def vehicles(self) -> tuple[Agent, ...]:
+        return tuple(a for a in self.agents if a.is_vehicle)
+
+    @property
+    def sensing_ids(self) -> tuple[str, ...]:
+        """The ego then its collaborators: the agents whose LiDAR is shared."""
+        return (self.ego_id, *self.collaborators)
+
+    # ---- edits -----------------------------------------------------------------------------
+    def with_agents(self, agents: Sequence[Agent]) -> "Scene":
+        return replace(self, agents=tuple(agents))
+
+    def with_collaborators(self, ids: Sequence[str]) -> "Scene":
+        return replace(self, collaborators=tuple(ids))
+
+    def moved(self, moves: dict[str, tuple[float, float, float]]) -> "Scene":
+        """A copy with agents displaced: ``moves[agent_id] = (dx_m, dy_m, dyaw_rad)``."""
+        return self.with_agents([a.moved(*moves[a.agent_id]) if a.agent_id in moves else a for a in self.agents])
+
+    # ---- YAML ------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {
+            "scene_id": self.scene_id, "town": self.town, "source": self.source, "time_s": float(self.time_s),
+            "ego": self.ego_id, "collaborators": list(self.collaborators), "log": self.log,
+            "agents": [a.to_dict() for a in self.agents],
+            "buildings": [b.to_dict() for b in self.buildings],
+            "lanes": self.lane_map.to_dict(),
+        }
+
+    @staticmethod
+    def from_dict(d: dict, where: str = "scene") -> "Scene":
+        if not isinstance(d, dict):
+            raise InputError(f"{where}: not a scene (expected a mapping); give a file written by 'asg scenes extract'")
+        missing = [k for k in REQUIRED_KEYS if k not in d]
+        if missing:
+            raise InputError(f"{where}: scene is missing key '{missing[0]}'; re-extract it with 'asg scenes extract'")
+        try:
+            agents = tuple(Agent.from_dict(a) for a in d["agents"])
+            scene = Scene(
+                scene_id=str(d["scene_id"]), town=str(d["town"]), source=str(d["source"]), time_s=float(d["time_s"]),
+                ego_id=str(d["ego"]), agents=agents,
+                buildings=tuple(Building.from_dict(b) for b in d["buildings"]),
+                lane_map=LaneMap.from_dict(d["lanes"]),
+                collaborators=tuple(str(c) for c in d.get("collaborators") or ()), log=d.get("log"),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{where}: malformed scene ({type(exc).__name__}: {exc}); re-extract it") from None
+        ids = {a.agent_id for a in agents}
+        if not agents:
+            raise InputError(f"{where}: the scene has no agents; pick a frame with traffic")
+        for needed in scene.sensing_ids:
+            if needed not in ids:
+                raise InputError(f"{where}: agent '{needed}' named as ego or collaborator is not in 'agents'")
+        return scene
+
+
+def save_scene(scene: Scene, path: str | Path) -> None:
+    """Write the scene as YAML, atomically."""
+    write_text_atomic(path, yaml.dump(scene.to_dict(), Dumper=_dumper(), sort_keys=False, default_flow_style=None))
+
+
+def load_scene(path: str | Path) -> Scene:
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: scene file not found; check the path")
+    try:
+        data = yaml.load(p.read_text(encoding="utf-8"), Loader=_loader())
+    except yaml.YAMLError:
+        raise InputError(f"{p}: not valid YAML; re-extract the scene") from None
+    return Scene.from_dict(data, str(p))
+
+
+def _dumper():
+    return getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
+
+def _loader():
+    return getattr(yaml, "CSafeLoader", yaml.SafeLoader)

@@ -1,0 +1,68 @@
+"""Write files so that a crash or Ctrl-C never leaves a half-written one behind.
+
+Every writer writes to a temporary name in the same folder, then renames it into place
+(``os.replace`` is atomic on POSIX within one file system).
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+
+@contextlib.contextmanager
+def atomic_path(final_path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``final_path``; on success rename it into place, else delete it.
+
+    The temporary name keeps the final suffixes (``.xml.gz`` stays ``.xml.gz``) so that tools
+    choosing a format by file name (SUMO, numpy) behave as for the final name.
+    """
+    final = Path(final_path)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    suffix = "".join(final.suffixes)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=".tmp" + suffix, dir=final.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    try:
+        yield tmp
+        os.replace(tmp, final)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_text_atomic(final_path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``final_path`` atomically."""
+    with atomic_path(final_path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+@contextlib.contextmanager
+def atomic_dir(final_dir: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary folder beside ``final_dir``; on success move its files into ``final_dir``.
+
+    Files already in ``final_dir`` with other names are kept; files of the same name are replaced
+    one by one with ``os.replace``. On error the temporary folder is removed.
+    """
+    final = Path(final_dir)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)
+    try:
+        yield tmp
+        final.mkdir(parents=True, exist_ok=True)
+        for item in sorted(tmp.iterdir()):
+            target = final / item.name
+            if target.is_dir() and not target.is_symlink():
+                shutil.rmtree(target)
+            os.replace(item, target)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

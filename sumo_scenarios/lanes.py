@@ -1,0 +1,274 @@
+"""Lane geometry and the drivable area: the lane service that every later stage asks.
+
+Coordinates are SUMO's network frame: x east, y north, metres; headings in radians,
+counter-clockwise from +x (``yaw_rad``). A :class:`LaneMap` is built from a SUMO net
+(:func:`LaneMap.from_sumo_net`) or from plain lane polylines (highway-env), and answers:
+
+- is this footprint on the drivable area (lanes and junction shapes)?
+- which lane, station and lateral offset does a point have, and the lane's heading there?
+"""
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Point, Polygon
+from shapely.ops import unary_union
+
+from .errors import InputError
+
+#: slack when testing a footprint against the drivable area (m): SUMO's lane and junction shapes
+#: meet with small gaps and slivers.
+DRIVABLE_TOLERANCE_M = 0.15
+
+
+@dataclass(frozen=True)
+class Lane:
+    """One lane: ``centerline_xy`` (N, 2) metres in the network frame, in driving direction."""
+
+    lane_id: str
+    centerline_xy: np.ndarray
+    width_m: float
+    speed_mps: float
+    internal: bool = False
+
+    def to_dict(self) -> dict:
+        return {
+            "id": self.lane_id,
+            "width_m": float(self.width_m),
+            "speed_mps": float(self.speed_mps),
+            "internal": bool(self.internal),
+            "centerline": [[float(x), float(y)] for x, y in self.centerline_xy],
+        }
+
+    @staticmethod
+    def from_dict(d: dict) -> "Lane":
+        return Lane(
+            lane_id=str(d["id"]),
+            centerline_xy=np.asarray(d["centerline"], dtype=float).reshape(-1, 2),
+            width_m=float(d["width_m"]),
+            speed_mps=float(d["speed_mps"]),
+            internal=bool(d.get("internal", False)),
+        )
+
+
+@dataclass(frozen=True)
+class Junction:
+    """A junction's outline ``shape_xy`` (M, 2) metres, and its kind (``traffic_light``, ``priority``...)."""
+
+    junction_id: str
+    shape_xy: np.ndarray
+    kind: str
+    center_xy: tuple[float, float]
+
+    def to_dict(self) -> dict:
+        return {
+            "id": self.junction_id,
+            "kind": self.kind,
+            "center": [float(self.center_xy[0]), float(self.center_xy[1])],
+            "shape": [[float(x), float(y)] for x, y in self.shape_xy],
+        }
+
+    @staticmethod
+    def from_dict(d: dict) -> "Junction":
+        c = d["center"]
+        return Junction(
+            junction_id=str(d["id"]),
+            shape_xy=np.asarray(d["shape"], dtype=float).reshape(-1, 2),
+            kind=str(d["kind"]),
+            center_xy=(float(c[0]), float(c[1])),
+        )
+
+
+@dataclass(frozen=True)
+class LanePosition:
+    """Where a point lies relative to its nearest lane.
+
+    ``station_m``: distance along the centerline; ``lateral_m``: signed offset, left of the
+    driving direction positive; ``heading_rad``: the lane's heading there; ``on_lane``: the point is
+    within half the lane width of the centerline.
+    """
+
+    lane_id: str
+    station_m: float
+    lateral_m: float
+    heading_rad: float
+    on_lane: bool
+
+
+def _polygon(shape_xy: np.ndarray) -> Polygon | None:
+    if len(shape_xy) < 3:
+        return None
+    poly = Polygon(shape_xy)
+    if not poly.is_valid:
+        poly = poly.buffer(0)
+    return poly if poly.area > 1e-6 else None
+
+
+class LaneMap:
+    """Lanes and junctions with spatial indexes; see the module docstring for the queries."""
+
+    def __init__(self, lanes: Sequence[Lane], junctions: Sequence[Junction] = ()):
+        self.lanes: tuple[Lane, ...] = tuple(lanes)
+        self.junctions: tuple[Junction, ...] = tuple(junctions)
+        self._lines = [LineString(l.centerline_xy) for l in self.lanes]
+        self._lane_tree = shapely.STRtree(self._lines) if self._lines else None
+        pieces = [
+            line.buffer(lane.width_m / 2.0, cap_style="flat", join_style="round")
+            for line, lane in zip(self._lines, self.lanes)
+            if line.length > 0
+        ]
+        pieces += [p for p in (_polygon(j.shape_xy) for j in self.junctions) if p is not None]
+        self.drivable = unary_union(pieces) if pieces else Polygon()
+        self._drivable_loose = self.drivable.buffer(DRIVABLE_TOLERANCE_M)
+        shapely.prepare(self._drivable_loose)
+        self._by_id = {l.lane_id: i for i, l in enumerate(self.lanes)}
+
+    # ---- construction ------------------------------------------------------------------------
+    @staticmethod
+    def from_sumo_net(net_path: str | Path) -> "LaneMap":
+        """Read lanes (including internal junction lanes) and junction shapes from a ``.net.xml``."""
+        root = parse_net_root(net_path)
+        lanes: list[Lane] = []
+        for edge in root.iter("edge"):
+            internal = edge.get("function") == "internal"
+            if edge.get("function") in ("walkingarea", "crossing"):
+                continue
+            for lane in edge.iter("lane"):
+                allow = lane.get("allow", "")
+                if allow and "passenger" not in allow and "all" not in allow:
+                    continue
+                if "passenger" in lane.get("disallow", "").split():
+                    continue
+                xy = _parse_shape(lane.get("shape", ""))
+                if len(xy) < 2:
+                    continue
+                lanes.append(
+                    Lane(
+                        lane_id=lane.get("id"),
+                        centerline_xy=xy,
+                        width_m=float(lane.get("width", 3.2)),
+                        speed_mps=float(lane.get("speed", 13.89)),
+                        internal=internal,
+                    )
+                )
+        junctions = []
+        for j in root.iter("junction"):
+            if j.get("type") in ("internal", "dead_end"):
+                shape = _parse_shape(j.get("shape", ""))
+                if j.get("type") == "internal" or len(shape) < 3:
+                    continue
+            junctions.append(
+                Junction(
+                    junction_id=j.get("id"),
+                    shape_xy=_parse_shape(j.get("shape", "")),
+                    kind=j.get("type", "priority"),
+                    center_xy=(float(j.get("x", 0.0)), float(j.get("y", 0.0))),
+                )
+            )
+        if not any(not l.internal for l in lanes):
+            raise InputError(f"{net_path}: the net has no lanes for cars; give a SUMO net with roads")
+        return LaneMap(lanes, junctions)
+
+    def to_dict(self) -> dict:
+        return {"lanes": [l.to_dict() for l in self.lanes], "junctions": [j.to_dict() for j in self.junctions]}
+
+    @staticmethod
+    def from_dict(d: dict) -> "LaneMap":
+        return LaneMap(
+            [Lane.from_dict(x) for x in d.get("lanes", [])],
+            [Junction.from_dict(x) for x in d.get("junctions", [])],
+        )
+
+    def crop(self, center_xy: tuple[float, float], radius_m: float) -> "LaneMap":
+        """The lanes and junctions that come within ``radius_m`` of ``center_xy`` (kept whole)."""
+        disk = Point(center_xy).buffer(radius_m)
+        lanes = [l for l, line in zip(self.lanes, self._lines) if line.intersects(disk)]
+        junctions = [
+            j for j in self.junctions if Point(j.center_xy).distance(Point(center_xy)) <= radius_m + 50.0
+        ]
+        return LaneMap(lanes, junctions)
+
+    # ---- queries -----------------------------------------------------------------------------
+    def lane(self, lane_id: str) -> Lane:
+        return self.lanes[self._by_id[lane_id]]
+
+    def footprint_on_road(self, footprint_xy: np.ndarray) -> bool:
+        """True if the polygon ``footprint_xy`` (K, 2) lies on lanes and junctions (within tolerance)."""
+        return bool(self._drivable_loose.contains(Polygon(footprint_xy)))
+
+    def footprints_on_road(self, footprints_xy: np.ndarray) -> np.ndarray:
+        """Vectorised :meth:`footprint_on_road`: (B, K, 2) footprints → (B,) bool."""
+        polys = shapely.polygons(np.asarray(footprints_xy, dtype=float))
+        return shapely.contains(self._drivable_loose, polys)
+
+    def point_on_road(self, x_m: float, y_m: float) -> bool:
+        return bool(self._drivable_loose.contains(Point(x_m, y_m)))
+
+    def locate(self, x_m: float, y_m: float, include_internal: bool = True) -> LanePosition | None:
+        """Nearest lane to a point, with station, signed lateral offset and heading there."""
+        if self._lane_tree is None:
+            return None
+        pt = Point(x_m, y_m)
+        idx = self._lane_tree.query_nearest(pt, all_matches=True)
+        candidates = [int(i) for i in np.atleast_1d(idx)]
+        if not include_internal:
+            candidates = [i for i in candidates if not self.lanes[i].internal] or candidates
+        best = min(candidates, key=lambda i: (self.lanes[i].internal, self.lanes[i].lane_id))
+        line = self._lines[best]
+        lane = self.lanes[best]
+        s = line.project(pt)
+        heading = self._heading_at(lane.centerline_xy, line, s)
+        foot = line.interpolate(s)
+        dx, dy = x_m - foot.x, y_m - foot.y
+        lateral = -math.sin(heading) * dx + math.cos(heading) * dy
+        return LanePosition(lane.lane_id, float(s), float(lateral), float(heading), abs(lateral) <= lane.width_m / 2.0)
+
+    def heading_at(self, lane_id: str, station_m: float) -> float:
+        """The heading (rad) of lane ``lane_id`` at ``station_m`` along its centerline."""
+        i = self._by_id[lane_id]
+        return self._heading_at(self.lanes[i].centerline_xy, self._lines[i], station_m)
+
+    @staticmethod
+    def _heading_at(xy: np.ndarray, line: LineString, s: float) -> float:
+        seg_len = np.hypot(*np.diff(xy, axis=0).T)
+        cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+        k = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg_len) - 1))
+        while seg_len[k] == 0 and k > 0:
+            k -= 1
+        d = xy[k + 1] - xy[k]
+        return math.atan2(d[1], d[0])
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of the drivable area, metres."""
+        return tuple(float(v) for v in self.drivable.bounds)  # type: ignore[return-value]
+
+    def road_edges(self) -> Iterable[tuple[Lane, LineString]]:
+        """Non-internal lanes with their centerlines."""
+        return ((l, line) for l, line in zip(self.lanes, self._lines) if not l.internal)
+
+
+def _parse_shape(text: str) -> np.ndarray:
+    pts = [p.split(",") for p in text.split()]
+    if not pts:
+        return np.zeros((0, 2))
+    return np.asarray([[float(p[0]), float(p[1])] for p in pts], dtype=float)
+
+
+def parse_net_root(net_path: str | Path) -> ET.Element:
+    """Parse a SUMO ``.net.xml``; a missing, truncated or non-XML file raises InputError."""
+    p = Path(net_path)
+    if not p.is_file():
+        raise InputError(f"{p}: net file not found; check the path or run 'asg towns list'")
+    try:
+        root = ET.parse(p).getroot()
+    except ET.ParseError as exc:
+        raise InputError(f"{p}: not a readable SUMO net ({exc}); rebuild it with netconvert") from None
+    if root.tag != "net":
+        raise InputError(f"{p}: not a SUMO net (root element <{root.tag}>, expected <net>); give a .net.xml")
+    return root

@@ -1,0 +1,122 @@
+"""Strict loading of frozen dataclasses from YAML mappings.
+
+An unknown or misspelled key is an error that names the key and the keys that are allowed;
+a value of the wrong type is an error that names the key and the expected type.
+"""
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from .errors import InputError
+
+T = TypeVar("T")
+
+
+def read_yaml(path: str | Path) -> Any:
+    """Parse a YAML file; a missing or malformed file is an InputError naming it."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: file not found; check the path")
+    try:
+        return yaml.safe_load(p.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark is not None else ""
+        raise InputError(f"{p}: not valid YAML{where}; fix the syntax") from None
+
+
+def _check_value(value: Any, hint: Any, where: str) -> Any:
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if hint is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        for option in args:
+            try:
+                return _check_value(value, option, where)
+            except InputError:
+                continue
+        raise InputError(f"{where}: {value!r} is not one of {', '.join(_name(a) for a in args)}")
+    if hint is type(None):
+        if value is None:
+            return None
+        raise InputError(f"{where}: expected nothing (null), got {value!r}")
+    if origin is typing.Literal:
+        if value in args:
+            return value
+        raise InputError(f"{where}: {value!r} is not one of {', '.join(repr(a) for a in args)}")
+    if dataclasses.is_dataclass(hint):
+        return from_mapping(hint, value, where)
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise InputError(f"{where}: expected a list, got {value!r}")
+        if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_check_value(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
+        if origin is tuple and args:
+            if len(args) != len(value):
+                raise InputError(f"{where}: expected {len(args)} values, got {len(value)}")
+            return tuple(_check_value(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
+        item = args[0] if args else Any
+        return origin(_check_value(v, item, f"{where}[{i}]") for i, v in enumerate(value))
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise InputError(f"{where}: expected a mapping, got {value!r}")
+        kt, vt = args if args else (Any, Any)
+        return {_check_value(k, kt, where): _check_value(v, vt, f"{where}.{k}") for k, v in value.items()}
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"{where}: expected a whole number, got {value!r}")
+        return value
+    if hint in (str, bool):
+        if not isinstance(value, hint):
+            raise InputError(f"{where}: expected {_name(hint)}, got {value!r}")
+        return value
+    return value
+
+
+def _name(hint: Any) -> str:
+    return getattr(hint, "__name__", str(hint))
+
+
+def from_mapping(cls: type[T], data: Any, where: str = "config") -> T:
+    """Build dataclass ``cls`` from ``data``; unknown keys and wrong types raise InputError."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise InputError(f"{where}: expected a mapping of keys to values, got {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise InputError(
+            f"{where}: unknown key '{unknown[0]}'; allowed keys: {', '.join(sorted(fields))}"
+        )
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for name, f in fields.items():
+        if name in data:
+            kwargs[name] = _check_value(data[name], hints[name], f"{where}.{name}")
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise InputError(f"{where}: missing key '{name}'; add it")
+    return cls(**kwargs)
+
+
+def load_dataclass(cls: type[T], path: str | Path, section: str | None = None) -> T:
+    """Read YAML file ``path`` (optionally one top-level ``section``) into dataclass ``cls``."""
+    data = read_yaml(path)
+    where = str(path)
+    if section is not None:
+        if not isinstance(data, dict) or section not in data:
+            raise InputError(f"{path}: missing section '{section}'; add it")
+        data = data[section]
+        where = f"{path}:{section}"
+    return from_mapping(cls, data, where)

@@ -1,0 +1,50 @@
+"""Locate and run SUMO's programs (netgenerate, netconvert, duarouter) and tools (randomTrips.py).
+
+They come from the ``eclipse-sumo`` wheel; ``SUMO_HOME`` is set for them so that they find their
+XML schemas and data.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from .errors import InputError
+
+
+def sumo_home() -> Path:
+    import sumo  # the eclipse-sumo wheel
+
+    return Path(sumo.SUMO_HOME)
+
+
+def sumo_env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["SUMO_HOME"] = str(sumo_home())
+    return env
+
+
+def binary(name: str) -> str:
+    path = sumo_home() / "bin" / name
+    if not path.exists():
+        raise InputError(f"SUMO program '{name}' not found under {path.parent}; reinstall with 'pip install eclipse-sumo'")
+    return str(path)
+
+
+def tool(relpath: str) -> str:
+    return str(sumo_home() / "tools" / relpath)
+
+
+def run(args: list[str], what: str) -> str:
+    """Run a SUMO program; a failure raises InputError with its last error line."""
+    proc = subprocess.run(args, capture_output=True, text=True, env=sumo_env())
+    if proc.returncode != 0:
+        lines = [l for l in (proc.stderr + proc.stdout).splitlines() if l.strip()]
+        errors = [l for l in lines if "rror" in l] or lines
+        raise InputError(f"{what} failed: {errors[-1] if errors else 'exit code ' + str(proc.returncode)}")
+    return proc.stdout
+
+
+def run_python_tool(relpath: str, args: list[str], what: str) -> str:
+    return run([sys.executable, tool(relpath), *args], what)
