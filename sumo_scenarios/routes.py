@@ -20,8 +20,12 @@ class TrafficParams:
     fringe_factor: float = 10.0
     min_distance_m: float = 150.0
 
+    #: town-specific multiplier (``demand_scale`` in configs/towns.yaml)
+    scale: float = 1.0
+
     def density_value(self, density: Density) -> float:
-        return self.dense_per_km_hour if density == "dense" else self.normal_per_km_hour
+        base = self.dense_per_km_hour if density == "dense" else self.normal_per_km_hour
+        return base * self.scale
 
 
 def make_routes(net_path: Path, vtypes_path: Path, out_path: Path, seed: int, end_s: float,

@@ -14,7 +14,7 @@ from .fcd import read_fcd
 from .log import BUILDINGS_NAME, FCD_NAME, NET_NAME, LogMeta, density_stats, write_meta
 from .routes import Density, TrafficParams, make_routes
 from .rsu import place_rsus
-from .towns import load_town
+from .towns import demand_scale, load_town
 from .vehicles import VEHICLE_TYPES, vtypes_additional_xml
 
 #: called with (simulated seconds done, seconds in total)
@@ -34,7 +34,7 @@ class SimulationRequest:
     step_s: float = 0.1
     record_period_s: float = 0.5
     warmup_s: float = 90.0
-    traffic: TrafficParams = TrafficParams()
+    traffic: TrafficParams | None = None  # None: defaults scaled by the town's demand_scale
 
     def validate(self) -> None:
         if self.duration_s <= 0:
@@ -60,7 +60,8 @@ def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> d
         write_buildings(work / BUILDINGS_NAME, town.buildings)
         vtypes = work / "vtypes.add.xml"
         write_text_atomic(vtypes, vtypes_additional_xml())
-        routes = make_routes(work / NET_NAME, vtypes, work / "routes.rou.xml", req.seed, end_s, req.density, req.traffic)
+        traffic = req.traffic or TrafficParams(scale=demand_scale(req.town))
+        routes = make_routes(work / NET_NAME, vtypes, work / "routes.rou.xml", req.seed, end_s, req.density, traffic)
         for leftover in work.glob("*.trips.xml"):
             leftover.unlink()
         wall = _run_libsumo(work, routes, vtypes, req, end_s, progress)
@@ -84,7 +85,7 @@ def _run_libsumo(work: Path, routes: Path, vtypes: Path, req: SimulationRequest,
 
     args = [
         "sumo", "-n", str(work / NET_NAME), "-r", str(routes),
-        "--step-length", str(req.step_s), "--begin", "0", "--end", f"{end_s:.2f}",
+        "--step-length", str(req.step_s), "--begin", "0", "--end", f"{end_s + 2 * req.step_s:.2f}",
         "--seed", str(req.seed), "--fcd-output", str(work / FCD_NAME),
         "--device.fcd.period", str(req.record_period_s), "--device.fcd.begin", f"{req.warmup_s:.2f}",
         "--fcd-output.attributes", "x,y,z,angle,type,speed,pos,lane,slope",
@@ -104,6 +105,7 @@ def _run_libsumo(work: Path, routes: Path, vtypes: Path, req: SimulationRequest,
             libsumo.simulationStep(t)
             if progress is not None:
                 progress(t, end_s)
+        libsumo.simulationStep()  # one more step so that the frame at end_s is written
     finally:
         libsumo.close()
     return time.perf_counter() - started

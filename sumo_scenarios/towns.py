@@ -35,6 +35,8 @@ class TownSpec:
     junction_type: str = "traffic_light"
     options: tuple[str, ...] = ()
     plain: str | None = None
+    #: multiplies the traffic demand of ``asg simulate`` (towns differ in how long vehicles stay)
+    demand_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -154,6 +156,16 @@ def resolve_net(town: str | None = None, net: str | Path | None = None) -> tuple
         known = ", ".join(q.name.replace(".net.xml", "") for q in list_towns()) or "none (run 'asg towns build')"
         raise InputError(f"unknown town '{town}'; known towns: {known}")
     return str(town), p
+
+
+def demand_scale(town: str | None) -> float:
+    """The town's ``demand_scale`` from configs/towns.yaml (1.0 for user nets and unknown names)."""
+    if town is None:
+        return 1.0
+    for spec in load_towns_config().towns:
+        if spec.name == town:
+            return spec.demand_scale
+    return 1.0
 
 
 def load_town(town: str | None = None, net: str | Path | None = None, seed: int = 1) -> TownMap:

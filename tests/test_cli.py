@@ -1,0 +1,119 @@
+"""Bad input: exit code 2, one line on stderr naming the problem and the fix, no traceback, no partial output."""
+from pathlib import Path
+
+import pytest
+
+from asg.cli import main
+from sumo_scenarios.paths import nets_dir
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.err
+
+
+def assert_one_line_error(err: str, *needles: str):
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("asg: error:") and "Traceback" not in err
+    for n in needles:
+        assert n in lines[0], lines[0]
+
+
+@pytest.fixture
+def out(tmp_path) -> Path:
+    return tmp_path / "out"
+
+
+def assert_nothing_written(out: Path):
+    assert not out.exists()
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(".")], list(out.parent.iterdir())
+
+
+def test_missing_net(capsys, out):
+    code, err = run(capsys, "simulate", "--net", "/nonexistent/x.net.xml", "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "not found")
+    assert_nothing_written(out)
+
+
+def test_truncated_net(capsys, tmp_path, out):
+    net = tmp_path / "trunc.net.xml"
+    text = (nets_dir() / "fiveleg.net.xml").read_text()
+    net.write_text(text[: len(text) // 2])
+    code, err = run(capsys, "simulate", "--net", str(net), "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "not a readable SUMO net")
+    assert_nothing_written(out)
+
+
+def test_non_xml_net(capsys, tmp_path, out):
+    net = tmp_path / "junk.net.xml"
+    net.write_bytes(b"\x00\x01 definitely not xml")
+    code, err = run(capsys, "simulate", "--net", str(net), "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "junk.net.xml")
+
+
+def test_laneless_net(capsys, tmp_path, out):
+    net = tmp_path / "empty.net.xml"
+    net.write_text('<net version="1.20"><location netOffset="0,0" convBoundary="0,0,1,1"/></net>')
+    code, err = run(capsys, "simulate", "--net", str(net), "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "no lanes")
+    assert_nothing_written(out)
+
+
+def test_unknown_town(capsys, out):
+    code, err = run(capsys, "simulate", "--town", "atlantis", "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "unknown town 'atlantis'", "grid_small")
+
+
+def test_negative_duration(capsys, out):
+    code, err = run(capsys, "simulate", "--town", "grid_small", "--duration", "-5", "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "--duration must be positive")
+    assert_nothing_written(out)
+
+
+def test_unknown_yaml_key(capsys, tmp_path):
+    cfg = tmp_path / "towns.yaml"
+    cfg.write_text("towns: []\nbuildingz: {}\n")
+    code, err = run(capsys, "towns", "build", "--config", str(cfg), "--out", str(tmp_path / "nets"))
+    assert code == 2
+    assert_one_line_error(err, "unknown key 'buildingz'")
+
+
+def test_bad_flag_is_one_line(capsys):
+    code, err = run_exit(capsys, "simulate", "--town", "grid_small", "--density", "insane", "--out", "x")
+    assert code == 2
+    assert_one_line_error(err, "--density")
+
+
+def run_exit(capsys, *argv):
+    with pytest.raises(SystemExit) as exc:
+        main(list(argv))
+    return exc.value.code, capsys.readouterr().err
+
+
+def test_scene_file_missing_key_via_log(capsys, tmp_path):
+    code, err = run(capsys, "scenes", "extract", str(tmp_path), "--out", str(tmp_path / "s"))
+    assert code == 2
+    assert_one_line_error(err, "not a traffic-log folder")
+
+
+def test_towns_list_json(capsys):
+    import json
+
+    assert main(["towns", "list", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert len(rows) >= 6 and {"name", "area_km2", "lanes_max", "junctions", "buildings"} <= set(rows[0])
+
+
+def test_simulate_and_extract_end_to_end(capsys, tmp_path):
+    log = tmp_path / "log"
+    assert main(["simulate", "--town", "fiveleg", "--duration", "10", "--warmup", "30", "--out", str(log)]) == 0
+    assert main(["scenes", "extract", str(log), "--every", "5", "--out", str(tmp_path / "scenes")]) == 0
+    assert len(list((tmp_path / "scenes").glob("*.yaml"))) == 5

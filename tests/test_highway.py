@@ -1,0 +1,31 @@
+import pytest
+
+from asg.scene.from_log import ExtractParams, extract_scenes
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.highway import HighwayRequest, simulate_highway
+from sumo_scenarios.log import open_log
+
+
+def test_sixty_seconds_of_highway_env(highway_log):
+    log = open_log(highway_log)
+    frames = list(log.frames())
+    assert len(frames) == 121
+    assert max(len(f.vehicles) for f in frames) >= 5
+    assert log.meta.source == "highway-env" and log.meta.env == "intersection-v0"
+    assert log.rsus and log.buildings and log.lane_map.lanes
+    # vehicles sit on the recorded lane geometry
+    from asg.scene.from_log import frame_vehicles
+
+    agents = frame_vehicles(log, frames[60])
+    assert sum(log.lane_map.point_on_road(a.x_m, a.y_m) for a in agents) >= 0.9 * len(agents)
+
+
+def test_highway_scenes(highway_log, tmp_path):
+    scenes = list(extract_scenes(highway_log, ExtractParams(every=20)))
+    assert scenes and all(s.source == "highway-env" for s in scenes)
+    assert all(s.ego.kind == "rsu" for s in scenes)
+
+
+def test_unknown_env():
+    with pytest.raises(InputError, match="unknown highway-env scenario"):
+        simulate_highway(HighwayRequest(out_dir=None, env_id="racetrack-v9"))  # type: ignore[arg-type]

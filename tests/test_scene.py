@@ -1,0 +1,54 @@
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from asg.scene import Agent, Scene, load_scene, save_scene
+from asg.scene.from_log import ExtractParams, extract_scenes
+from sumo_scenarios.errors import InputError
+
+
+def test_scene_yaml_round_trip(sumo_log, tmp_path):
+    scenes = list(extract_scenes(sumo_log, ExtractParams(every=40)))
+    assert len(scenes) == 4  # frames 0, 40, 80, 120
+    for s in scenes:
+        path = tmp_path / f"{s.scene_id}.yaml"
+        save_scene(s, path)
+        back = load_scene(path)
+        assert back.to_dict() == s.to_dict()
+        assert back.ego.kind == "rsu"
+        assert all(np.hypot(a.x_m - back.ego.x_m, a.y_m - back.ego.y_m) <= 120.0 for a in back.agents)
+        assert back.buildings and back.lane_map.lanes
+
+
+def test_extract_vehicle_ego(sumo_log):
+    s = next(iter(extract_scenes(sumo_log, ExtractParams(every=60, ego="vehicle"))))
+    assert s.ego.kind == "vehicle"
+
+
+def test_agent_geometry():
+    a = Agent("v", "vehicle", "car", 10.0, 5.0, 0.0, math.pi / 2, 4.0, 2.0, 1.5)
+    fp = a.footprint_xy()
+    assert np.allclose(sorted(fp[:, 0]), [9, 9, 11, 11]) and np.allclose(sorted(fp[:, 1]), [3, 3, 7, 7])
+    moved = a.moved(1.0, -1.0, math.pi)
+    assert (moved.x_m, moved.y_m) == (11.0, 4.0) and math.isclose(moved.yaw_rad, -math.pi / 2)
+    assert a.box7()[2] == pytest.approx(0.75)
+
+
+def test_scene_missing_key(sumo_log, tmp_path):
+    s = next(iter(extract_scenes(sumo_log, ExtractParams(every=120))))
+    data = s.to_dict()
+    del data["ego"]
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(InputError, match="missing key 'ego'"):
+        load_scene(path)
+
+
+def test_scene_unknown_ego(sumo_log):
+    s = next(iter(extract_scenes(sumo_log, ExtractParams(every=120))))
+    data = s.to_dict()
+    data["ego"] = "nobody"
+    with pytest.raises(InputError, match="'nobody'"):
+        Scene.from_dict(data)
