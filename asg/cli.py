@@ -71,6 +71,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
     scenes.set_defaults(func=lambda a: (scenes.print_help(), 2)[1])
 
+    bench = sub.add_parser("bench", help="benchmarks: simulate (more to come)", description="Speed benchmarks.")
+    bsub = bench.add_subparsers(dest="bench_command", metavar="WHAT", parser_class=_Parser)
+    p = _add(bsub, "simulate", "10 simulated minutes of a dense town at 0.1 s steps", commands.bench_simulate)
+    p.add_argument("--town", default="grid_small")
+    p.add_argument("--minutes", type=float, default=10.0)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--json", action="store_true", help="print JSON only")
+    bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
+
     p = _add(sub, "demo", "simulate a bundled town and extract scenes (the quick-start job)", commands.demo)
     p.add_argument("--town", default="grid_small")
     p.add_argument("--out", type=Path, default=Path("runs/demo"))

@@ -99,3 +99,21 @@ def demo(args: argparse.Namespace) -> int:
     simulate(ns)
     return scenes_extract(argparse.Namespace(log=log_dir, every=10, ego="rsu", radius=120.0, min_vehicles=1,
                                              out=Path(args.out) / "scenes"))
+
+
+def bench_simulate(args: argparse.Namespace) -> int:
+    from .benchmarks.simulate import bench_simulate as run
+
+    if args.minutes <= 0 or args.repeats < 1:
+        raise InputError("--minutes must be positive and --repeats at least 1")
+    result = run(town=args.town, minutes=args.minutes, repeats=args.repeats)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        table = Table(title="asg bench simulate")
+        table.add_column("metric")
+        table.add_column("value", justify="right")
+        for k, v in result.items():
+            table.add_row(k, str(v))
+        stdout.print(table)
+    return 0

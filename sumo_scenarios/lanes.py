@@ -244,6 +244,10 @@ class LaneMap:
         d = xy[k + 1] - xy[k]
         return math.atan2(d[1], d[0])
 
+    def lane_km(self) -> float:
+        """Total length of the non-internal lanes, km."""
+        return sum(line.length for _, line in self.road_edges()) / 1000.0
+
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of the drivable area, metres."""
         return tuple(float(v) for v in self.drivable.bounds)  # type: ignore[return-value]

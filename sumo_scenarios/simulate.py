@@ -10,7 +10,7 @@ from typing import Callable
 from .atomic import atomic_dir, write_text_atomic
 from .buildings import write_buildings
 from .errors import InputError
-from .fcd import read_fcd
+from .fcd import FcdFrame, FcdVehicle
 from .log import BUILDINGS_NAME, FCD_NAME, NET_NAME, LogMeta, density_stats, write_meta
 from .routes import Density, TrafficParams, make_routes
 from .rsu import place_rsus
@@ -64,10 +64,12 @@ def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> d
         routes = make_routes(work / NET_NAME, vtypes, work / "routes.rou.xml", req.seed, end_s, req.density, traffic)
         for leftover in work.glob("*.trips.xml"):
             leftover.unlink()
-        wall = _run_libsumo(work, routes, vtypes, req, end_s, progress)
-        frames = list(read_fcd(work / FCD_NAME))
+        max_vehicles = traffic.max_vehicles(req.density, town.lane_map.lane_km())
+        wall, samples = _run_libsumo(work, routes, req, end_s, max_vehicles, progress)
         sizes = {t.type_id: t.length_m for t in VEHICLE_TYPES}
-        stats = density_stats(frames, list(rsus), sizes)
+        stats = density_stats(samples, list(rsus), sizes)
+        stats["frames"] = int(round(req.duration_s / req.record_period_s)) + 1
+        stats["max_vehicles"] = max_vehicles
         stats["wall_s"] = round(wall, 3)
         stats["steps_per_s"] = round(end_s / req.step_s / wall, 1) if wall > 0 else None
         write_meta(work, LogMeta(
@@ -79,8 +81,14 @@ def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> d
     return stats
 
 
-def _run_libsumo(work: Path, routes: Path, vtypes: Path, req: SimulationRequest, end_s: float,
-                 progress: Progress | None) -> float:
+#: simulated seconds between the samples that the density statistics are computed on
+STATS_EVERY_S = 5.0
+
+
+def _run_libsumo(work: Path, routes: Path, req: SimulationRequest, end_s: float, max_vehicles: int,
+                 progress: Progress | None) -> tuple[float, list[FcdFrame]]:
+    """Step SUMO to ``end_s``; SUMO writes the fcd log itself. Returns wall seconds and the
+    vehicle samples (every ``STATS_EVERY_S`` after the warm-up) for the density statistics."""
     import libsumo
 
     args = [
@@ -89,7 +97,7 @@ def _run_libsumo(work: Path, routes: Path, vtypes: Path, req: SimulationRequest,
         "--seed", str(req.seed), "--fcd-output", str(work / FCD_NAME),
         "--device.fcd.period", str(req.record_period_s), "--device.fcd.begin", f"{req.warmup_s:.2f}",
         "--fcd-output.attributes", "x,y,z,angle,type,speed,pos,lane,slope",
-        "--time-to-teleport", "60", "--collision.action", "warn", "--collision.check-junctions", "false",
+        "--max-num-vehicles", str(max_vehicles), "--time-to-teleport", "60", "--collision.action", "warn", "--collision.check-junctions", "false",
         "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
     ]
     started = time.perf_counter()
@@ -97,15 +105,28 @@ def _run_libsumo(work: Path, routes: Path, vtypes: Path, req: SimulationRequest,
         libsumo.start(args)
     except Exception as exc:  # libsumo raises its own TraCIException/FatalTraCIError
         raise InputError(f"SUMO refused the simulation: {exc}") from None
+    samples: list[FcdFrame] = []
     try:
-        chunk_s = 10.0
         t = 0.0
+        next_sample = req.warmup_s
         while t < end_s - 1e-9:
-            t = min(end_s, t + chunk_s)
+            t = min(end_s, t + STATS_EVERY_S, max(next_sample, t + req.step_s))
             libsumo.simulationStep(t)
+            if t >= next_sample - 1e-9:
+                samples.append(_sample(libsumo, t))
+                next_sample += STATS_EVERY_S
             if progress is not None:
                 progress(t, end_s)
         libsumo.simulationStep()  # one more step so that the frame at end_s is written
     finally:
         libsumo.close()
-    return time.perf_counter() - started
+    return time.perf_counter() - started, samples
+
+
+def _sample(libsumo, time_s: float) -> FcdFrame:
+    v = libsumo.vehicle
+    rows = []
+    for vid in v.getIDList():
+        x, y = v.getPosition(vid)
+        rows.append(FcdVehicle(vid, x, y, 0.0, v.getAngle(vid), v.getTypeID(vid), 0.0, ""))
+    return FcdFrame(time_s, tuple(rows))

@@ -1,0 +1,1 @@
+"""Benchmarks (``asg bench ...``): speed goals are measured here, never in timed tests."""
