@@ -101,19 +101,59 @@ def demo(args: argparse.Namespace) -> int:
                                              out=Path(args.out) / "scenes"))
 
 
+def _print_result(title: str, result: dict, as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(result))
+        return
+    table = Table(title=title)
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for k, v in result.items():
+        table.add_row(k, str(v))
+    stdout.print(table)
+
+
 def bench_simulate(args: argparse.Namespace) -> int:
     from .benchmarks.simulate import bench_simulate as run
 
     if args.minutes <= 0 or args.repeats < 1:
         raise InputError("--minutes must be positive and --repeats at least 1")
-    result = run(town=args.town, minutes=args.minutes, repeats=args.repeats)
-    if args.json:
-        print(json.dumps(result))
-    else:
-        table = Table(title="asg bench simulate")
-        table.add_column("metric")
-        table.add_column("value", justify="right")
-        for k, v in result.items():
-            table.add_row(k, str(v))
-        stdout.print(table)
+    _print_result("asg bench simulate", run(town=args.town, minutes=args.minutes, repeats=args.repeats), args.json)
+    return 0
+
+
+def bench_lidar(args: argparse.Namespace) -> int:
+    from .benchmarks.lidar import bench_lidar as run
+
+    if args.repeats < 1:
+        raise InputError("--repeats must be at least 1")
+    _print_result("asg bench lidar", run(repeats=args.repeats), args.json)
+    return 0
+
+
+def render(args: argparse.Namespace) -> int:
+    from .io.figures import bev_figure
+    from .io.pcd import write_pcd
+    from .scene import load_scene
+    from .scene.neighbours import with_nearest_collaborators
+    from .sensors import load_lidar_spec, simulate_frame
+
+    spec = load_lidar_spec(args.lidar)
+    scene = with_nearest_collaborators(load_scene(args.scene), args.collaborators)
+    frame = simulate_frame(scene, spec, seed=args.seed)
+    counts = frame.points_in_boxes()
+    bev_figure(scene, frame, args.out, title=f"{scene.scene_id} ({spec.name})")
+    if args.pcd_dir is not None:
+        from sumo_scenarios.atomic import atomic_path
+        import numpy as np
+
+        for aid, cloud in frame.clouds.items():
+            write_pcd(Path(args.pcd_dir) / f"{aid}.pcd", cloud)
+            with atomic_path(Path(args.pcd_dir) / f"{aid}.npy") as tmp:
+                np.save(tmp, cloud)
+    in_range = [c for c, b in zip(counts["fused"], frame.ego_boxes) if abs(b[0]) <= 48 and abs(b[1]) <= 48]
+    mean_pts = sum(in_range) / len(in_range) if in_range else 0.0
+    console.print(f"wrote {args.out}: agents {', '.join(frame.sensing_ids)}; "
+                  f"{sum(len(c) for c in frame.clouds.values())} points; {len(in_range)} vehicles in range, "
+                  f"{mean_pts:.1f} points per box on average")
     return 0

@@ -47,3 +47,25 @@ def highway_log(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("logs") / "hw_intersection"
     simulate_highway(HighwayRequest(out_dir=out, env_id="intersection-v0", seed=2, duration_s=60.0))
     return out
+
+
+def car(agent_id: str, x: float, y: float, yaw: float = 0.0, type_id: str = "car"):
+    """A vehicle agent with the bundled size of its type."""
+    from asg.scene import Agent
+    from sumo_scenarios.vehicles import VEHICLE_TYPES
+
+    t = {v.type_id: v for v in VEHICLE_TYPES}[type_id]
+    return Agent(agent_id, "vehicle", type_id, x, y, 0.0, yaw, t.length_m, t.width_m, t.height_m, 0.0, None)
+
+
+def rsu(agent_id: str, x: float, y: float):
+    from asg.scene import Agent
+
+    return Agent(agent_id, "rsu", "rsu", x, y, 0.0, 0.0, 0.4, 0.4, 4.5)
+
+
+def make_scene(lane_map, agents, buildings=(), ego: str | None = None, collaborators=()):
+    from asg.scene import Scene
+
+    return Scene("test", "synthetic", "sumo", 0.0, ego or agents[0].agent_id, tuple(agents), tuple(buildings),
+                 lane_map, tuple(collaborators))

@@ -117,3 +117,46 @@ def test_simulate_and_extract_end_to_end(capsys, tmp_path):
     assert main(["simulate", "--town", "fiveleg", "--duration", "10", "--warmup", "30", "--out", str(log)]) == 0
     assert main(["scenes", "extract", str(log), "--every", "5", "--out", str(tmp_path / "scenes")]) == 0
     assert len(list((tmp_path / "scenes").glob("*.yaml"))) == 5
+
+
+def _one_scene(tmp_path) -> Path:
+    log = tmp_path / "log"
+    assert main(["simulate", "--town", "fiveleg", "--duration", "2", "--warmup", "30", "--out", str(log)]) == 0
+    assert main(["scenes", "extract", str(log), "--every", "4", "--out", str(tmp_path / "scenes")]) == 0
+    return sorted((tmp_path / "scenes").glob("*.yaml"))[0]
+
+
+def test_render_writes_picture_and_clouds(capsys, tmp_path):
+    scene = _one_scene(tmp_path)
+    out = tmp_path / "frame.png"
+    assert main(["render", str(scene), "--out", str(out), "--pcd-dir", str(tmp_path / "pcd")]) == 0
+    assert out.read_bytes()[:4] == b"\x89PNG"
+    assert len(list((tmp_path / "pcd").glob("*.pcd"))) == 3 and len(list((tmp_path / "pcd").glob("*.npy"))) == 3
+
+
+def test_render_bad_inputs(capsys, tmp_path):
+    import yaml
+
+    scene = _one_scene(tmp_path)
+    data = yaml.safe_load(scene.read_text())
+    # a scene missing a key
+    broken = tmp_path / "broken.yaml"
+    broken.write_text(yaml.safe_dump({k: v for k, v in data.items() if k != "agents"}))
+    code, err = run(capsys, "render", str(broken), "--out", str(tmp_path / "x.png"))
+    assert code == 2
+    assert_one_line_error(err, "missing key 'agents'")
+    # an empty scene: the ego alone
+    empty = tmp_path / "empty.yaml"
+    data_empty = dict(data, agents=[a for a in data["agents"] if a["id"] == data["ego"]], buildings=[])
+    empty.write_text(yaml.safe_dump(data_empty))
+    code, err = run(capsys, "render", str(empty), "--out", str(tmp_path / "x.png"))
+    assert code == 2
+    assert_one_line_error(err, "empty scene")
+    # a sensor with zero channels, one with a negative range
+    for bad, needle in (("channels: 0", "channels must be at least 1"), ("range_m: -5.0", "range_m must be positive")):
+        spec = tmp_path / "bad_lidar.yaml"
+        spec.write_text(f"name: bad\n{bad}\n")
+        code, err = run(capsys, "render", str(scene), "--lidar", str(spec), "--out", str(tmp_path / "x.png"))
+        assert code == 2
+        assert_one_line_error(err, needle)
+    assert not (tmp_path / "x.png").exists()

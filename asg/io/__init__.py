@@ -1,0 +1,1 @@
+"""Outputs: point clouds (PCD, npy), figures, run folders."""

@@ -1,0 +1,120 @@
+"""The cooperative frame: what every sensing agent's LiDAR sees in one scene, with labels.
+
+Frames and units: each cloud is (N, 4) float32 x, y, z, intensity in its own sensor frame
+(origin at the LiDAR, x forward, y left, z up, metres). Boxes are (M, 7) float64 x, y, z, l, w, h,
+yaw with (x, y, z) the box centre; ``boxes_in(agent)`` gives them in that agent's sensor frame,
+``gt_boxes_world`` in the network frame.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from sumo_scenarios.errors import InputError
+
+from ..scene import Agent, Scene
+from .lidar_spec import LidarSpec
+from .world import SensorPose, World
+
+
+@dataclass(frozen=True)
+class CooperativeFrame:
+    scene_id: str
+    ego_id: str
+    sensing_ids: tuple[str, ...]
+    poses: dict[str, SensorPose]
+    clouds: dict[str, np.ndarray]
+    gt_ids: tuple[str, ...]
+    gt_boxes_world: np.ndarray
+
+    def boxes_in(self, agent_id: str) -> np.ndarray:
+        """Ground-truth boxes (M, 7) in ``agent_id``'s sensor frame."""
+        return boxes_to_sensor(self.gt_boxes_world, self.poses[agent_id])
+
+    @property
+    def ego_boxes(self) -> np.ndarray:
+        return self.boxes_in(self.ego_id)
+
+    def cloud_in(self, agent_id: str, frame_of: str) -> np.ndarray:
+        """``agent_id``'s cloud moved into ``frame_of``'s sensor frame (N, 4)."""
+        return transform_points(self.clouds[agent_id], self.poses[agent_id], self.poses[frame_of])
+
+    def points_in_boxes(self) -> dict[str, np.ndarray]:
+        """Points inside each ground-truth box, per sensing agent and ``"fused"`` (their sum): (M,) int."""
+        out = {aid: count_points_in_boxes(self.clouds[aid], self.boxes_in(aid)) for aid in self.sensing_ids}
+        out["fused"] = np.sum([out[a] for a in self.sensing_ids], axis=0) if self.sensing_ids else np.zeros(len(self.gt_ids), int)
+        return out
+
+
+def boxes_to_sensor(boxes_world: np.ndarray, pose: SensorPose) -> np.ndarray:
+    """(M, 7) network-frame boxes → the sensor frame of ``pose``."""
+    if not len(boxes_world):
+        return np.zeros((0, 7))
+    c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
+    d = boxes_world[:, :3] - pose.origin
+    out = boxes_world.copy()
+    out[:, 0] = c * d[:, 0] + s * d[:, 1]
+    out[:, 1] = -s * d[:, 0] + c * d[:, 1]
+    out[:, 2] = d[:, 2]
+    out[:, 6] = np.angle(np.exp(1j * (boxes_world[:, 6] - pose.yaw_rad)))
+    return out
+
+
+def transform_points(points: np.ndarray, src: SensorPose, dst: SensorPose) -> np.ndarray:
+    """(N, 4) points from sensor frame ``src`` to sensor frame ``dst`` (intensity kept)."""
+    world = points[:, :3].astype(np.float64) @ src.rotation().T + src.origin
+    local = (world - dst.origin) @ dst.rotation()
+    out = points.copy()
+    out[:, :3] = local
+    return out
+
+
+def count_points_in_boxes(points: np.ndarray, boxes: np.ndarray, margin_m: float = 0.02) -> np.ndarray:
+    """Number of points (N, >=3) inside each box (M, 7), all in one frame; boxes grown by ``margin_m``."""
+    if not len(boxes) or not len(points):
+        return np.zeros(len(boxes), dtype=np.int64)
+    p = points[:, :3].astype(np.float64)
+    counts = np.zeros(len(boxes), dtype=np.int64)
+    for i, (x, y, z, l, w, h, yaw) in enumerate(boxes):
+        r = math.hypot(l, w) / 2 + margin_m
+        near = (np.abs(p[:, 0] - x) <= r) & (np.abs(p[:, 1] - y) <= r)
+        if not near.any():
+            continue
+        q = p[near] - (x, y, z)
+        c, s = math.cos(yaw), math.sin(yaw)
+        lx = c * q[:, 0] + s * q[:, 1]
+        ly = -s * q[:, 0] + c * q[:, 1]
+        inside = (np.abs(lx) <= l / 2 + margin_m) & (np.abs(ly) <= w / 2 + margin_m) & (np.abs(q[:, 2]) <= h / 2 + margin_m)
+        counts[i] = int(inside.sum())
+    return counts
+
+
+def ground_truth(scene: Scene, moved: Mapping[str, Agent] | None = None) -> tuple[tuple[str, ...], np.ndarray]:
+    """Ids and network-frame boxes (M, 7) of every vehicle but the ego."""
+    moved = moved or {}
+    vehicles = [moved.get(a.agent_id, a) for a in scene.vehicles if a.agent_id != scene.ego_id]
+    if not vehicles:
+        return (), np.zeros((0, 7))
+    return tuple(a.agent_id for a in vehicles), np.stack([a.box7() for a in vehicles])
+
+
+def render_frame(world: World, sensing_ids: Sequence[str] | None = None, moved: Mapping[str, Agent] | None = None,
+                 seed: int = 0) -> CooperativeFrame:
+    """Render the cooperative frame of ``world.scene`` for its sensing agents (ego + collaborators)."""
+    scene = world.scene
+    ids = tuple(sensing_ids) if sensing_ids is not None else scene.sensing_ids
+    if not ids:
+        raise InputError(f"scene {scene.scene_id}: no sensing agent")
+    clouds = world.render_many(ids, moved, seed)
+    gt_ids, gt = ground_truth(scene, moved)
+    return CooperativeFrame(scene.scene_id, scene.ego_id, ids, {a: world.sensor_pose(a) for a in ids}, clouds, gt_ids, gt)
+
+
+def simulate_frame(scene: Scene, spec: LidarSpec, seed: int = 0) -> CooperativeFrame:
+    """Build the world of ``scene`` and render its sensing agents once."""
+    if not scene.vehicles and not scene.buildings:
+        raise InputError(f"scene {scene.scene_id}: empty scene (no vehicles, no buildings); pick another frame")
+    return render_frame(World(scene, spec), seed=seed)

@@ -1,0 +1,95 @@
+"""LiDAR sensor specification and its ray pattern.
+
+Sensor frame: origin at the LiDAR, x forward (the agent's heading), y left, z up, metres.
+Rays: ``channels`` rows of elevation from ``fov_up_deg`` down to ``fov_down_deg`` (row 0 is the top),
+``azimuth_steps`` columns from -180 deg (behind) counter-clockwise; one sweep casts
+``channels x azimuth_steps`` rays, with ``azimuth_steps = points_per_s / rotation_hz / channels``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import configs_dir
+from sumo_scenarios.strict import load_dataclass
+
+Backend = Literal["embree", "trimesh"]
+
+
+@dataclass(frozen=True)
+class LidarSpec:
+    name: str = "v2xp"
+    channels: int = 32
+    fov_up_deg: float = 2.0
+    fov_down_deg: float = -25.0
+    points_per_s: float = 250_000
+    rotation_hz: float = 20.0
+    range_m: float = 70.0
+    #: std of Gaussian range noise (m); 0 = none (the paper's setting)
+    noise_std_m: float = 0.0
+    #: probability that a return is dropped; 0 = none
+    dropoff: float = 0.0
+    #: vehicle LiDAR height above the roof (m); RSU LiDARs sit on top of their pole
+    vehicle_mount_above_roof_m: float = 0.4
+    backend: Backend = "embree"
+
+    def validate(self) -> "LidarSpec":
+        if self.channels < 1:
+            raise InputError(f"lidar '{self.name}': channels must be at least 1, got {self.channels}")
+        if self.range_m <= 0:
+            raise InputError(f"lidar '{self.name}': range_m must be positive, got {self.range_m:g}")
+        if self.fov_up_deg < self.fov_down_deg:
+            raise InputError(f"lidar '{self.name}': fov_up_deg must be >= fov_down_deg")
+        if self.points_per_s <= 0 or self.rotation_hz <= 0:
+            raise InputError(f"lidar '{self.name}': points_per_s and rotation_hz must be positive")
+        if self.azimuth_steps < 1:
+            raise InputError(f"lidar '{self.name}': fewer than one point per channel and sweep; raise points_per_s")
+        if self.noise_std_m < 0 or not 0 <= self.dropoff < 1:
+            raise InputError(f"lidar '{self.name}': noise_std_m must be >= 0 and dropoff in [0, 1)")
+        if self.backend not in ("embree", "trimesh"):
+            raise InputError(f"lidar '{self.name}': backend must be embree or trimesh, got {self.backend!r}")
+        return self
+
+    @property
+    def azimuth_steps(self) -> int:
+        return int(self.points_per_s / self.rotation_hz / self.channels)
+
+    @property
+    def rays_per_sweep(self) -> int:
+        return self.channels * self.azimuth_steps
+
+    def elevations_rad(self) -> np.ndarray:
+        """(C,) elevation of each channel, top first."""
+        if self.channels == 1:
+            return np.array([math.radians(self.fov_up_deg)])
+        return np.radians(np.linspace(self.fov_up_deg, self.fov_down_deg, self.channels))
+
+    def azimuths_rad(self) -> np.ndarray:
+        """(A,) azimuth of each column in the sensor frame, from -pi, counter-clockwise."""
+        return -math.pi + np.arange(self.azimuth_steps) * (2 * math.pi / self.azimuth_steps)
+
+    def directions(self) -> np.ndarray:
+        """(C*A, 3) float64 unit ray directions in the sensor frame, row-major (channel, azimuth)."""
+        el = self.elevations_rad()[:, None]
+        az = self.azimuths_rad()[None, :]
+        d = np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), axis=-1)
+        return d.reshape(-1, 3)
+
+    def with_overrides(self, **kw) -> "LidarSpec":
+        return replace(self, **kw).validate()
+
+
+def load_lidar_spec(name_or_path: str | Path = "v2xp") -> LidarSpec:
+    """A preset name from configs/lidar/ (``v2xp``, ``dense64``) or a yaml path."""
+    p = Path(name_or_path)
+    if not p.suffix:
+        p = configs_dir() / "lidar" / f"{name_or_path}.yaml"
+        if not p.is_file():
+            known = ", ".join(sorted(q.stem for q in (configs_dir() / "lidar").glob("*.yaml")))
+            raise InputError(f"unknown lidar preset '{name_or_path}'; presets: {known}")
+    return load_dataclass(LidarSpec, p).validate()

@@ -1,0 +1,156 @@
+import math
+
+import numpy as np
+import pytest
+
+from asg.sensors import count_points_in_boxes, load_lidar_spec, occlusion_matrix, occlusion_scores, simulate_frame
+from asg.sensors.frame import render_frame
+from asg.sensors.lidar_spec import LidarSpec
+from asg.sensors.raycast import EmbreeCaster, TrimeshCaster
+from asg.sensors.world import World
+from sumo_scenarios.buildings import Building
+from sumo_scenarios.errors import InputError
+
+from conftest import car, make_scene, rsu
+
+SMALL = LidarSpec(name="small", channels=16, fov_up_deg=2.0, fov_down_deg=-25.0, points_per_s=16 * 180 * 10,
+                  rotation_hz=10.0, range_m=70.0)
+
+
+def unit_box_triangles():
+    import trimesh
+
+    m = trimesh.creation.box(extents=[1, 1, 1])
+    return m.vertices[m.faces]
+
+
+@pytest.mark.parametrize("caster_cls", [EmbreeCaster, TrimeshCaster])
+def test_ray_hits_box_and_plane_analytically(caster_cls):
+    box = unit_box_triangles()
+    plane = np.array([[[-50, -50, -2.0], [50, -50, -2.0], [50, 50, -2.0]], [[-50, -50, -2.0], [50, 50, -2.0], [-50, 50, -2.0]]])
+    c = caster_cls(np.concatenate([box, plane]))
+    o = np.array([[-5.0, 0.1, 0.2], [0.0, 0.0, 5.0], [3.0, 3.0, 0.0], [0.2, -6.0, 0.0]])
+    s = math.sqrt(0.5)
+    d = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, s, -s], [0, 1.0, 0]])
+    t, prim = c.first_hits(o, d)
+    assert t[0] == pytest.approx(4.5, abs=1e-5)     # box face x = -0.5
+    assert t[1] == pytest.approx(4.5, abs=1e-5)     # box top z = 0.5
+    assert t[2] == pytest.approx(2 * math.sqrt(2), abs=1e-5)  # plane z = -2 at 45 deg
+    assert t[3] == pytest.approx(5.5, abs=1e-5)
+    assert (prim >= 0).all()
+    t_far, prim_far = c.first_hits(o[:1], d[:1], np.array([3.0]))
+    assert np.isinf(t_far[0]) and prim_far[0] == -1
+
+
+def test_empty_world_sees_only_ground(cross_map):
+    spec = SMALL
+    scene = make_scene(cross_map, [rsu("r", 0.0, 0.0)])
+    pts = World(scene, spec).render("r")
+    el = spec.elevations_rad()
+    expected = 0
+    for e in el:
+        if e < 0 and 4.5 / math.tan(-e) <= spec.range_m:
+            expected += spec.azimuth_steps
+    assert len(pts) == expected
+    assert np.allclose(pts[:, 2], -4.5, atol=1e-4)
+    assert (pts[:, 3] > 0).all() and (pts[:, 3] <= 0.2 + 1e-6).all()
+
+
+def test_car_in_front_is_hit_where_expected(cross_map):
+    # a bus 20 m east of a car sensor: its rear face is at x = 20 - 6 = 14 m
+    scene = make_scene(cross_map, [car("ego", 0.0, -1.6), car("bus", 20.0, -1.6, type_id="bus")])
+    pts = World(scene, SMALL).render("ego")
+    ahead = pts[(np.abs(pts[:, 1]) < 0.5) & (pts[:, 0] > 0) & (pts[:, 2] > -1.5)]
+    assert len(ahead) and ahead[:, 0].min() == pytest.approx(14.0, abs=0.05)
+    # the sensor never sees its own body
+    own = (np.abs(pts[:, 0]) <= 2.3) & (np.abs(pts[:, 1]) <= 0.93)
+    assert not own.any()
+
+
+def test_embree_matches_trimesh_backend(cross_map):
+    agents = [car("ego", 0.0, -1.6), car("a", 12.0, -1.6, type_id="van"), car("b", -9.0, 1.6, math.pi, "truck"),
+              car("c", 1.6, 15.0, math.pi / 2, "suv"), rsu("r", 9.0, 9.0)]
+    bld = [Building("b0", np.array([[10.0, 12.0], [30.0, 12.0], [30.0, 25.0], [10.0, 25.0]]), 12.0)]
+    scene = make_scene(cross_map, agents, bld)
+    fast = World(scene, SMALL).render("ego")
+    slow = World(scene, SMALL.with_overrides(backend="trimesh")).render("ego")
+    # Embree can miss hits exactly on triangle edges: compare within a tolerance
+    assert abs(len(fast) - len(slow)) <= 0.005 * len(slow)
+    r_fast = np.sort(np.linalg.norm(fast[:, :3], axis=1))
+    r_slow = np.sort(np.linalg.norm(slow[:, :3], axis=1))
+    n = min(len(r_fast), len(r_slow))
+    assert np.mean(np.abs(r_fast[:n] - r_slow[:n]) < 1e-3) > 0.99
+
+
+def test_rerender_after_move_equals_full_render(cross_map):
+    agents = [car("ego", 0.0, -1.6), car("m1", 12.0, -1.6), car("m2", -15.0, 1.6, math.pi), car("s", 25.0, 1.6, math.pi),
+              car("col", -1.6, 20.0, -math.pi / 2)]
+    bld = [Building("b0", np.array([[10.0, 8.0], [30.0, 8.0], [30.0, 25.0], [10.0, 25.0]]), 8.0)]
+    scene = make_scene(cross_map, agents, bld, collaborators=["col"])
+    world = World(scene, SMALL, movable_ids=["m1", "m2"])
+    world.render_many(scene.sensing_ids)  # fill the static cache at the original poses
+    moves = {"m1": (1.5, 0.3, math.radians(20)), "m2": (-2.0, -0.4, math.radians(-30))}
+    moved = {k: scene.agent(k).moved(*v) for k, v in moves.items()}
+    quick = world.render_many(scene.sensing_ids, moved)
+    full = World(scene.moved(moves), SMALL).render_many(scene.sensing_ids)
+    for sid in scene.sensing_ids:
+        assert quick[sid].shape == full[sid].shape
+        assert np.allclose(quick[sid], full[sid], atol=2e-3)
+
+
+def test_noise_and_dropoff_are_seeded(cross_map):
+    scene = make_scene(cross_map, [car("ego", 0.0, -1.6), car("a", 10.0, -1.6)])
+    spec = SMALL.with_overrides(noise_std_m=0.05, dropoff=0.1)
+    w = World(scene, spec)
+    a, b, c = w.render("ego", seed=1), w.render("ego", seed=1), w.render("ego", seed=2)
+    clean = World(scene, SMALL).render("ego")
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    assert 0.85 * len(clean) < len(a) < 0.95 * len(clean)
+
+
+def test_points_in_box_counts():
+    pts = np.array([[0.0, 0.0, 0.0, 1], [1.5, 0.5, 0.2, 1], [2.4, 0.0, 0.0, 1], [0.0, 0.0, 1.0, 1], [5.0, 5.0, 0.0, 1]])
+    boxes = np.array([[0.0, 0.0, 0.0, 4.0, 2.0, 1.5, 0.0], [0.0, 0.0, 0.0, 4.0, 2.0, 1.5, math.pi / 2], [5, 5, 0, 1, 1, 1, 0]])
+    assert count_points_in_boxes(pts, boxes).tolist() == [2, 1, 1]
+
+
+def test_frame_labels_and_counts(cross_map):
+    scene = make_scene(cross_map, [rsu("r", 8.0, 8.0), car("a", -10.0, -1.6), car("b", 20.0, 1.6, math.pi)],
+                       collaborators=["a"])
+    frame = simulate_frame(scene, SMALL)
+    assert frame.gt_ids == ("a", "b")
+    counts = frame.points_in_boxes()
+    assert counts["r"][1] > 20  # the RSU sees car b
+    assert counts["a"][0] == 0  # car a never sees itself
+    assert (counts["fused"] == counts["r"] + counts["a"]).all()
+    # boxes in the RSU frame: the RSU's yaw is 0, so only a shift
+    assert np.allclose(frame.ego_boxes[1, :2], [12.0, -6.4])
+
+
+def test_car_behind_car_occluded_from_one_side_only(cross_map):
+    front, behind = car("front", 10.0, -1.6), car("behind", 20.0, -1.6)
+    west = occlusion_matrix((-5.0, -1.6), [front, behind])
+    east = occlusion_matrix((35.0, -1.6), [front, behind])
+    north = occlusion_matrix((15.0, 40.0), [front, behind])
+    assert west[0, 1] and not west[1, 0]
+    assert east[1, 0] and not east[0, 1]
+    assert not north.any()
+    scores = occlusion_scores([rsu("r", -5.0, -1.6)], [front, behind])
+    assert scores == {"front": 1, "behind": 1}
+
+
+def test_bad_lidar_specs():
+    with pytest.raises(InputError, match="channels"):
+        LidarSpec(channels=0).validate()
+    with pytest.raises(InputError, match="range_m"):
+        LidarSpec(range_m=-1.0).validate()
+    with pytest.raises(InputError, match="unknown lidar preset"):
+        load_lidar_spec("nope")
+    assert load_lidar_spec("v2xp").rays_per_sweep == 32 * 390
+    assert load_lidar_spec("dense64").channels == 64
+
+
+def test_empty_scene_is_refused(cross_map):
+    scene = make_scene(cross_map, [rsu("r", 8.0, 8.0)])
+    with pytest.raises(InputError, match="empty scene"):
+        simulate_frame(scene, SMALL)
