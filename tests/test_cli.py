@@ -119,15 +119,16 @@ def test_simulate_and_extract_end_to_end(capsys, tmp_path):
     assert len(list((tmp_path / "scenes").glob("*.yaml"))) == 5
 
 
-def _one_scene(tmp_path) -> Path:
+def _one_scene(tmp_path, capsys) -> Path:
     log = tmp_path / "log"
     assert main(["simulate", "--town", "fiveleg", "--duration", "2", "--warmup", "30", "--out", str(log)]) == 0
     assert main(["scenes", "extract", str(log), "--every", "4", "--out", str(tmp_path / "scenes")]) == 0
+    capsys.readouterr()
     return sorted((tmp_path / "scenes").glob("*.yaml"))[0]
 
 
 def test_render_writes_picture_and_clouds(capsys, tmp_path):
-    scene = _one_scene(tmp_path)
+    scene = _one_scene(tmp_path, capsys)
     out = tmp_path / "frame.png"
     assert main(["render", str(scene), "--out", str(out), "--pcd-dir", str(tmp_path / "pcd")]) == 0
     assert out.read_bytes()[:4] == b"\x89PNG"
@@ -137,7 +138,7 @@ def test_render_writes_picture_and_clouds(capsys, tmp_path):
 def test_render_bad_inputs(capsys, tmp_path):
     import yaml
 
-    scene = _one_scene(tmp_path)
+    scene = _one_scene(tmp_path, capsys)
     data = yaml.safe_load(scene.read_text())
     # a scene missing a key
     broken = tmp_path / "broken.yaml"
