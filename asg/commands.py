@@ -92,13 +92,10 @@ def scenes_extract(args: argparse.Namespace) -> int:
     return 0
 
 
-def demo(args: argparse.Namespace) -> int:
-    log_dir = Path(args.out) / "log"
-    ns = argparse.Namespace(source="sumo", town=args.town, net=None, env=None, seed=args.seed, duration=30.0,
-                            density="dense", step=0.1, record_period=0.5, warmup=None, out=log_dir)
-    simulate(ns)
-    return scenes_extract(argparse.Namespace(log=log_dir, every=10, ego="rsu", radius=120.0, min_vehicles=1,
-                                             out=Path(args.out) / "scenes"))
+def generate(args: argparse.Namespace) -> int:
+    from .generate_cmd import run_generate
+
+    return run_generate(args)
 
 
 def _print_result(title: str, result: dict, as_json: bool) -> None:
@@ -156,4 +153,65 @@ def render(args: argparse.Namespace) -> int:
     console.print(f"wrote {args.out}: agents {', '.join(frame.sensing_ids)}; "
                   f"{sum(len(c) for c in frame.clouds.values())} points; {len(in_range)} vehicles in range, "
                   f"{mean_pts:.1f} points per box on average")
+    return 0
+
+
+def dataset_build(args: argparse.Namespace) -> int:
+    from .datasets import build_dataset, load_spec
+
+    spec = load_spec(args.name)
+    with progress_bar() as bar:
+        task = bar.add_task(f"building {args.name}", total=len(spec.towns) * len(spec.densities) * len(spec.seeds))
+        out = build_dataset(args.name, lambda done, total: bar.update(task, completed=done))
+    console.print(f"wrote {out}")
+    return 0
+
+
+def train(args: argparse.Namespace) -> int:
+    from .perception.train import train as run
+
+    if args.steps is not None and args.steps < 1:
+        raise InputError("--steps must be at least 1")
+    with progress_bar() as bar:
+        task = bar.add_task(f"training {args.fusion}", total=None)
+
+        def report(step: int, total: int, loss: float) -> None:
+            bar.update(task, completed=step, total=total, description=f"training {args.fusion} loss {loss:.3f}")
+
+        out = run(args.fusion, steps=args.steps, progress=report, threads=args.threads, log=console.print)
+    console.print(f"weights: {out}")
+    return 0
+
+
+def evaluate(args: argparse.Namespace) -> int:
+    from .perception.evaluate import evaluate as run
+    from .registry import names
+    from . import perception  # noqa: F401  (fill the registry)
+
+    if args.fusion not in names("fusion"):
+        raise InputError(f"unknown fusion '{args.fusion}'; known: {', '.join(names('fusion'))}")
+    with progress_bar() as bar:
+        task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
+        result = run(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n))
+    if args.json:
+        print(json.dumps({"ap": result["ap"], "frames": result["frames"]}))
+    else:
+        _print_result(f"asg evaluate --fusion {args.fusion} --set {args.set}",
+                      {**{f"AP@{k}": round(v, 4) for k, v in result["ap"].items()}, "frames": result["frames"]}, False)
+    return 0
+
+
+def bench_detect(args: argparse.Namespace) -> int:
+    from .benchmarks.detect import bench_detect as run
+
+    _print_result("asg bench detect", run(frames=args.frames), args.json)
+    return 0
+
+
+def bench_generate(args: argparse.Namespace) -> int:
+    from .benchmarks.generate import bench_generate as run
+
+    if args.scenes < 1 or args.budget < 1:
+        raise InputError("--scenes and --budget must be at least 1")
+    _print_result("asg bench generate", run(scenes=args.scenes, budget=args.budget), args.json)
     return 0

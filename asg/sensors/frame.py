@@ -29,6 +29,8 @@ class CooperativeFrame:
     clouds: dict[str, np.ndarray]
     gt_ids: tuple[str, ...]
     gt_boxes_world: np.ndarray
+    #: the ego's own box if the ego is a vehicle (collaborators should detect it), else None
+    ego_box_world: np.ndarray | None = None
 
     def boxes_in(self, agent_id: str) -> np.ndarray:
         """Ground-truth boxes (M, 7) in ``agent_id``'s sensor frame."""
@@ -110,7 +112,9 @@ def render_frame(world: World, sensing_ids: Sequence[str] | None = None, moved: 
         raise InputError(f"scene {scene.scene_id}: no sensing agent")
     clouds = world.render_many(ids, moved, seed)
     gt_ids, gt = ground_truth(scene, moved)
-    return CooperativeFrame(scene.scene_id, scene.ego_id, ids, {a: world.sensor_pose(a) for a in ids}, clouds, gt_ids, gt)
+    ego_box = scene.ego.box7() if scene.ego.is_vehicle else None
+    return CooperativeFrame(scene.scene_id, scene.ego_id, ids, {a: world.sensor_pose(a) for a in ids}, clouds, gt_ids, gt,
+                            ego_box)
 
 
 def simulate_frame(scene: Scene, spec: LidarSpec, seed: int = 0) -> CooperativeFrame:

@@ -111,10 +111,30 @@ def pose_matrix(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> np.ndarra
 
 
 def building_mesh(b: Building) -> trimesh.Trimesh:
-    """The footprint extruded from the ground to ``height_m``."""
-    from shapely.geometry import Polygon
+    """The footprint extruded from the ground to ``height_m`` (convex footprints triangulated
+    directly as fans; others through trimesh's polygon extrusion)."""
+    xy = np.asarray(b.footprint_xy, dtype=float)
+    if not _is_convex(xy):
+        from shapely.geometry import Polygon
 
-    return trimesh.creation.extrude_polygon(Polygon(b.footprint_xy), b.height_m)
+        return trimesh.creation.extrude_polygon(Polygon(xy), b.height_m)
+    (ax, ay), (bx, by) = xy[1] - xy[0], xy[2] - xy[1]
+    if ax * by - ay * bx < 0:
+        xy = xy[::-1]
+    k = len(xy)
+    verts = np.vstack([np.c_[xy, np.zeros(k)], np.c_[xy, np.full(k, b.height_m)]])
+    fan = [[0, i + 1, i] for i in range(1, k - 1)] + [[k, k + i, k + i + 1] for i in range(1, k - 1)]
+    sides = []
+    for i in range(k):
+        j = (i + 1) % k
+        sides += [[i, j, k + j], [i, k + j, k + i]]
+    return trimesh.Trimesh(vertices=verts, faces=np.array(fan + sides), process=False)
+
+
+def _is_convex(xy: np.ndarray) -> bool:
+    d = np.roll(xy, -1, axis=0) - xy
+    cross = d[:, 0] * np.roll(d[:, 1], -1) - d[:, 1] * np.roll(d[:, 0], -1)
+    return bool(np.all(cross >= -1e-9) or np.all(cross <= 1e-9))
 
 
 def ground_mesh(center_xy: tuple[float, float], half_size_m: float) -> trimesh.Trimesh:

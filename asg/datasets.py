@@ -1,0 +1,157 @@
+"""Data sets of scenes rendered from SUMO logs: ``asg dataset build NAME`` (configs/datasets.yaml).
+
+On disk (``runs/datasets/NAME/`` unless ``ASG_DATA`` says otherwise)::
+
+    frames.jsonl.gz   one scene dict per line (asg.scene.Scene.to_dict), collaborators set
+    index.json        {"name", "frames", "splits": {"train": [scene ids], "val": [...]}, "logs"}
+
+LiDAR is not stored: it is re-rendered deterministically from the scenes when needed (a frame
+renders in tens of milliseconds), which keeps a set at a few MB.
+"""
+from __future__ import annotations
+
+import gzip
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from sumo_scenarios.atomic import atomic_dir
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import configs_dir, project_root
+from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
+from sumo_scenarios.strict import from_mapping, read_yaml
+
+from .scene import Scene
+from .scene.from_log import ExtractParams, extract_scenes
+from .scene.neighbours import vehicles_within
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    towns: tuple[str, ...]
+    densities: tuple[str, ...] = ("normal",)
+    seeds: tuple[int, ...] = (1,)
+    duration_s: float = 60.0
+    every: int = 10
+    ego_rsu_share: float = 0.5
+    collaborators: int = 2
+    frames_per_log: int | None = None
+    total: int | None = None
+    val: int | None = None
+
+
+def data_root() -> Path:
+    return Path(os.environ.get("ASG_DATA", project_root() / "runs" / "datasets"))
+
+
+def load_spec(name: str) -> DatasetSpec:
+    data = read_yaml(configs_dir() / "datasets.yaml")
+    if name not in data:
+        raise InputError(f"unknown data set '{name}'; known: {', '.join(sorted(data))}")
+    return from_mapping(DatasetSpec, data[name], f"datasets.yaml:{name}")
+
+
+def _choose_agents(scene: Scene, rng: np.random.Generator, use_rsu: bool, collaborators: int) -> Scene | None:
+    """Pick the ego (the scene's RSU, or a random vehicle near it) and random collaborators."""
+    ego = scene.ego_id
+    if not use_rsu:
+        near = vehicles_within(scene, scene.ego_id, 48.0)
+        if not near:
+            return None
+        ego = near[int(rng.integers(len(near)))].agent_id
+    cands = [a.agent_id for a in _within(scene, ego)]
+    if not cands:
+        return None
+    pick = rng.choice(len(cands), size=min(collaborators, len(cands)), replace=False)
+    from dataclasses import replace
+
+    return replace(scene, ego_id=ego, collaborators=tuple(cands[i] for i in sorted(pick)))
+
+
+def _within(scene: Scene, ego_id: str, range_m: float = 70.0):
+    e = scene.agent(ego_id)
+    return sorted((a for a in scene.vehicles if a.agent_id != ego_id and math.hypot(a.x_m - e.x_m, a.y_m - e.y_m) <= range_m),
+                  key=lambda a: a.agent_id)
+
+
+def _log_frames(spec: DatasetSpec, town: str, density: str, seed: int, workdir: Path) -> list[Scene]:
+    log = workdir / f"{town}_{density}_{seed}"
+    simulate_sumo(SimulationRequest(out_dir=log, town=town, seed=seed, duration_s=spec.duration_s, density=density))
+    rng = np.random.default_rng([seed, len(town), sum(map(ord, town + density))])
+    out = []
+    for scene in extract_scenes(log, ExtractParams(every=spec.every, min_vehicles=3)):
+        chosen = _choose_agents(scene, rng, bool(rng.random() < spec.ego_rsu_share), spec.collaborators)
+        if chosen is not None:
+            out.append(chosen)
+        if spec.frames_per_log and len(out) >= spec.frames_per_log:
+            break
+    return out
+
+
+def build_dataset(name: str, progress: Callable[[int, int], None] | None = None) -> Path:
+    """Simulate the logs of data set ``name`` and write its frames; returns the folder."""
+    spec = load_spec(name)
+    runs = [(t, d, s) for t in spec.towns for d in spec.densities for s in spec.seeds]
+    logs: list[tuple[str, list[Scene]]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, (town, density, seed) in enumerate(runs):
+            logs.append((f"{town}_{density}_{seed}", _log_frames(spec, town, density, seed, Path(tmp))))
+            if progress:
+                progress(i + 1, len(runs))
+    splits = _split(spec, logs)
+    out = data_root() / name
+    with atomic_dir(out) as work:
+        with gzip.open(work / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
+            for _, scenes in logs:
+                for s in scenes:
+                    if any(s.scene_id in ids for ids in splits.values()):
+                        fh.write(json.dumps(s.to_dict(), separators=(",", ":")) + "\n")
+        index = {"name": name, "frames": sum(len(v) for v in splits.values()), "splits": splits,
+                 "logs": {k: [s.scene_id for s in v] for k, v in logs}}
+        (work / "index.json").write_text(json.dumps(index, indent=1))
+    return out
+
+
+def _split(spec: DatasetSpec, logs: list[tuple[str, list[Scene]]]) -> dict[str, list[str]]:
+    """All frames in 'train', or, with ``total``/``val``: whole logs to val first, trimmed to size."""
+    if spec.total is None:
+        return {"train": [s.scene_id for _, scenes in logs for s in scenes]}
+    val, train = [], []
+    for _, scenes in logs:
+        ids = [s.scene_id for s in scenes]
+        if len(val) < (spec.val or 0):
+            val += ids[: (spec.val or 0) - len(val)]
+        elif len(train) < spec.total - (spec.val or 0):
+            train += ids[: spec.total - (spec.val or 0) - len(train)]
+    if len(train) + len(val) < spec.total:
+        raise InputError(f"data set needs {spec.total} frames but the logs gave {len(train) + len(val)}; add seeds")
+    return {"train": train, "val": val}
+
+
+def dataset_path(name: str) -> Path:
+    return data_root() / name
+
+
+def iter_frames(name_or_dir: str | Path, split: str | None = None) -> Iterator[Scene]:
+    """Scenes of a built data set (a name under the data root, or a folder), optionally one split."""
+    p = Path(name_or_dir)
+    folder = p if (p / "index.json").is_file() else dataset_path(str(name_or_dir))
+    if not (folder / "index.json").is_file():
+        raise InputError(f"data set '{name_or_dir}' is not built; run 'asg dataset build {name_or_dir}'")
+    index = json.loads((folder / "index.json").read_text())
+    wanted = None
+    if split is not None:
+        if split not in index["splits"]:
+            raise InputError(f"data set '{name_or_dir}' has no split '{split}'; splits: {', '.join(index['splits'])}")
+        wanted = set(index["splits"][split])
+    with gzip.open(folder / "frames.jsonl.gz", "rt", encoding="utf-8") as fh:
+        for line in fh:
+            d = json.loads(line)
+            if wanted is None or d["scene_id"] in wanted:
+                yield Scene.from_dict(d, str(folder))

@@ -1,0 +1,119 @@
+"""The run folder of ``asg generate`` and its summary.json (schema: docs/generate.md).
+
+    OUT/summary.json                         scenes + aggregate (rewritten after every scene)
+    OUT/scenes/SCENE_ID/initial.yaml         the normal scene (its collaborators set)
+    OUT/scenes/SCENE_ID/after_acs.yaml       after the collaborator search
+    OUT/scenes/SCENE_ID/final.yaml           after the perturbation search
+    OUT/scenes/SCENE_ID/history.csv          step, dx/dy/dyaw per perturbed vehicle, loss, AP@0.3/0.5/0.7
+    OUT/scenes/SCENE_ID/clouds/AGENT.pcd     final per-agent clouds (sensor frame), also .npy
+    OUT/scenes/SCENE_ID/{initial,after_acs,final}.png   bird's-eye pictures (perturbed vehicles circled)
+    OUT/scenes/SCENE_ID/result.json          this scene's summary entry: written last, marks it done
+
+A scene folder is written under a temporary name and renamed when complete, so a run stopped
+midway resumes from the first scene without a result.json.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from sumo_scenarios.atomic import atomic_dir, atomic_path, write_text_atomic
+
+from ..pipeline import SceneResult
+from ..scene import save_scene
+from .figures import bev_figure
+from .pcd import write_pcd
+
+
+def scene_entry(r: SceneResult) -> dict:
+    return {
+        "scene_id": r.scene_id,
+        "ap_normal": r.ap_normal, "ap_after_acs": r.ap_after_acs, "ap_final": r.ap_final,
+        "loss_normal": round(r.loss_normal, 6), "loss_final": round(r.loss_final, 6),
+        "evaluations": r.evaluations, "seconds": round(r.seconds, 3),
+        "collaborators": {"initial": list(r.initial.collaborators), "final": list(r.after_acs.collaborators)},
+        "perturbed": list(r.perturbed), "delta": r.delta,
+        "plausibility": r.plausibility.to_dict(), "notes": r.notes,
+    }
+
+
+def write_scene(out_dir: Path, r: SceneResult, m_ids: list[str]) -> dict:
+    entry = scene_entry(r)
+    with atomic_dir(out_dir / "scenes" / r.scene_id) as work:
+        save_scene(r.initial, work / "initial.yaml")
+        save_scene(r.after_acs, work / "after_acs.yaml")
+        save_scene(r.final, work / "final.yaml")
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        cols = [f"{v}_{k}" for v in m_ids for k in ("dx_m", "dy_m", "dyaw_deg")]
+        w.writerow(["step", *cols, "loss", "ap_0.3", "ap_0.5", "ap_0.7"])
+        scale = np.tile([2.5, 2.5, 45.0], len(m_ids))
+        for e in r.history:
+            w.writerow([e.step, *[round(float(v), 4) for v in e.x * scale], round(e.loss, 6),
+                        *[round(e.ap.get(k, 0.0), 6) for k in ("0.3", "0.5", "0.7")]])
+        (work / "history.csv").write_text(buf.getvalue())
+        frame = r.frames["final"]
+        for aid, cloud in frame.clouds.items():
+            write_pcd(work / "clouds" / f"{aid}.pcd", cloud)
+            with atomic_path(work / "clouds" / f"{aid}.npy") as tmp:
+                np.save(tmp, cloud)
+        for key, scene in (("initial", r.initial), ("after_acs", r.after_acs), ("final", r.final)):
+            ap = {"initial": r.ap_normal, "after_acs": r.ap_after_acs, "final": r.ap_final}[key]
+            bev_figure(scene, r.frames[key], work / f"{key}.png",
+                       title=f"{r.scene_id} {key}: AP@0.7 {ap.get('0.7', 0):.2f}",
+                       marked_ids=r.perturbed if key == "final" else ())
+        arrays = {f"{k}_{n}": a for k, det in r.detections.items() for n, a in zip(("boxes", "scores", "gt"), det)}
+        np.savez_compressed(work / "detections.npz", **arrays)
+        (work / "result.json").write_text(json.dumps(entry, indent=1))
+    return entry
+
+
+def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:
+    with np.load(out_dir / "scenes" / scene_id / "detections.npz") as z:
+        return {k: (z[f"{k}_boxes"], z[f"{k}_scores"], z[f"{k}_gt"]) for k in ("initial", "final") if f"{k}_boxes" in z}
+
+
+def load_done(out_dir: Path) -> dict[str, dict]:
+    done = {}
+    for p in sorted((out_dir / "scenes").glob("*/result.json")):
+        done[p.parent.name] = json.loads(p.read_text())
+    return done
+
+
+def pooled_ap(out_dir: Path, entries: list[dict], key: str) -> dict[str, float]:
+    """AP over the detections of all scenes together (one global ranking), as the paper's tables."""
+    from ..objective import ap_at
+
+    frames = [load_detections(out_dir, e["scene_id"])[key] for e in entries]
+    return {k: round(v, 6) for k, v in ap_at(frames).items()} if frames else {"0.3": 0.0, "0.5": 0.0, "0.7": 0.0}
+
+
+def mean_ap(entries: list[dict], key: str) -> dict[str, float]:
+    if not entries:
+        return {"0.3": 0.0, "0.5": 0.0, "0.7": 0.0}
+    return {t: round(float(np.mean([e[key][t] for e in entries])), 6) for t in ("0.3", "0.5", "0.7")}
+
+
+def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: float) -> dict:
+    seconds = [e["seconds"] for e in entries]
+    summary = {
+        "config": config,
+        "scenes": entries,
+        "aggregate": {
+            "scenes": len(entries),
+            "ap_normal": pooled_ap(out_dir, entries, "initial"),
+            "ap_challenging": pooled_ap(out_dir, entries, "final"),
+            "mean_scene_ap_normal": mean_ap(entries, "ap_normal"),
+            "mean_scene_ap_after_acs": mean_ap(entries, "ap_after_acs"),
+            "mean_scene_ap_challenging": mean_ap(entries, "ap_final"),
+            "seconds_per_scene_median": round(float(np.median(seconds)), 3) if seconds else None,
+            "scenes_per_hour": round(3600.0 * len(entries) / sum(seconds), 1) if seconds and sum(seconds) > 0 else None,
+            "wall_s": round(wall_s, 1),
+        },
+    }
+    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=1))
+    return summary

@@ -1,0 +1,80 @@
+"""Average precision as the cooperative-perception framework computes it, with its defect fixed.
+
+Per frame, detections are matched greedily in score order to the unmatched ground-truth box of
+highest rotated BEV IoU (a true positive if IoU >= threshold). Then detections of *all* frames are
+sorted by score together (the framework forgot this global sort), and AP is the VOC all-point
+interpolated area under the precision envelope.
+"""
+from __future__ import annotations
+
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from .iou import bev_iou_matrix
+
+Frame = tuple[np.ndarray, np.ndarray, np.ndarray]  # pred_boxes (N, 7), pred_scores (N,), gt_boxes (M, 7)
+
+
+def match_frame(pred_boxes: np.ndarray, pred_scores: np.ndarray, gt_boxes: np.ndarray,
+                iou_threshold: float) -> np.ndarray:
+    """(N,) bool: which detections are true positives, greedy in descending score."""
+    pred_boxes = np.asarray(pred_boxes, dtype=float).reshape(-1, 7)
+    gt_boxes = np.asarray(gt_boxes, dtype=float).reshape(-1, 7)
+    tp = np.zeros(len(pred_boxes), dtype=bool)
+    if not len(pred_boxes) or not len(gt_boxes):
+        return tp
+    iou = bev_iou_matrix(pred_boxes, gt_boxes)
+    taken = np.zeros(len(gt_boxes), dtype=bool)
+    for i in np.argsort(-np.asarray(pred_scores), kind="stable"):
+        cand = np.where(taken, -1.0, iou[i])
+        j = int(np.argmax(cand))
+        if cand[j] >= iou_threshold:
+            tp[i] = True
+            taken[j] = True
+    return tp
+
+
+def voc_ap(recall: np.ndarray, precision: np.ndarray) -> float:
+    """VOC all-point interpolation: area under the monotone precision envelope."""
+    mrec = np.concatenate([[0.0], recall, [1.0]])
+    mpre = np.concatenate([[0.0], precision, [0.0]])
+    for i in range(len(mpre) - 2, -1, -1):
+        mpre[i] = max(mpre[i], mpre[i + 1])
+    idx = np.nonzero(mrec[1:] != mrec[:-1])[0]
+    return float(np.sum((mrec[idx + 1] - mrec[idx]) * mpre[idx + 1]))
+
+
+def average_precision(frames: Iterable[Frame], iou_threshold: float) -> float:
+    """AP in [0, 1] over frames of ``(pred_boxes (N, 7), pred_scores (N,), gt_boxes (M, 7))``.
+
+    Boxes are x, y, z, l, w, h, yaw in metres and radians, in one frame per scene. With no ground
+    truth at all, AP is 0.0 (there is nothing to recall).
+    """
+    scores, tps = [], []
+    n_gt = 0
+    for pred_boxes, pred_scores, gt_boxes in frames:
+        gt = np.asarray(gt_boxes, dtype=float).reshape(-1, 7)
+        n_gt += len(gt)
+        s = np.asarray(pred_scores, dtype=float).reshape(-1)
+        scores.append(s)
+        tps.append(match_frame(pred_boxes, s, gt, iou_threshold))
+    if n_gt == 0:
+        return 0.0
+    if not scores or not sum(len(s) for s in scores):
+        return 0.0
+    s = np.concatenate(scores)
+    tp = np.concatenate(tps)
+    order = np.argsort(-s, kind="stable")  # global sort across frames
+    tp = tp[order]
+    ctp = np.cumsum(tp)
+    cfp = np.cumsum(~tp)
+    recall = ctp / n_gt
+    precision = ctp / np.maximum(ctp + cfp, 1)
+    return voc_ap(recall, precision)
+
+
+def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = (0.3, 0.5, 0.7)) -> dict[str, float]:
+    """{"0.3": AP, "0.5": AP, "0.7": AP} over the same frames."""
+    frames = list(frames)
+    return {f"{t:g}": average_precision(frames, t) for t in thresholds}

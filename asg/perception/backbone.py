@@ -1,0 +1,42 @@
+"""The 2D backbone: three strided stages, each upsampled to half the pillar resolution and concatenated."""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .config import DetectorConfig
+
+
+def _conv(cin: int, cout: int, stride: int = 1) -> list[nn.Module]:
+    return [nn.Conv2d(cin, cout, 3, stride=stride, padding=1, bias=False), nn.BatchNorm2d(cout, eps=1e-3, momentum=0.01), nn.ReLU()]
+
+
+class Backbone(nn.Module):
+    """(B, pfn, n, n) → (B, 3 * upsample_channels, n/2, n/2)."""
+
+    def __init__(self, cfg: DetectorConfig):
+        super().__init__()
+        cin = cfg.pfn_channels
+        self.stages = nn.ModuleList()
+        self.ups = nn.ModuleList()
+        for k, (layers, cout) in enumerate(zip(cfg.layers, cfg.filters)):
+            mods = _conv(cin, cout, stride=2)
+            for _ in range(layers):
+                mods += _conv(cout, cout)
+            self.stages.append(nn.Sequential(*mods))
+            up = 2 ** k
+            if up == 1:
+                self.ups.append(nn.Sequential(nn.Conv2d(cout, cfg.upsample_channels, 1, bias=False),
+                                              nn.BatchNorm2d(cfg.upsample_channels, eps=1e-3, momentum=0.01), nn.ReLU()))
+            else:
+                self.ups.append(nn.Sequential(nn.ConvTranspose2d(cout, cfg.upsample_channels, up, stride=up, bias=False),
+                                              nn.BatchNorm2d(cfg.upsample_channels, eps=1e-3, momentum=0.01), nn.ReLU()))
+            cin = cout
+        self.out_channels = 3 * cfg.upsample_channels
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        outs = []
+        for stage, up in zip(self.stages, self.ups):
+            x = stage(x)
+            outs.append(up(x))
+        return torch.cat(outs, dim=1)

@@ -1,0 +1,47 @@
+"""Detector configuration (frozen, strict) and the BEV grid it implies."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from sumo_scenarios.paths import configs_dir
+from sumo_scenarios.strict import load_dataclass
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """PointPillars settings. Frames: the detecting agent's sensor frame (x forward, metres)."""
+
+    range_m: float = 48.0
+    z_range_m: tuple[float, float] = (-5.0, 1.5)
+    pillar_m: float = 0.5
+    pfn_channels: int = 64
+    layers: tuple[int, int, int] = (1, 2, 2)
+    filters: tuple[int, int, int] = (32, 64, 128)
+    upsample_channels: int = 48
+    anchors: tuple[tuple[float, float, float], ...] = ((4.6, 1.9, 1.6), (10.0, 2.5, 3.3))
+    anchor_z_m: float = -1.0
+    anchor_rotations_deg: tuple[float, ...] = (0.0, 90.0)
+    pos_iou: float = 0.6
+    neg_iou: float = 0.45
+    score_threshold: float = 0.2
+    nms_iou: float = 0.15
+    max_detections: int = 100
+
+    @property
+    def grid_size(self) -> int:
+        """Pillars along x and along y."""
+        return int(round(2 * self.range_m / self.pillar_m))
+
+    @property
+    def head_size(self) -> int:
+        """Cells of the detection head along x and y (half the pillar grid)."""
+        return self.grid_size // 2
+
+    @property
+    def anchors_per_cell(self) -> int:
+        return len(self.anchors) * len(self.anchor_rotations_deg)
+
+
+def load_detector_config(path: str | Path | None = None) -> DetectorConfig:
+    return load_dataclass(DetectorConfig, path or configs_dir() / "detectors" / "pointpillars.yaml")

@@ -1,0 +1,101 @@
+"""Detection samples: a scene's cooperative frame, with boxes and clouds in the frames each model
+needs, and the augmentation used in training.
+
+All boxes (M, 7) x, y, z, l, w, h, yaw; clouds (N, 4) float32; frames as named.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..scene import Scene
+from ..sensors import LidarSpec, simulate_frame
+from ..sensors.frame import CooperativeFrame, boxes_to_sensor, count_points_in_boxes, transform_points
+
+#: evaluation range: |x|, |y| <= this many metres in the ego frame (ground truth and detections)
+EVAL_RANGE_M = 48.0
+
+
+def in_range(boxes: np.ndarray, range_m: float = EVAL_RANGE_M) -> np.ndarray:
+    return (np.abs(boxes[:, 0]) <= range_m) & (np.abs(boxes[:, 1]) <= range_m) if len(boxes) else np.zeros(0, bool)
+
+
+@dataclass
+class Sample:
+    """One frame for the detectors. ``clouds`` are in each agent's own sensor frame, ego first."""
+
+    scene_id: str
+    frame: CooperativeFrame
+
+    @property
+    def agents(self) -> tuple[str, ...]:
+        return self.frame.sensing_ids
+
+    def clouds_in_ego(self) -> list[np.ndarray]:
+        f = self.frame
+        return [f.clouds[a] if a == f.ego_id else f.cloud_in(a, f.ego_id) for a in f.sensing_ids]
+
+    def gt_eval(self) -> np.ndarray:
+        """Every vehicle (but the ego) within the evaluation range, ego frame: what AP counts."""
+        b = self.frame.ego_boxes
+        return b[in_range(b)]
+
+    def gt_visible_ego(self, min_points: int = 1) -> np.ndarray:
+        """Vehicles in range with at least ``min_points`` fused points: the fusion models' labels."""
+        b = self.frame.ego_boxes
+        fused = self.frame.points_in_boxes()["fused"]
+        return b[in_range(b) & (fused >= min_points)]
+
+    def own_views(self, min_points: int = 1) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(cloud, boxes) per agent in its own frame, boxes in range with ``min_points`` of its points."""
+        f = self.frame
+        out = []
+        for a in f.sensing_ids:
+            b = f.boxes_in(a)
+            if f.sensing_ids and a != f.ego_id:
+                b = np.vstack([b, _ego_box_in(f, a)])  # a collaborator sees the ego vehicle too
+            n = count_points_in_boxes(f.clouds[a], b)
+            out.append((f.clouds[a], b[in_range(b) & (n >= min_points)]))
+        return out
+
+
+def _ego_box_in(frame: CooperativeFrame, agent_id: str) -> np.ndarray:
+    box = frame.ego_box_world
+    if box is None:
+        return np.zeros((0, 7))
+    return boxes_to_sensor(box[None], frame.poses[agent_id])
+
+
+def make_sample(scene: Scene, spec: LidarSpec) -> Sample:
+    return Sample(scene.scene_id, simulate_frame(scene, spec))
+
+
+def augment(clouds: list[np.ndarray], boxes: np.ndarray, rng: np.random.Generator) -> tuple[list[np.ndarray], np.ndarray]:
+    """Random flip across x, rotation in [-45, 45] deg and scale in [0.95, 1.05], the same for all clouds."""
+    flip = rng.random() < 0.5
+    angle = rng.uniform(-math.pi / 4, math.pi / 4)
+    scale = rng.uniform(0.95, 1.05)
+    c, s = math.cos(angle), math.sin(angle)
+    rot = np.array([[c, -s], [s, c]])
+
+    def tf_xy(xy: np.ndarray) -> np.ndarray:
+        if flip:
+            xy = xy * np.array([1.0, -1.0])
+        return (xy @ rot.T) * scale
+
+    out_clouds = []
+    for p in clouds:
+        q = p.copy()
+        q[:, :2] = tf_xy(p[:, :2].astype(np.float64))
+        q[:, 2] = p[:, 2] * scale
+        out_clouds.append(q.astype(np.float32))
+    b = boxes.copy()
+    if len(b):
+        b[:, :2] = tf_xy(boxes[:, :2])
+        b[:, 2] *= scale
+        b[:, 3:6] *= scale
+        yaw = -boxes[:, 6] if flip else boxes[:, 6]
+        b[:, 6] = np.angle(np.exp(1j * (yaw + angle)))
+    return out_clouds, b

@@ -1,0 +1,51 @@
+"""AttFuse: per-agent BEV features (each agent's points in the ego frame) fused per cell by
+scaled dot-product attention across agents; the ego row is kept. Exposes that attention."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ...registry import register
+from ...sensors.frame import CooperativeFrame
+from ..model import AttFuse, postprocess
+from .base import Detections, V2XDetector
+
+
+@register("fusion", "attfuse")
+class AttFuseDetector(V2XDetector):
+    weights = "attfuse"
+
+    def build_model(self) -> torch.nn.Module:
+        return AttFuse(self.cfg)
+
+    def _clouds(self, frame: CooperativeFrame) -> list[torch.Tensor]:
+        return [torch.from_numpy(frame.clouds[a] if a == frame.ego_id else frame.cloud_in(a, frame.ego_id))
+                for a in frame.sensing_ids]
+
+    @torch.no_grad()
+    def detect(self, frame: CooperativeFrame) -> Detections:
+        cls, box, d = self.model([self._clouds(frame)])
+        boxes, scores = postprocess(cls, box, d, self.model.anchors, self.cfg)[0]
+        return self._clip(boxes, scores)
+
+    @torch.no_grad()
+    def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float]:
+        """s_j: the ego row's attention toward agent j averaged over BEV cells (``all`` cells, or
+        ``vehicles``: cells under ground-truth vehicles in range, as the paper's code does)."""
+        self.model([self._clouds(frame)])
+        att = self.model.last_attention[0].numpy()  # (N, H, W): row = y, column = x
+        if cells == "vehicles":
+            mask = self._vehicle_cells(frame, att.shape[1])
+            if mask.any():
+                return {a: float(att[j][mask].mean()) for j, a in enumerate(frame.sensing_ids)}
+        return {a: float(att[j].mean()) for j, a in enumerate(frame.sensing_ids)}
+
+    def _vehicle_cells(self, frame: CooperativeFrame, n: int) -> np.ndarray:
+        mask = np.zeros((n, n), dtype=bool)
+        step = 2 * self.cfg.range_m / n
+        for b in frame.ego_boxes:
+            ix = int((b[0] + self.cfg.range_m) // step)
+            iy = int((b[1] + self.cfg.range_m) // step)
+            if 0 <= ix < n and 0 <= iy < n:
+                mask[iy, ix] = True
+        return mask

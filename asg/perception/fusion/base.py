@@ -1,0 +1,46 @@
+"""The V2X detector interface: a cooperative frame in, boxes in the ego frame out."""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+import torch
+
+from ...sensors.frame import CooperativeFrame
+from ..config import DetectorConfig, load_detector_config
+from ..data import in_range
+
+Detections = tuple[np.ndarray, np.ndarray]  # boxes (K, 7) in the ego sensor frame, scores (K,)
+
+
+class V2XDetector(ABC):
+    """A fusion method around trained weights. ``detect`` never trains and never mutates the frame."""
+
+    registry_name: str = ""
+    #: the shipped weights file under asg/perception/weights/
+    weights: str = ""
+
+    def __init__(self, cfg: DetectorConfig | None = None, weights_file: str | None = None, load: bool = True):
+        self.cfg = cfg or load_detector_config()
+        self.model = self.build_model()
+        if load:
+            from ..weights_io import load_state, weights_path
+
+            load_state(self.model, weights_file or weights_path(self.weights))
+        self.model.eval()
+
+    @abstractmethod
+    def build_model(self) -> torch.nn.Module: ...
+
+    @abstractmethod
+    def detect(self, frame: CooperativeFrame) -> Detections:
+        """Boxes (K, 7) and scores (K,) in the ego sensor frame, within the evaluation range."""
+
+    def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float] | None:
+        """Ego-row attention toward each agent, averaged over BEV cells; None for non-attention models."""
+        return None
+
+    @staticmethod
+    def _clip(boxes: np.ndarray, scores: np.ndarray) -> Detections:
+        keep = in_range(boxes)
+        return boxes[keep], scores[keep]

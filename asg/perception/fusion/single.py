@@ -1,0 +1,63 @@
+"""No Fusion and Late Fusion share one single-agent PointPillars ('single' weights)."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ...registry import register
+from ...sensors.frame import CooperativeFrame, boxes_to_sensor
+from ..boxes import rotated_nms
+from ..model import PointPillars, postprocess
+from .base import Detections, V2XDetector
+
+
+def _world_boxes(boxes: np.ndarray, pose) -> np.ndarray:
+    """Sensor-frame boxes → network frame (inverse of boxes_to_sensor)."""
+    c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
+    out = boxes.copy()
+    out[:, 0] = c * boxes[:, 0] - s * boxes[:, 1] + pose.x_m
+    out[:, 1] = s * boxes[:, 0] + c * boxes[:, 1] + pose.y_m
+    out[:, 2] = boxes[:, 2] + pose.z_m
+    out[:, 6] = boxes[:, 6] + pose.yaw_rad
+    return out
+
+
+class _Single(V2XDetector):
+    weights = "single"
+
+    def build_model(self) -> torch.nn.Module:
+        return PointPillars(self.cfg)
+
+    @torch.no_grad()
+    def detect_own(self, clouds: list[np.ndarray]) -> list[Detections]:
+        """Detections of each cloud in its own frame."""
+        cls, box, d = self.model([torch.from_numpy(c) for c in clouds])
+        return postprocess(cls, box, d, self.model.anchors, self.cfg)
+
+
+@register("fusion", "none")
+class NoFusion(_Single):
+    """The ego's own LiDAR only."""
+
+    def detect(self, frame: CooperativeFrame) -> Detections:
+        boxes, scores = self.detect_own([frame.clouds[frame.ego_id]])[0]
+        return self._clip(boxes, scores)
+
+
+@register("fusion", "late")
+class LateFusion(_Single):
+    """Each agent detects in its own frame; boxes are moved to the ego frame; one rotated NMS."""
+
+    def detect(self, frame: CooperativeFrame) -> Detections:
+        per_agent = self.detect_own([frame.clouds[a] for a in frame.sensing_ids])
+        ego_pose = frame.poses[frame.ego_id]
+        boxes, scores = [], []
+        for aid, (b, s) in zip(frame.sensing_ids, per_agent):
+            if len(b):
+                boxes.append(boxes_to_sensor(_world_boxes(b, frame.poses[aid]), ego_pose))
+                scores.append(s)
+        if not boxes:
+            return np.zeros((0, 7)), np.zeros(0)
+        b, s = np.vstack(boxes), np.concatenate(scores)
+        keep = rotated_nms(b, s, self.cfg.nms_iou, self.cfg.max_detections)
+        return self._clip(b[keep], s[keep])

@@ -1,0 +1,62 @@
+"""Anchor head and its losses: focal classification, smooth-L1 residuals with the sine yaw
+difference, and a direction classifier."""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from .config import DetectorConfig
+
+
+class AnchorHead(nn.Module):
+    """(B, C, H, W) → cls (B, H*W*A), box (B, H*W*A, 7), dir (B, H*W*A, 2) in anchor order."""
+
+    def __init__(self, cfg: DetectorConfig, channels: int):
+        super().__init__()
+        a = cfg.anchors_per_cell
+        self.a = a
+        self.cls = nn.Conv2d(channels, a, 1)
+        self.box = nn.Conv2d(channels, a * 7, 1)
+        self.dir = nn.Conv2d(channels, a * 2, 1)
+        nn.init.constant_(self.cls.bias, -math.log((1 - 0.01) / 0.01))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        b = x.shape[0]
+        cls = self.cls(x).permute(0, 2, 3, 1).reshape(b, -1)
+        box = self.box(x).permute(0, 2, 3, 1).reshape(b, -1, 7)
+        d = self.dir(x).permute(0, 2, 3, 1).reshape(b, -1, 2)
+        return cls, box, d
+
+
+def focal_loss(logits: torch.Tensor, labels: torch.Tensor, alpha: float = 0.25, gamma: float = 2.0) -> torch.Tensor:
+    """Sum of the sigmoid focal loss over anchors with label >= 0 (1 positive, 0 negative)."""
+    valid = labels >= 0
+    t = (labels == 1).float()
+    p = torch.sigmoid(logits)
+    ce = F.binary_cross_entropy_with_logits(logits, t, reduction="none")
+    pt = p * t + (1 - p) * (1 - t)
+    w = (alpha * t + (1 - alpha) * (1 - t)) * (1 - pt) ** gamma
+    return (w * ce * valid).sum()
+
+
+def detection_loss(cls: torch.Tensor, box: torch.Tensor, d: torch.Tensor, labels: torch.Tensor,
+                   targets: torch.Tensor, dirs: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Losses normalised by the number of positives: cls x1.0, box x2.0, direction x0.2."""
+    pos = labels == 1
+    n_pos = pos.sum().clamp(min=1).float()
+    l_cls = focal_loss(cls, labels) / n_pos
+    if pos.any():
+        p, t = box[pos], targets[pos]
+        # sine of the yaw difference: replace yaw by sin(p)cos(t) and cos(p)sin(t)
+        p_enc = torch.cat([p[:, :6], (torch.sin(p[:, 6]) * torch.cos(t[:, 6]))[:, None]], dim=1)
+        t_enc = torch.cat([t[:, :6], (torch.cos(p[:, 6]) * torch.sin(t[:, 6]))[:, None]], dim=1)
+        l_box = F.smooth_l1_loss(p_enc, t_enc, beta=1 / 9, reduction="sum") / n_pos
+        l_dir = F.cross_entropy(d[pos], dirs[pos], reduction="sum") / n_pos
+    else:
+        l_box = box.sum() * 0.0
+        l_dir = d.sum() * 0.0
+    total = l_cls + 2.0 * l_box + 0.2 * l_dir
+    return {"total": total, "cls": l_cls, "box": l_box, "dir": l_dir}

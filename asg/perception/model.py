@@ -1,0 +1,115 @@
+"""Detectors: a single-pass PointPillars (No / Late / Early fusion use it) and AttFuse.
+
+Inputs are clouds (N, 4) float32 in the frame the boxes come out in. ``predict`` returns numpy
+boxes (K, 7) and scores (K,) after score threshold and rotated NMS.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+from .backbone import Backbone
+from .boxes import DIR_OFFSET, decode, limit_period, make_anchors, rotated_nms
+from .config import DetectorConfig
+from .head import AnchorHead
+from .pillars import PillarEncoder
+
+
+class PointPillars(nn.Module):
+    """Pillars → backbone → anchor head, one cloud per sample."""
+
+    def __init__(self, cfg: DetectorConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.encoder = PillarEncoder(cfg)
+        self.backbone = Backbone(cfg)
+        self.head = AnchorHead(cfg, self.backbone.out_channels)
+        self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
+
+    def features(self, clouds: list[torch.Tensor]) -> torch.Tensor:
+        return self.backbone(self.encoder(clouds))
+
+    def forward(self, clouds: list[torch.Tensor]):
+        return self.head(self.features(clouds))
+
+
+class ScaledDotAttention(nn.Module):
+    """Per BEV cell, attention across agents: a = softmax(q k^T / sqrt(C)), out = a v (linear q/k/v)."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.q = nn.Linear(channels, channels)
+        self.k = nn.Linear(channels, channels)
+        self.v = nn.Linear(channels, channels)
+        self.scale = 1.0 / math.sqrt(channels)
+
+    def forward(self, feats: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """feats (B, N, C, H, W), mask (B, N) of present agents → fused ego features (B, C, H, W) and
+        the ego row of attention (B, N, H, W)."""
+        b, n, c, h, w = feats.shape
+        x = feats.permute(0, 3, 4, 1, 2).reshape(b * h * w, n, c)
+        q, k, v = self.q(x[:, :1]), self.k(x), self.v(x)
+        logits = (q @ k.transpose(1, 2)) * self.scale  # (BHW, 1, N)
+        m = mask[:, None, None, :].expand(b, h, w, n).reshape(b * h * w, 1, n)
+        logits = logits.masked_fill(~m, float("-inf"))
+        a = torch.softmax(logits, dim=-1)
+        out = (a @ v).reshape(b, h, w, c).permute(0, 3, 1, 2)
+        return out, a.reshape(b, h, w, n).permute(0, 3, 1, 2)
+
+
+class AttFuse(nn.Module):
+    """Each agent's cloud (already in the ego frame) → shared pillars + backbone → per-cell
+    attention across agents → the ego's fused features → anchor head."""
+
+    def __init__(self, cfg: DetectorConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.encoder = PillarEncoder(cfg)
+        self.backbone = Backbone(cfg)
+        self.fusion = ScaledDotAttention(self.backbone.out_channels)
+        self.head = AnchorHead(cfg, self.backbone.out_channels)
+        self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
+        self.last_attention: torch.Tensor | None = None
+
+    def forward(self, agent_clouds: list[list[torch.Tensor]]):
+        """``agent_clouds[b]`` lists sample b's clouds, ego first (at most 5 agents)."""
+        n = max(len(c) for c in agent_clouds)
+        flat, mask = [], torch.zeros(len(agent_clouds), n, dtype=torch.bool)
+        empty = torch.zeros(0, 4)
+        for b, clouds in enumerate(agent_clouds):
+            for j in range(n):
+                flat.append(clouds[j] if j < len(clouds) else empty)
+                mask[b, j] = j < len(clouds)
+        f = self.backbone(self.encoder(flat))
+        f = f.view(len(agent_clouds), n, *f.shape[1:])
+        fused, att = self.fusion(f, mask)
+        self.last_attention = att.detach()
+        return self.head(fused)
+
+
+@torch.no_grad()
+def postprocess(cls: torch.Tensor, box: torch.Tensor, d: torch.Tensor, anchors: torch.Tensor,
+                cfg: DetectorConfig, top_k: int = 300) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per sample: (boxes (K, 7), scores (K,)) above the score threshold, after rotated NMS."""
+    out = []
+    for b in range(cls.shape[0]):
+        scores = torch.sigmoid(cls[b])
+        keep = torch.nonzero(scores >= cfg.score_threshold).squeeze(1)
+        if len(keep) > top_k:
+            keep = keep[torch.topk(scores[keep], top_k).indices]
+        if not len(keep):
+            out.append((np.zeros((0, 7)), np.zeros(0)))
+            continue
+        boxes = decode(box[b, keep], anchors[keep])
+        dir_label = torch.argmax(d[b, keep], dim=-1).float()
+        rot = limit_period(boxes[:, 6] - DIR_OFFSET, 0.0, math.pi)
+        boxes[:, 6] = rot + DIR_OFFSET + math.pi * dir_label
+        bx = boxes.numpy().astype(np.float64)
+        bx[:, 6] = np.angle(np.exp(1j * bx[:, 6]))
+        sc = scores[keep].numpy().astype(np.float64)
+        k = rotated_nms(bx, sc, cfg.nms_iou, cfg.max_detections)
+        out.append((bx[k], sc[k]))
+    return out

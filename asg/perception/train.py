@@ -1,0 +1,174 @@
+"""``asg train --fusion NAME``: seeded, resumable CPU training of the shipped detectors.
+
+Weights: ``single`` (No and Late Fusion share it: one agent's cloud, its own labels), ``early``
+(the fused cloud in the ego frame), ``attfuse`` (each agent's cloud in the ego frame). Labels are
+the vehicles in range with at least one LiDAR point (in the agent's own cloud for ``single``, in
+the fused cloud otherwise). Checkpoints go to ``runs/train/NAME/last.pt`` (model, optimiser,
+step, generator state: all plain tensors and numbers, loaded with ``weights_only=True``); a
+rerun resumes from there. At the end the weights and a model card are written to
+asg/perception/weights/.
+"""
+from __future__ import annotations
+
+import json
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from sumo_scenarios.atomic import atomic_path, write_text_atomic
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import configs_dir, project_root
+from sumo_scenarios.strict import from_mapping, read_yaml
+
+from ..datasets import iter_frames
+from ..sensors import load_lidar_spec
+from .boxes import assign_targets
+from .config import load_detector_config
+from .data import Sample, augment, make_sample
+from .head import detection_loss
+from .model import AttFuse, PointPillars
+from .weights_io import WEIGHTS_DIR
+
+FUSION_TO_WEIGHTS = {"none": "single", "late": "single", "early": "early", "attfuse": "attfuse"}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    dataset: str = "detector-train"
+    steps: int = 4000
+    batch_size: int = 4
+    lr: float = 0.002
+    weight_decay: float = 0.0001
+    decay_at: tuple[float, ...] = (0.7, 0.9)
+    seed: int = 1
+    checkpoint_every: int = 200
+
+
+def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
+    data = read_yaml(path or configs_dir() / "detectors" / "train.yaml")
+    if weights not in data:
+        raise InputError(f"no training block '{weights}' in train.yaml")
+    return from_mapping(TrainConfig, data[weights], f"train.yaml:{weights}")
+
+
+def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None) -> list[Sample]:
+    spec = load_lidar_spec("v2xp")
+    out = []
+    for i, scene in enumerate(iter_frames(dataset, split)):
+        out.append(make_sample(scene, spec))
+        if progress:
+            progress(i + 1)
+    return out
+
+
+class _Batches:
+    """Training examples of one kind, drawn with a seeded generator."""
+
+    def __init__(self, kind: str, samples: list[Sample]):
+        self.kind = kind
+        if kind == "single":
+            self.items = [view for s in samples for view in s.own_views()]
+        elif kind == "early":
+            self.items = [([np.vstack(s.clouds_in_ego())], s.gt_visible_ego()) for s in samples]
+        else:
+            self.items = [(s.clouds_in_ego(), s.gt_visible_ego()) for s in samples]
+        if kind == "single":
+            self.items = [([c], b) for c, b in self.items]
+
+    def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg):
+        picks = rng.integers(len(self.items), size=batch)
+        clouds, labels, targets, dirs = [], [], [], []
+        for k in picks:
+            cl, boxes = self.items[int(k)]
+            cl, boxes = augment(cl, boxes, rng)
+            lab, res, d = assign_targets(anchors, boxes, cfg)
+            clouds.append([torch.from_numpy(c) for c in cl])
+            labels.append(lab)
+            targets.append(res)
+            dirs.append(d)
+        return clouds, torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)), torch.from_numpy(np.stack(dirs))
+
+
+def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, log: Callable[[str], None] = print,
+          progress: Callable[[int, int, float], None] | None = None, threads: int = 2) -> Path:
+    """Train (or resume) the weights behind ``fusion``; returns the written weights file."""
+    if fusion not in FUSION_TO_WEIGHTS:
+        raise InputError(f"unknown fusion '{fusion}'; choose one of {', '.join(FUSION_TO_WEIGHTS)}")
+    name = FUSION_TO_WEIGHTS[fusion]
+    tcfg = load_train_config(name)
+    total = steps or tcfg.steps
+    cfg = load_detector_config()
+    torch.set_num_threads(threads)
+    torch.manual_seed(tcfg.seed)
+    rng = np.random.default_rng(tcfg.seed)
+    model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
+    opt = torch.optim.Adam(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
+    milestones = [int(f * total) for f in tcfg.decay_at]
+    sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=milestones, gamma=0.1)
+    run_dir = out_dir or project_root() / "runs" / "train" / name
+    ckpt = run_dir / "last.pt"
+    step, wall = 0, 0.0
+    if ckpt.is_file():
+        state = torch.load(ckpt, map_location="cpu", weights_only=True)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        sched.milestones = Counter(milestones)  # the configured schedule wins over the saved one
+        step, wall = int(state["step"]), float(state["wall_s"])
+        rng.bit_generator.state = json.loads(state["rng"])
+        torch.set_rng_state(state["torch_rng"])
+        log(f"resumed {name} at step {step}")
+    t0 = time.perf_counter()
+    log(f"rendering {tcfg.dataset} ...")
+    samples = render_samples(tcfg.dataset, "train")
+    batches = _Batches(name, samples)
+    log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
+    anchors = model.anchors.numpy()
+    model.train()
+    started = time.perf_counter()
+    losses: list[float] = []
+    while step < total:
+        clouds, labels, targets, dirs = batches.draw(rng, tcfg.batch_size, anchors, cfg)
+        if name == "attfuse":
+            cls, box, d = model(clouds)
+        else:
+            cls, box, d = model([c[0] for c in clouds])
+        loss = detection_loss(cls, box, d, labels, targets, dirs)
+        opt.zero_grad()
+        loss["total"].backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+        opt.step()
+        sched.step()
+        step += 1
+        losses.append(float(loss["total"].detach()))
+        if progress:
+            progress(step, total, losses[-1])
+        if step % 50 == 0:
+            log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} (cls {float(loss['cls']):.3f} box {float(loss['box']):.3f})")
+        if step % tcfg.checkpoint_every == 0 or step == total:
+            _checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng)
+    wall += time.perf_counter() - started
+    model.eval()
+    weights = WEIGHTS_DIR / f"{name}.pt"
+    with atomic_path(weights) as tmp:
+        torch.save(model.state_dict(), tmp)
+    card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
+            "dataset": tcfg.dataset, "examples": len(batches.items), "steps": total, "batch_size": tcfg.batch_size,
+            "lr": tcfg.lr, "seed": tcfg.seed, "train_wall_s": round(wall, 1), "threads": threads,
+            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp"}
+    write_text_atomic(WEIGHTS_DIR / f"{name}.json", json.dumps(card, indent=1))
+    log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training")
+    return weights
+
+
+def _checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng: np.random.Generator) -> None:
+    state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+             "step": step, "wall_s": wall_s, "rng": json.dumps(rng.bit_generator.state),
+             "torch_rng": torch.get_rng_state()}
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)

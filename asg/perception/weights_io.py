@@ -1,0 +1,58 @@
+"""Shipped weights: state_dicts loaded with ``weights_only=True`` (never unpickling objects)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from sumo_scenarios.errors import InputError
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+
+
+def weights_path(name: str) -> Path:
+    return WEIGHTS_DIR / f"{name}.pt"
+
+
+def load_state(model: nn.Module, path: str | Path) -> nn.Module:
+    """Load a state_dict into ``model``; a missing, corrupt or mismatched file is one InputError."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: weights not found; train them with 'asg train' or reinstall the package")
+    try:
+        state = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for corrupt files
+        raise InputError(f"{p}: not a readable weights file ({type(exc).__name__}); retrain or reinstall") from None
+    if isinstance(state, dict) and "model" in state and isinstance(state["model"], dict):
+        state = state["model"]
+    if not isinstance(state, dict):
+        raise InputError(f"{p}: not a state_dict; retrain or reinstall")
+    missing, unexpected = _diff(model.state_dict(), state)
+    if missing or unexpected:
+        what = f"missing {missing[0]}" if missing else f"unexpected {unexpected[0]}"
+        raise InputError(f"{p}: weights do not match this model ({what}); use the matching --fusion or retrain")
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        first = str(exc).splitlines()[1].strip() if len(str(exc).splitlines()) > 1 else str(exc)
+        raise InputError(f"{p}: weights do not match this model ({first}); use the matching --fusion or retrain") from None
+    model.eval()
+    return model
+
+
+def _diff(expected: dict, got: dict) -> tuple[list[str], list[str]]:
+    return sorted(set(expected) - set(got)), sorted(set(got) - set(expected))
+
+
+def save_state(model: nn.Module, path: str | Path) -> None:
+    from sumo_scenarios.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        torch.save(model.state_dict(), tmp)
+
+
+def read_card(name: str) -> dict:
+    p = WEIGHTS_DIR / f"{name}.json"
+    return json.loads(p.read_text()) if p.is_file() else {}

@@ -1,0 +1,243 @@
+"""``generate(scene, ...)``: Adversarial Collaborator Search, then Adversarial Perturbation Search.
+
+What the CLI and the benchmarks call. Works with any detector behind the V2XDetector interface
+(the tests use a fake one); AttFuse's attention steers ACS-A whatever the target model is.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Literal
+
+import numpy as np
+
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import configs_dir
+from sumo_scenarios.strict import from_mapping, read_yaml
+
+from .objective import ObjectiveConfig, adversarial_loss, ap_at
+from .scene import Agent, Scene
+from .scene.feasibility import EVAL_RANGE_M, Plausibility, check_scene
+from .scene.neighbours import vehicles_within
+from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, run_search
+from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
+from .sensors.frame import CooperativeFrame, render_frame
+
+Detections = tuple[np.ndarray, np.ndarray, np.ndarray]  # boxes (K, 7), scores (K,), ground truth (M, 7)
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    fusion: str = "attfuse"
+    search: str = "bo"
+    acs: Literal["attention", "random", "off"] = "attention"
+    aps: bool = True
+    budget: int = 50
+    sensing_agents: int = 3
+    acs_samples: int = 3
+    acs_tau: float = 0.03
+    attention_cells: Literal["all", "vehicles"] = "all"
+    perturbed: int = 3
+    comm_range_m: float = 70.0
+    lidar: str = "v2xp"
+    objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
+    space: SpaceConfig = field(default_factory=SpaceConfig)
+
+    def validate(self) -> "GenerateConfig":
+        from .registry import names
+        from . import search as _  # noqa: F401
+
+        if self.search not in names("search"):
+            raise InputError(f"unknown search algorithm '{self.search}'; known: {', '.join(names('search'))}")
+        if self.acs not in ("attention", "random", "off"):
+            raise InputError(f"--acs must be attention, random or off, got {self.acs!r}")
+        if self.budget < 1:
+            raise InputError(f"--budget must be at least 1, got {self.budget}")
+        if self.sensing_agents < 1 or self.perturbed < 0:
+            raise InputError("sensing_agents must be >= 1 and perturbed >= 0")
+        return self
+
+
+def load_generate_config(path: Path | None = None, **overrides) -> GenerateConfig:
+    data = read_yaml(path or configs_dir() / "generate.yaml") or {}
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    return from_mapping(GenerateConfig, data, "generate.yaml").validate()
+
+
+def search_params(name: str) -> dict:
+    p = configs_dir() / "search" / f"{name}.yaml"
+    return (read_yaml(p) or {}) if p.is_file() else {}
+
+
+@dataclass
+class SceneResult:
+    scene_id: str
+    initial: Scene
+    after_acs: Scene
+    final: Scene
+    ap_normal: dict[str, float]
+    ap_after_acs: dict[str, float]
+    ap_final: dict[str, float]
+    loss_normal: float
+    loss_final: float
+    evaluations: int
+    seconds: float
+    perturbed: tuple[str, ...]
+    delta: list[list[float]]
+    plausibility: Plausibility
+    history: list[Evaluation]
+    frames: dict[str, CooperativeFrame]
+    notes: list[str]
+    acs_probabilities: dict[str, float] = field(default_factory=dict)
+    bo_overhead_s: list[float] = field(default_factory=list)
+    #: (boxes, scores, ground truth) of the target model on the initial and final scene (ego frame)
+    detections: dict[str, "Detections"] = field(default_factory=dict)
+
+
+class Generator:
+    """Holds the target detector, the AttFuse model for ACS-A and the LiDAR spec across scenes."""
+
+    def __init__(self, cfg: GenerateConfig, target, acs_model=None, spec: LidarSpec | None = None):
+        self.cfg = cfg.validate()
+        self.target = target
+        self.acs_model = acs_model
+        self.spec = spec or load_lidar_spec(cfg.lidar)
+        self.params = search_params(cfg.search)
+
+    # ---- evaluation ------------------------------------------------------------------------
+    def _detections(self, frame: CooperativeFrame) -> Detections:
+        boxes, scores = self.target.detect(frame)
+        gt = frame.ego_boxes
+        gt = gt[(np.abs(gt[:, 0]) <= EVAL_RANGE_M) & (np.abs(gt[:, 1]) <= EVAL_RANGE_M)] if len(gt) else gt
+        return boxes, scores, gt
+
+    def _score(self, frame: CooperativeFrame) -> tuple[float, dict[str, float]]:
+        ap = ap_at([self._detections(frame)])
+        return adversarial_loss(ap, self.cfg.objective), ap
+
+    def evaluate_scene(self, scene: Scene) -> tuple[float, dict[str, float], CooperativeFrame]:
+        frame = render_frame(World(scene, self.spec))
+        loss, ap = self._score(frame)
+        return loss, ap, frame
+
+    # ---- the two stages ----------------------------------------------------------------------
+    def normal_collaborators(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> Scene:
+        if scene.collaborators:
+            return scene
+        cands = [a.agent_id for a in vehicles_within(scene, scene.ego_id, self.cfg.comm_range_m)]
+        need = self.cfg.sensing_agents - 1
+        if len(cands) < need:
+            notes.append(f"only {len(cands)} vehicles within {self.cfg.comm_range_m:g} m of the ego; using them all")
+        pick = sorted(rng.choice(len(cands), size=min(need, len(cands)), replace=False).tolist()) if cands else []
+        return scene.with_collaborators([cands[i] for i in pick])
+
+    def collaborator_search(self, scene: Scene, rng: np.random.Generator, notes: list[str]):
+        """(scene with the chosen collaborators, its loss, AP, frame, probabilities by combination)."""
+        from .collaborators import attention_combinations, random_combinations
+
+        cands = [a.agent_id for a in vehicles_within(scene, scene.ego_id, self.cfg.comm_range_m)]
+        size = self.cfg.sensing_agents - 1
+        if len(cands) < size:
+            notes.append(f"ACS: {len(cands)} candidate collaborators for {size} places; using what exists")
+        probs: dict[str, float] = {}
+        if self.cfg.acs == "attention":
+            if self.acs_model is None:
+                raise InputError("ACS-A needs the AttFuse model; pass --acs random or off")
+            everyone = render_frame(World(scene.with_collaborators(cands), self.spec))
+            weights = self.acs_model.attention_weights(everyone, self.cfg.attention_cells)
+            combos, p = attention_combinations(weights, cands, size, self.cfg.acs_samples, self.cfg.acs_tau, rng)
+            from .collaborators.sampling import all_combinations
+
+            probs = {"+".join(c): float(v) for c, v in zip(all_combinations(cands, size), p) if v > 1e-4}
+        else:
+            combos = random_combinations(cands, size, self.cfg.acs_samples, rng)
+        best = None
+        combos = combos or [tuple()]
+        for combo in combos:
+            candidate = scene.with_collaborators(combo)
+            loss, ap, frame = self.evaluate_scene(candidate)
+            if best is None or loss < best[1]:
+                best = (candidate, loss, ap, frame)
+        return (*best, probs, len(combos))
+
+    def pick_perturbed(self, scene: Scene, notes: list[str]) -> list[str]:
+        ego = scene.ego
+        c, s = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
+
+        def in_range(a: Agent) -> bool:
+            dx, dy = a.x_m - ego.x_m, a.y_m - ego.y_m
+            return abs(c * dx + s * dy) <= EVAL_RANGE_M and abs(-s * dx + c * dy) <= EVAL_RANGE_M
+
+        sensing = set(scene.sensing_ids)
+        movable = [a for a in scene.vehicles if a.agent_id not in sensing and in_range(a)]
+        if len(movable) < self.cfg.perturbed:
+            notes.append(f"APS: {len(movable)} vehicles can move (fewer than m = {self.cfg.perturbed}); moving them all")
+        viewers = [scene.agent(i) for i in scene.sensing_ids]
+        scores = occlusion_scores(viewers, movable, self.spec.range_m)
+        ranked = sorted(movable, key=lambda a: (-scores[a.agent_id], a.agent_id))
+        return [a.agent_id for a in ranked[: self.cfg.perturbed]]
+
+    # ---- one scene ---------------------------------------------------------------------------
+    def generate(self, scene: Scene, seed: int, on_step: Callable[[Evaluation], None] | None = None) -> SceneResult:
+        t0 = time.perf_counter()
+        rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
+        notes: list[str] = []
+        initial = self.normal_collaborators(scene, rng, notes)
+        loss_n, ap_n, frame_n = self.evaluate_scene(initial)
+        if self.cfg.acs == "off":
+            after, loss_a, ap_a, frame_a, probs, n_combos = initial, loss_n, ap_n, frame_n, {}, 0
+        else:
+            after, loss_a, ap_a, frame_a, probs, n_combos = self.collaborator_search(initial, rng, notes)
+        final, ap_f, loss_f, frame_f = after, ap_a, loss_a, frame_a
+        history: list[Evaluation] = []
+        perturbed: list[str] = []
+        delta: list[list[float]] = []
+        overhead: list[float] = []
+        if self.cfg.aps:
+            perturbed = self.pick_perturbed(after, notes)
+            if perturbed:
+                try:
+                    final, ap_f, loss_f, frame_f, history, delta = self._perturb(after, perturbed, loss_a, ap_a, frame_a, rng, on_step)
+                    overhead = [e.optimizer_s for e in history]
+                except EmptyFeasibleSet as exc:
+                    notes.append(f"APS skipped: {exc}")
+                    perturbed = []
+            else:
+                notes.append("APS skipped: no vehicle to move")
+        plaus = check_scene(after, final)
+        if not plaus.ok:  # never publish an implausible scene
+            notes.append(f"final scene failed the independent plausibility check {plaus.to_dict()}; kept the scene after ACS")
+            final, ap_f, loss_f, frame_f, delta = after, ap_a, loss_a, frame_a, []
+            plaus = check_scene(after, final)
+        detections = {k: self._detections(f) for k, f in (("initial", frame_n), ("final", frame_f))}
+        return SceneResult(
+            scene.scene_id, initial, after, final, ap_n, ap_a, ap_f, loss_n, loss_f, 1 + n_combos + len(history),
+            time.perf_counter() - t0, tuple(perturbed), delta, plaus, history,
+            {"initial": frame_n, "after_acs": frame_a, "final": frame_f}, notes, probs, overhead, detections)
+
+    def _perturb(self, scene: Scene, perturbed: list[str], loss0: float, ap0: dict, frame0: CooperativeFrame,
+                 rng: np.random.Generator, on_step):
+        space = SearchSpace(scene, perturbed, self.cfg.space)
+        feasible = FeasibleSet(space, rng)
+        world = World(scene, self.spec, movable_ids=perturbed)
+        world.prepare(scene.sensing_ids)
+
+        def objective(x: np.ndarray) -> tuple[float, dict[str, float]]:
+            return self._score(render_frame(world, moved=space.moved_agents(x)))
+
+        params = dict(self.params)
+        if self.cfg.search == "bo":
+            params["n_initial"] = min(int(params.get("n_initial", 20)), max(1, self.cfg.budget - 1))
+        optimizer = build_optimizer(self.cfg.search, space.dim, self.cfg.budget, rng, **params)
+        start = Evaluation(0, np.zeros(space.dim), loss0, ap0, 0.0)
+        history = run_search(optimizer, feasible, objective, self.cfg.budget, start, on_step)
+        best = best_of(history, start)
+        if best.step == 0:
+            return scene, ap0, loss0, frame0, history, []
+        moved = space.moved_agents(best.x)
+        final = scene.with_agents([moved.get(a.agent_id, a) for a in scene.agents])
+        frame = render_frame(world, moved=moved)
+        deltas = space.denormalise(best.x)
+        return final, best.ap, best.loss, frame, history, [[round(float(v), 4) for v in d] for d in deltas]

@@ -1,0 +1,118 @@
+"""Plausibility of moved vehicles: on SUMO's drivable area, colliding with nothing (python-fcl), in range.
+
+Collision geometry: every vehicle and RSU is an fcl Box of its size at its pose; each building an
+fcl BVH prism of its footprint's convex hull (exact for the rectangular buildings we generate,
+conservative otherwise), from the ground to its height.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import fcl
+import numpy as np
+from shapely.geometry import MultiPoint
+
+from sumo_scenarios.buildings import Building
+
+from .agent import Agent
+from .scene import Scene
+
+#: the evaluation range around the ego (|x|, |y| in the ego frame), metres
+EVAL_RANGE_M = 48.0
+
+
+def _box_object(a: Agent) -> fcl.CollisionObject:
+    c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return fcl.CollisionObject(fcl.Box(a.length_m, a.width_m, a.height_m),
+                               fcl.Transform(rot, np.array([a.x_m, a.y_m, a.z_m + a.height_m / 2])))
+
+
+def _building_object(b: Building) -> fcl.CollisionObject:
+    hull = np.asarray(MultiPoint([tuple(p) for p in b.footprint_xy]).convex_hull.exterior.coords)[:-1]
+    k = len(hull)
+    verts = np.vstack([np.c_[hull, np.zeros(k)], np.c_[hull, np.full(k, b.height_m)]])
+    tris = [[0, i, i + 1] for i in range(1, k - 1)] + [[k, k + i + 1, k + i] for i in range(1, k - 1)]
+    for i in range(k):
+        j = (i + 1) % k
+        tris += [[i, j, k + j], [i, k + j, k + i]]
+    model = fcl.BVHModel()
+    model.beginModel(len(verts), len(tris))
+    model.addSubModel(verts, np.array(tris, dtype=np.int64))
+    model.endModel()
+    return fcl.CollisionObject(model, fcl.Transform())
+
+
+@dataclass(frozen=True)
+class Plausibility:
+    collisions: int
+    off_road: int
+    out_of_range: int
+
+    @property
+    def ok(self) -> bool:
+        return self.collisions == 0 and self.off_road == 0 and self.out_of_range == 0
+
+    def to_dict(self) -> dict:
+        return {"collisions": self.collisions, "off_road": self.off_road, "out_of_range": self.out_of_range}
+
+
+class FeasibilityChecker:
+    """Checks poses of the ``movable`` vehicles of a scene against everything else in it."""
+
+    def __init__(self, scene: Scene, movable_ids: Sequence[str]):
+        self.scene = scene
+        self.movable_ids = tuple(movable_ids)
+        fixed = [a for a in scene.agents if a.agent_id not in self.movable_ids]
+        self._static = fcl.DynamicAABBTreeCollisionManager()
+        objs = [_box_object(a) for a in fixed] + [_building_object(b) for b in scene.buildings]
+        if objs:
+            self._static.registerObjects(objs)
+        self._static.setup()
+        self._has_static = bool(objs)
+        ego = scene.ego
+        self._ego_xy = np.array([ego.x_m, ego.y_m])
+        self._ego_yaw = ego.yaw_rad
+        self._request = fcl.CollisionRequest()
+
+    def collides(self, agents: Sequence[Agent]) -> int:
+        """How many of ``agents`` touch something fixed or each other."""
+        objs = [_box_object(a) for a in agents]
+        hit = set()
+        for i, o in enumerate(objs):
+            if self._has_static:
+                data = fcl.CollisionData(request=self._request)
+                self._static.collide(o, data, fcl.defaultCollisionCallback)
+                if data.result.is_collision:
+                    hit.add(i)
+            for j in range(i + 1, len(objs)):
+                if fcl.collide(o, objs[j], self._request, fcl.CollisionResult()) > 0:
+                    hit.update((i, j))
+        return len(hit)
+
+    def in_range(self, agents: Sequence[Agent]) -> np.ndarray:
+        """(n,) bool: box centres within the evaluation range of the ego frame."""
+        xy = np.array([[a.x_m, a.y_m] for a in agents]) - self._ego_xy
+        c, s = math.cos(self._ego_yaw), math.sin(self._ego_yaw)
+        local = np.stack([c * xy[:, 0] + s * xy[:, 1], -s * xy[:, 0] + c * xy[:, 1]], axis=1)
+        return np.all(np.abs(local) <= EVAL_RANGE_M, axis=1)
+
+    def on_road(self, agents: Sequence[Agent]) -> np.ndarray:
+        return self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
+
+    def check(self, moved: Mapping[str, Agent]) -> Plausibility:
+        """Independent check of a final scene's moved vehicles."""
+        agents = [moved[i] for i in self.movable_ids if i in moved]
+        if not agents:
+            return Plausibility(0, 0, 0)
+        return Plausibility(self.collides(agents), int((~self.on_road(agents)).sum()), int((~self.in_range(agents)).sum()))
+
+
+def check_scene(initial: Scene, final: Scene) -> Plausibility:
+    """Plausibility of every vehicle that differs between ``initial`` and ``final``."""
+    before = {a.agent_id: a for a in initial.agents}
+    moved = {a.agent_id: a for a in final.agents
+             if a.agent_id in before and (a.x_m, a.y_m, a.yaw_rad) != (before[a.agent_id].x_m, before[a.agent_id].y_m, before[a.agent_id].yaw_rad)}
+    return FeasibilityChecker(initial, list(moved)).check(moved)

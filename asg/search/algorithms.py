@@ -1,0 +1,132 @@
+"""Black-box optimisers behind one ask/tell interface, registered by name: rs, ga, bo.
+
+All work in normalised units x in [-1, 1]^D and minimise the loss. ``tell`` receives the point
+actually evaluated (its projection onto the feasible set).
+"""
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..registry import lookup, register
+
+
+class Optimizer(ABC):
+    registry_name: str = ""
+
+    def __init__(self, dim: int, budget: int, rng: np.random.Generator, **params):
+        self.dim = dim
+        self.budget = budget
+        self.rng = rng
+
+    @abstractmethod
+    def ask(self) -> np.ndarray: ...
+
+    @abstractmethod
+    def tell(self, x: np.ndarray, loss: float) -> None: ...
+
+
+@register("search", "rs")
+class RandomSearch(Optimizer):
+    """Uniform draws in the box (the projection makes them uniform over Q's neighbourhoods)."""
+
+    def ask(self) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, self.dim)
+
+    def tell(self, x: np.ndarray, loss: float) -> None:
+        pass
+
+
+@dataclass
+class GAParams:
+    population: int = 15
+    elites: int = 2
+    temperature: float = 0.8
+    crossover: float = 0.5
+    mutation_p: float = 0.5
+    mutation_p_min: float = 0.1
+    mutation_range: float = 1.0
+    mutation_range_min: float = 0.3
+    decay: float = 0.9
+
+
+@register("search", "ga")
+class GeneticAlgorithm(Optimizer):
+    """Elitism, softmax parent selection on negated loss (temperature 0.8), uniform crossover,
+    adaptive mutation: probability and range shrink by x0.9 when a generation does not improve."""
+
+    def __init__(self, dim: int, budget: int, rng: np.random.Generator, **params):
+        super().__init__(dim, budget, rng)
+        self.p = GAParams(**params)
+        self.queue: list[np.ndarray] = [rng.uniform(-1, 1, dim) for _ in range(self.p.population)]
+        self.evaluated: list[tuple[np.ndarray, float]] = []
+        self.generation: list[tuple[np.ndarray, float]] = []
+        self.best = math.inf
+        self.mut_p = self.p.mutation_p
+        self.mut_r = self.p.mutation_range
+
+    def ask(self) -> np.ndarray:
+        if not self.queue:
+            self._breed()
+        return self.queue.pop(0)
+
+    def tell(self, x: np.ndarray, loss: float) -> None:
+        self.generation.append((np.asarray(x, dtype=float), float(loss)))
+
+    def _breed(self) -> None:
+        pop = sorted(self.generation, key=lambda t: t[1])[: self.p.population] or [(np.zeros(self.dim), 0.0)]
+        gen_best = pop[0][1]
+        if gen_best < self.best - 1e-9:
+            self.best = gen_best
+        else:
+            self.mut_p = max(self.p.mutation_p_min, self.mut_p * self.p.decay)
+            self.mut_r = max(self.p.mutation_range_min, self.mut_r * self.p.decay)
+        fitness = -np.array([l for _, l in pop]) / self.p.temperature
+        prob = np.exp(fitness - fitness.max())
+        prob /= prob.sum()
+        children = [pop[i][0].copy() for i in range(min(self.p.elites, len(pop)))]
+        while len(children) < self.p.population:
+            a, b = self.rng.choice(len(pop), size=2, p=prob)
+            mask = self.rng.random(self.dim) < self.p.crossover
+            child = np.where(mask, pop[a][0], pop[b][0])
+            mutate = self.rng.random(self.dim) < self.mut_p
+            child = child + mutate * self.rng.uniform(-self.mut_r, self.mut_r, self.dim)
+            children.append(np.clip(child, -1.0, 1.0))
+        self.queue = children
+        self.generation = []
+
+
+@register("search", "bo")
+class BayesianOptimization(Optimizer):
+    """scikit-optimize's Optimizer: a GP (Matern 2.5) surrogate, ``n_initial`` random points, then
+    lower confidence bound (kappa 2.5) minimised over ``n_points`` random candidates. The loss is
+    told as is: skopt minimises it (the reference code's sign defect is not repeated)."""
+
+    def __init__(self, dim: int, budget: int, rng: np.random.Generator, n_initial: int = 20, kappa: float = 2.5,
+                 n_points: int = 500, **params):
+        super().__init__(dim, budget, rng)
+        from skopt import Optimizer as SkOptimizer
+        from skopt.learning import GaussianProcessRegressor
+        from skopt.learning.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
+        seed = int(rng.integers(2**31 - 1))
+        kernel = ConstantKernel(1.0, (0.01, 1000.0)) * Matern(length_scale=np.ones(dim), length_scale_bounds=(0.01, 100.0), nu=2.5) \
+            + WhiteKernel(1e-4, (1e-6, 1e-1))
+        gp = GaussianProcessRegressor(kernel=kernel, normalize_y=True, noise=None, n_restarts_optimizer=0, random_state=seed)
+        self.opt = SkOptimizer([(-1.0, 1.0)] * dim, base_estimator=gp, n_initial_points=n_initial,
+                               initial_point_generator="random", acq_func="LCB", acq_optimizer="sampling",
+                               acq_func_kwargs={"kappa": kappa}, acq_optimizer_kwargs={"n_points": n_points},
+                               random_state=seed)
+
+    def ask(self) -> np.ndarray:
+        return np.asarray(self.opt.ask(), dtype=float)
+
+    def tell(self, x: np.ndarray, loss: float) -> None:
+        self.opt.tell([float(v) for v in np.clip(x, -1.0, 1.0)], float(loss))
+
+
+def build_optimizer(name: str, dim: int, budget: int, rng: np.random.Generator, **params) -> Optimizer:
+    return lookup("search", name)(dim, budget, rng, **params)

@@ -1,0 +1,94 @@
+"""The generator end to end with a fake detector (ground truth for well-seen boxes): fast."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from asg.pipeline import GenerateConfig, Generator
+from asg.scene.feasibility import FeasibilityChecker, check_scene
+from asg.scene.from_log import ExtractParams, extract_scenes
+from asg.search import FeasibleSet, SearchSpace, SpaceConfig
+from asg.search.space import EmptyFeasibleSet
+from sumo_scenarios.errors import InputError
+
+from conftest import car, make_scene, rsu
+from fakes import OracleDetector
+
+FAST = GenerateConfig(fusion="none", search="rs", acs="attention", budget=8, space=SpaceConfig(n_q=200))
+
+
+@pytest.fixture(scope="module")
+def busy_scene(sumo_log):
+    scenes = list(extract_scenes(sumo_log, ExtractParams(every=20, min_vehicles=8)))
+    assert scenes
+    return max(scenes, key=lambda s: len(s.vehicles))
+
+
+def make_gen(cfg=FAST):
+    det = OracleDetector()
+    return Generator(cfg, det, det)
+
+
+def test_generate_is_plausible_and_reproducible(busy_scene):
+    gen = make_gen()
+    a = gen.generate(busy_scene, seed=4)
+    b = gen.generate(busy_scene, seed=4)
+    assert a.final.to_dict() == b.final.to_dict() and [e.loss for e in a.history] == [e.loss for e in b.history]
+    assert a.plausibility.ok
+    assert len(a.after_acs.collaborators) == 2 and len(a.perturbed) == 3
+    assert not set(a.perturbed) & set(a.after_acs.sensing_ids)
+    assert a.loss_final <= min([e.loss for e in a.history] + [a.loss_final]) + 1e-12
+    assert a.evaluations == 1 + 3 + 8
+    moved = {x.agent_id for x in a.final.agents} and [x for x in a.final.agents
+                                                       if x.to_dict() != a.after_acs.agent(x.agent_id).to_dict()]
+    assert {x.agent_id for x in moved} <= set(a.perturbed)
+    # the independent check agrees
+    assert check_scene(a.after_acs, a.final).ok
+
+
+def test_every_algorithm_runs_and_finals_are_plausible(busy_scene):
+    for search in ("rs", "ga", "bo"):
+        cfg = GenerateConfig(fusion="none", search=search, acs="random", budget=6, space=SpaceConfig(n_q=100))
+        r = make_gen(cfg).generate(busy_scene, seed=1)
+        assert r.plausibility.ok and len(r.history) == 6
+
+
+def test_projection_returns_a_member_of_q(busy_scene):
+    gen = make_gen()
+    ids = gen.pick_perturbed(busy_scene.with_collaborators([]), [])
+    space = SearchSpace(busy_scene, ids, SpaceConfig(n_q=100))
+    q = FeasibleSet(space, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    checker = FeasibilityChecker(busy_scene, ids)
+    for _ in range(20):
+        p = q.project(rng.uniform(-1.5, 1.5, space.dim))
+        assert any(np.array_equal(p, m) for m in q.members)
+        assert checker.check(space.moved_agents(p)).ok
+
+
+def test_boxed_in_vehicle_has_empty_feasible_set():
+    # a car squeezed between two buses on a one-lane road cannot move without touching one or leaving it
+    from sumo_scenarios.lanes import Lane, LaneMap
+
+    one_lane = LaneMap([Lane("e_0", np.array([[-100.0, 0.0], [100.0, 0.0]]), 3.2, 13.9)])
+    agents = [rsu("r", 0.0, 6.0), car("front", 8.0, 0.0, type_id="bus"), car("mid", -0.5, 0.0),
+              car("back", -9.0, 0.0, type_id="bus")]
+    scene = make_scene(one_lane, agents)
+    space = SearchSpace(scene, ["mid"], SpaceConfig(n_q=50, max_draw_factor=4))
+    with pytest.raises(EmptyFeasibleSet, match="no plausible move"):
+        FeasibleSet(space, np.random.default_rng(0))
+
+
+def test_fewer_vehicles_than_m_is_reported(cross_map):
+    agents = [rsu("r", 9.0, 9.0), car("a", -20.0, -1.6), car("b", 20.0, 1.6, math.pi), car("c", 1.6, -25.0, math.pi / 2)]
+    scene = make_scene(cross_map, agents)
+    cfg = GenerateConfig(fusion="none", search="rs", acs="random", budget=4, space=SpaceConfig(n_q=50))
+    r = make_gen(cfg).generate(scene, seed=0)
+    assert any("fewer than m" in n for n in r.notes) or any("candidate" in n for n in r.notes)
+    assert r.plausibility.ok
+
+
+def test_unknown_search_name_in_config():
+    with pytest.raises(InputError, match="unknown search algorithm 'sa'"):
+        GenerateConfig(search="sa").validate()

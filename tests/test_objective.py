@@ -1,0 +1,71 @@
+import math
+
+import numpy as np
+import pytest
+
+from asg.metrics import average_precision, bev_iou_matrix
+from asg.objective import ObjectiveConfig, adversarial_loss
+
+CAR = np.array([0.0, 0.0, 0.75, 4.0, 2.0, 1.5, 0.0])
+
+
+def box(x=0.0, y=0.0, yaw=0.0, l=4.0, w=2.0):
+    return np.array([x, y, 0.75, l, w, 1.5, yaw])
+
+
+def test_iou_identical_disjoint_symmetric():
+    a = np.stack([box(), box(10, 0), box(1.0, 0.5, 0.3)])
+    m = bev_iou_matrix(a, a)
+    assert np.allclose(np.diag(m), 1.0)
+    assert m[0, 1] == 0.0
+    assert np.allclose(m, m.T)
+    # half-overlap along x: intersection 2 x 2 = 4, union 12
+    assert bev_iou_matrix(box()[None], box(2.0)[None])[0, 0] == pytest.approx(4 / 12)
+    # a 90-degree turn of a 4 x 2 box: intersection 2 x 2 = 4, union 8 + 8 - 4 = 12
+    assert bev_iou_matrix(box()[None], box(yaw=math.pi / 2)[None])[0, 0] == pytest.approx(4 / 12)
+
+
+def test_ap_perfect():
+    gt = np.stack([box(), box(10, 0)])
+    assert average_precision([(gt, np.array([0.9, 0.8]), gt)], 0.7) == pytest.approx(1.0)
+
+
+def test_ap_empty_predictions_and_no_ground_truth():
+    gt = np.stack([box()])
+    assert average_precision([(np.zeros((0, 7)), np.zeros(0), gt)], 0.5) == 0.0
+    assert average_precision([(gt, np.array([0.9]), np.zeros((0, 7)))], 0.5) == 0.0
+
+
+def test_ap_shifted_box_passes_low_threshold_only():
+    gt = box()[None]
+    pred = box(1.0)[None]  # IoU = 6 / 10 = 0.6
+    frames = [(pred, np.array([0.9]), gt)]
+    assert average_precision(frames, 0.5) == pytest.approx(1.0)
+    assert average_precision(frames, 0.7) == 0.0
+
+
+def test_ap_duplicates_are_false_positives():
+    gt = box()[None]
+    pred = np.stack([box(), box(0.05)])
+    # one TP at score 0.9 then an FP: precision envelope 1.0 up to recall 1 -> AP 1.0
+    assert average_precision([(pred, np.array([0.9, 0.8]), gt)], 0.5) == pytest.approx(1.0)
+    # the duplicate scoring higher than the true match: first the better IoU box is matched... order matters
+    pred2 = np.stack([box(3.0), box()])
+    ap = average_precision([(pred2, np.array([0.95, 0.9]), gt)], 0.5)
+    assert ap == pytest.approx(0.5)  # FP first (IoU 1/7), then TP: precision 1/2 at recall 1
+
+
+def test_ap_sorts_detections_globally_across_frames():
+    gt = box()[None]
+    # frame 1: a confident false positive; frame 2: a weak true positive
+    f1 = (box(20.0)[None], np.array([0.9]), gt)
+    f2 = (box()[None], np.array([0.3]), gt)
+    # global order: FP(0.9), TP(0.3): recall 0.5 at precision 0.5 -> AP = 0.25
+    assert average_precision([f1, f2], 0.5) == pytest.approx(0.25)
+    assert average_precision([f2, f1], 0.5) == pytest.approx(0.25)
+
+
+def test_weighted_loss():
+    assert adversarial_loss({"0.3": 1.0, "0.5": 1.0, "0.7": 1.0}) == pytest.approx(2.3)
+    cfg = ObjectiveConfig(weights={"0.5": 2.0})
+    assert adversarial_loss({"0.3": 0.1, "0.5": 0.25, "0.7": 0.0}, cfg) == pytest.approx(0.5)

@@ -1,0 +1,119 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from asg.objective.ap import average_precision
+from asg.perception.boxes import assign_targets, make_anchors, rotated_nms
+from asg.perception.config import DetectorConfig
+from asg.perception.head import detection_loss
+from asg.perception.model import AttFuse, PointPillars, postprocess
+from asg.perception.weights_io import load_state, save_state
+from asg.registry import names
+from sumo_scenarios.errors import InputError
+
+from conftest import car, make_scene, rsu
+
+TINY = DetectorConfig(range_m=16.0, pillar_m=0.5, pfn_channels=16, layers=(1, 1, 1), filters=(16, 32, 32),
+                      upsample_channels=16)
+
+
+def tiny_frames(cross_map, n=4):
+    """n small scenes: an RSU ego and 2-3 cars around it, rendered by the LiDAR simulator."""
+    from asg.perception.data import Sample
+    from asg.sensors import simulate_frame
+    from asg.sensors.lidar_spec import LidarSpec
+
+    spec = LidarSpec(name="t", channels=16, points_per_s=16 * 360 * 10, rotation_hz=10.0, range_m=30.0)
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(n):
+        cars = [car(f"c{k}", float(rng.uniform(-12, 12)), -1.6 if k % 2 else 1.6, 0.0 if k % 2 else math.pi)
+                for k in range(3)]
+        cars = [c for j, c in enumerate(cars) if all(abs(c.x_m - o.x_m) > 6 or c.y_m != o.y_m for o in cars[:j])]
+        scene = make_scene(cross_map, [rsu("r", 0.0, 6.0)] + cars)
+        out.append(Sample(f"s{i}", simulate_frame(scene, spec)))
+    return out
+
+
+def test_tiny_model_overfits_tiny_set(cross_map):
+    torch.manual_seed(0)
+    samples = tiny_frames(cross_map)
+    model = PointPillars(TINY)
+    anchors = model.anchors.numpy()
+    data = [(torch.from_numpy(s.frame.clouds["r"]), s.gt_visible_ego()) for s in samples]
+    targets = [assign_targets(anchors, b, TINY) for _, b in data]
+    labels = torch.from_numpy(np.stack([t[0] for t in targets]))
+    res = torch.from_numpy(np.stack([t[1] for t in targets]))
+    dirs = torch.from_numpy(np.stack([t[2] for t in targets]))
+    opt = torch.optim.Adam(model.parameters(), lr=0.01)
+    losses = []
+    for _ in range(120):
+        cls, box, d = model([c for c, _ in data])
+        loss = detection_loss(cls, box, d, labels, res, dirs)["total"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss))
+    assert losses[-1] < 0.25 * losses[0]
+    model.eval()
+    with torch.no_grad():
+        dets = postprocess(*model([c for c, _ in data]), model.anchors, TINY)
+    frames = [(b, s, gt) for (b, s), (_, gt) in zip(dets, data)]
+    assert average_precision(frames, 0.5) > 0.9
+
+
+def test_anchor_targets_cover_every_box():
+    cfg = DetectorConfig()
+    anchors = make_anchors(cfg)
+    assert anchors.shape == (cfg.head_size ** 2 * cfg.anchors_per_cell, 7)
+    gt = np.array([[3.0, -7.0, -1.0, 4.6, 1.85, 1.5, 0.3], [-20.0, 10.0, -1.0, 12.0, 2.55, 3.1, 1.5]])
+    labels, res, dirs = assign_targets(anchors, gt, cfg)
+    pos = np.flatnonzero(labels == 1)
+    assert len(pos) >= 2
+    near_bus = pos[np.hypot(anchors[pos, 0] + 20, anchors[pos, 1] - 10) < 3]
+    assert len(near_bus) and np.all(anchors[near_bus, 3] == 10.0)  # the large anchor takes the bus
+
+
+def test_nms_keeps_best_of_overlaps():
+    boxes = np.array([[0, 0, 0, 4, 2, 1.5, 0.0], [0.2, 0, 0, 4, 2, 1.5, 0.05], [10, 0, 0, 4, 2, 1.5, 0.0]])
+    keep = rotated_nms(boxes, np.array([0.5, 0.9, 0.7]), 0.15, 10)
+    assert keep.tolist() == [1, 2]
+
+
+def test_attention_rows_sum_to_one_and_mask_missing_agents():
+    model = AttFuse(TINY).eval()
+    clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5], [torch.randn(300, 4) * 5]]
+    with torch.no_grad():
+        model(clouds)
+    att = model.last_attention  # (B, N, H, W)
+    assert torch.allclose(att.sum(dim=1), torch.ones_like(att[:, 0]))
+    assert torch.all(att[1, 1] == 0)  # sample 1 has one agent: nothing attends to the padding
+
+
+def test_registry_lists_all_fusions():
+    from asg import perception  # noqa: F401
+
+    assert set(names("fusion")) == {"none", "late", "early", "attfuse"}
+    with pytest.raises(InputError, match="unknown fusion 'mid'.*attfuse"):
+        perception.build_detector("mid")
+
+
+def test_corrupt_and_mismatched_weights(tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(InputError, match="not a readable weights file"):
+        load_state(PointPillars(TINY), bad)
+    other = tmp_path / "attfuse.pt"
+    save_state(AttFuse(TINY), other)
+    with pytest.raises(InputError, match="do not match"):
+        load_state(PointPillars(TINY), other)
+    wrong_size = tmp_path / "wide.pt"
+    save_state(PointPillars(DetectorConfig(range_m=16.0, pillar_m=0.5, pfn_channels=16, layers=(1, 1, 1),
+                                           filters=(16, 32, 64), upsample_channels=16)), wrong_size)
+    with pytest.raises(InputError, match="do not match"):
+        load_state(PointPillars(TINY), wrong_size)
+    good = tmp_path / "good.pt"
+    save_state(PointPillars(TINY), good)
+    load_state(PointPillars(TINY), good)

@@ -1,0 +1,95 @@
+import math
+
+import numpy as np
+import pytest
+
+from asg.collaborators import attention_combinations, combination_weakness, random_combinations
+from asg.search import build_optimizer, run_search
+from asg.search.loop import best_of
+from sumo_scenarios.errors import InputError
+
+
+class PlantedQ:
+    """A feasible set of 1000 random points in [-1, 1]^9 (no scene needed)."""
+
+    def __init__(self, rng, dim=9, n=1000):
+        self.members = rng.uniform(-1, 1, (n, dim))
+
+    def project(self, x):
+        return self.members[int(np.argmin(((self.members - x) ** 2).sum(axis=1)))]
+
+
+def planted(target):
+    return lambda x: (float(((x - target) ** 2).sum()), {})
+
+
+def test_bo_beats_random_search_on_a_planted_objective():
+    wins, bo_best, rs_best = 0, [], []
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        q = PlantedQ(rng)
+        target = rng.uniform(-0.6, 0.6, 9)
+        res = {}
+        for name in ("rs", "bo"):
+            opt = build_optimizer(name, 9, 50, np.random.default_rng(100 + seed), n_initial=20, n_points=500)
+            hist = run_search(opt, q, planted(target), 50)
+            res[name] = best_of(hist).loss
+        bo_best.append(res["bo"])
+        rs_best.append(res["rs"])
+        wins += res["bo"] < res["rs"]
+    assert wins >= 2 and np.mean(bo_best) < np.mean(rs_best)
+
+
+def test_ga_improves_over_its_first_generation():
+    rng = np.random.default_rng(0)
+    q = PlantedQ(rng)
+    target = rng.uniform(-0.5, 0.5, 9)
+    opt = build_optimizer("ga", 9, 60, np.random.default_rng(1), population=15)
+    hist = run_search(opt, q, planted(target), 60)
+    first = min(e.loss for e in hist[:15])
+    assert best_of(hist).loss < first
+
+
+def test_optimizers_are_seeded():
+    for name in ("rs", "ga", "bo"):
+        runs = []
+        for _ in range(2):
+            q = PlantedQ(np.random.default_rng(0))
+            params = {"n_initial": 10, "n_points": 200} if name == "bo" else {}
+            opt = build_optimizer(name, 9, 25, np.random.default_rng(5), **params)
+            runs.append([e.loss for e in run_search(opt, q, planted(np.zeros(9)), 25)])
+        assert runs[0] == runs[1], name
+
+
+def test_unknown_algorithm():
+    with pytest.raises(InputError, match="unknown search 'annealing'.*bo, ga, rs"):
+        build_optimizer("annealing", 9, 10, np.random.default_rng(0))
+
+
+def test_attention_sampling_prefers_weak_agents():
+    weights = {"a": 0.5, "b": 0.3, "c": 0.1, "d": 0.05}
+    combos, p = attention_combinations(weights, list(weights), 2, 3, 0.03, np.random.default_rng(0))
+    assert len(combos) == 3 and len(set(combos)) == 3
+    assert combos[0] == ("c", "d")  # the weakest pair dominates at tau = 0.03
+    assert math.isclose(p.sum(), 1.0) and np.all(np.isfinite(p))
+    w = combination_weakness(weights, [("a", "b"), ("c", "d")])
+    assert w[1] > w[0]
+
+
+def test_attention_sampling_frequencies_follow_softmax():
+    weights = {"a": 1.0, "b": 1.0 / 1.02, "c": 1.0 / 1.04}
+    counts = {}
+    rng = np.random.default_rng(0)
+    for _ in range(4000):
+        c, p = attention_combinations(weights, list(weights), 1, 1, 0.03, rng)
+        counts[c[0]] = counts.get(c[0], 0) + 1
+    expected = dict(zip([("a",), ("b",), ("c",)], p))
+    for k, v in expected.items():
+        assert abs(counts.get(k, 0) / 4000 - v) < 0.03
+
+
+def test_random_combinations_and_fewer_candidates_than_needed():
+    rng = np.random.default_rng(0)
+    assert len(random_combinations(["a", "b", "c", "d"], 2, 3, rng)) == 3
+    assert random_combinations(["a"], 2, 3, rng) == [("a",)]
+    assert random_combinations([], 2, 3, rng) == []
