@@ -17,7 +17,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
-	$(VENV)/bin/asg demo
+	$(VENV)/bin/asg generate
 
 test: setup
 	$(VENV)/bin/pytest -q

@@ -23,6 +23,7 @@ from .fcd import FcdFrame, FcdVehicle, front_from_center, sumo_angle_from_yaw_ra
 from .lanes import Junction, Lane, LaneMap
 from .log import BUILDINGS_NAME, LANES_NAME, LogMeta, density_stats, write_lanes, write_meta
 from .rsu import place_rsus
+from .simulate import validate_times
 
 ENVS = ("highway-v0", "merge-v0", "roundabout-v0", "intersection-v0")
 #: highway-env's vehicles are all 5 m x 2 m; we record them as this type (height is ours)
@@ -51,10 +52,7 @@ class HighwayRequest:
     def validate(self) -> None:
         if self.env_id not in ENVS:
             raise InputError(f"unknown highway-env scenario '{self.env_id}'; choose one of {', '.join(ENVS)}")
-        if self.duration_s <= 0:
-            raise InputError(f"--duration must be positive seconds, got {self.duration_s:g}")
-        if self.warmup_s < 0:
-            raise InputError(f"--warmup must be zero or more seconds, got {self.warmup_s:g}")
+        validate_times(self.duration_s, self.warmup_s)
         if self.record_period_s * self.simulation_hz < 1 - 1e-9:
             raise InputError(f"--record-period must be at least one step ({1 / self.simulation_hz:g} s)")
 

@@ -37,16 +37,21 @@ class SimulationRequest:
     traffic: TrafficParams | None = None  # None: defaults scaled by the town's demand_scale
 
     def validate(self) -> None:
-        if self.duration_s <= 0:
-            raise InputError(f"--duration must be positive seconds, got {self.duration_s:g}")
-        if self.warmup_s < 0:
-            raise InputError(f"--warmup must be zero or more seconds, got {self.warmup_s:g}")
+        validate_times(self.duration_s, self.warmup_s)
         if not 0 < self.step_s <= 1.0:
             raise InputError(f"--step must be in (0, 1] seconds, got {self.step_s:g}")
         if self.record_period_s < self.step_s:
             raise InputError(f"--record-period ({self.record_period_s:g} s) must be at least the step ({self.step_s:g} s)")
         if self.density not in ("normal", "dense"):
             raise InputError(f"--density must be normal or dense, got {self.density!r}")
+
+
+def validate_times(duration_s: float, warmup_s: float) -> None:
+    """The recorded duration must be positive and the warm-up not negative (seconds)."""
+    if duration_s <= 0:
+        raise InputError(f"--duration must be positive seconds, got {duration_s:g}")
+    if warmup_s < 0:
+        raise InputError(f"--warmup must be zero or more seconds, got {warmup_s:g}")
 
 
 def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> dict:

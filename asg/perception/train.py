@@ -162,8 +162,28 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
             "lr": tcfg.lr, "seed": tcfg.seed, "train_wall_s": round(wall, 1), "threads": threads,
             "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp"}
     write_text_atomic(WEIGHTS_DIR / f"{name}.json", json.dumps(card, indent=1))
-    log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training")
+    log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training; validating ...")
+    card_validation(name, log)
     return weights
+
+
+def card_validation(name: str, log: Callable[[str], None] = print, set_name: str = "normal-val") -> dict:
+    """Evaluate the shipped ``name`` weights on ``set_name`` (every fusion that uses them) and
+    record the APs in the model card."""
+    from .evaluate import evaluate
+
+    card_path = WEIGHTS_DIR / f"{name}.json"
+    card = json.loads(card_path.read_text()) if card_path.is_file() else {"weights": f"{name}.pt"}
+    card["validation"] = {}
+    for fusion in [f for f, w in FUSION_TO_WEIGHTS.items() if w == name]:
+        t0 = time.perf_counter()
+        res = evaluate(fusion, set_name)
+        card["validation"][fusion] = {"set": set_name, "frames": res["frames"],
+                                      "ap": {k: round(v, 4) for k, v in res["ap"].items()},
+                                      "eval_wall_s": round(time.perf_counter() - t0, 1)}
+        log(f"{fusion} on {set_name}: AP {res['ap']}")
+    write_text_atomic(card_path, json.dumps(card, indent=1))
+    return card
 
 
 def _checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng: np.random.Generator) -> None:
