@@ -113,6 +113,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenes", type=int, default=5)
     p.add_argument("--budget", type=int, default=50)
     p.add_argument("--json", action="store_true", help="print JSON only")
+    p = _add(bsub, "paper", "the generator's targets: AttFuse with ACS-A/BO, GA, RS and ACS-R/BO on normal scenes",
+             commands.bench_paper)
+    p.add_argument("--scenes", type=int, default=30)
+    p.add_argument("--budget", type=int, default=50)
+    p.add_argument("--fusion", default="attfuse")
+    p.add_argument("--out", type=Path, default=Path("runs/bench-paper"))
+    p.add_argument("--json", action="store_true", help="print JSON only")
     bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
 
     p = _add(sub, "generate", "generate challenging scenes: collaborator search, then perturbation search "
@@ -120,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--town", help="sample normal scenes from this bundled town")
     src.add_argument("--net", type=Path, help="...or from any SUMO net")
-    src.add_argument("--scenes", type=Path, help="...or take the scenes of this folder (scene yaml or a data set)")
+    src.add_argument("--scenes", type=Path, help="...or take the scenes of this folder (scene yaml or a data set) or set (normal, normal-val)")
     p.add_argument("--fusion", default=None, help="target model: none, late, early, attfuse (default attfuse)")
     p.add_argument("--search", default=None, help="rs, ga or bo (default bo)")
     p.add_argument("--acs", default=None, choices=["attention", "random", "off"])

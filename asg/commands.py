@@ -215,3 +215,20 @@ def bench_generate(args: argparse.Namespace) -> int:
         raise InputError("--scenes and --budget must be at least 1")
     _print_result("asg bench generate", run(scenes=args.scenes, budget=args.budget), args.json)
     return 0
+
+
+def bench_paper(args: argparse.Namespace) -> int:
+    from .benchmarks.paper import bench_paper as run
+
+    result = run(Path(args.out), scenes=args.scenes, budget=args.budget, fusion=args.fusion)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        table = Table(title=f"AP of {result['fusion']} (pooled over scenes)")
+        for col in ("ACS-search", "normal 0.3/0.5/0.7", "challenging 0.3/0.5/0.7", "scenes"):
+            table.add_column(col)
+        for k, v in result["table"].items():
+            fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7"))
+            table.add_row(k, fmt(v["normal"]), fmt(v["challenging"]), str(v["scenes"]))
+        stdout.print(table)
+    return 0

@@ -32,7 +32,10 @@ def _scenes_from_town(town: str | None, net: Path | None, seed: int, tmp: Path) 
 
 def _scenes_from_dir(path: Path) -> Iterator[Scene]:
     from .datasets import iter_frames
+    from .perception.evaluate import SETS, scenes_of
 
+    if str(path) in SETS:  # a named set: normal (its 219-scene split), normal-val, normal-all
+        return scenes_of(str(path))
     if (path / "index.json").is_file():
         return iter_frames(path)
     if not path.is_dir():

@@ -113,6 +113,13 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     run_dir = out_dir or project_root() / "runs" / "train" / name
     ckpt = run_dir / "last.pt"
     step, wall = 0, 0.0
+    previous = _previous_training(name) if not ckpt.is_file() else {}
+    if previous:
+        from .weights_io import load_state
+
+        load_state(model, WEIGHTS_DIR / f"{name}.pt")
+        model.train()
+        log(f"continuing from the shipped {name} weights ({previous['steps_total']} steps so far)")
     if ckpt.is_file():
         state = torch.load(ckpt, map_location="cpu", weights_only=True)
         model.load_state_dict(state["model"])
@@ -157,9 +164,11 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     weights = WEIGHTS_DIR / f"{name}.pt"
     with atomic_path(weights) as tmp:
         torch.save(model.state_dict(), tmp)
+    chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "seed": tcfg.seed, "wall_s": round(wall, 1)}]
     card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
-            "dataset": tcfg.dataset, "examples": len(batches.items), "steps": total, "batch_size": tcfg.batch_size,
-            "lr": tcfg.lr, "seed": tcfg.seed, "train_wall_s": round(wall, 1), "threads": threads,
+            "dataset": tcfg.dataset, "examples": len(batches.items), "steps": sum(c["steps"] for c in chunks),
+            "batch_size": tcfg.batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
+            "chunks": chunks, "threads": threads,
             "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp"}
     write_text_atomic(WEIGHTS_DIR / f"{name}.json", json.dumps(card, indent=1))
     log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training; validating ...")
@@ -175,7 +184,7 @@ def card_validation(name: str, log: Callable[[str], None] = print, set_name: str
     card_path = WEIGHTS_DIR / f"{name}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {"weights": f"{name}.pt"}
     card["validation"] = {}
-    for fusion in [f for f, w in FUSION_TO_WEIGHTS.items() if w == name]:
+    for fusion in [f for f, w in FUSION_TO_WEIGHTS.items() if w == name]:  # none and late share 'single'
         t0 = time.perf_counter()
         res = evaluate(fusion, set_name)
         card["validation"][fusion] = {"set": set_name, "frames": res["frames"],
@@ -184,6 +193,18 @@ def card_validation(name: str, log: Callable[[str], None] = print, set_name: str
         log(f"{fusion} on {set_name}: AP {res['ap']}")
     write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
+
+
+def _previous_training(name: str) -> dict:
+    """What the shipped weights of ``name`` were trained with (from its card), or {} if none:
+    a new run then continues from them (training in chunks across sittings)."""
+    card_path = WEIGHTS_DIR / f"{name}.json"
+    if not (WEIGHTS_DIR / f"{name}.pt").is_file() or not card_path.is_file():
+        return {}
+    card = json.loads(card_path.read_text())
+    chunks = card.get("chunks") or [{"steps": card.get("steps", 0), "lr": card.get("lr"), "seed": card.get("seed"),
+                                     "wall_s": card.get("train_wall_s", 0.0)}]
+    return {"chunks": chunks, "steps_total": sum(c["steps"] for c in chunks)}
 
 
 def _checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng: np.random.Generator) -> None:

@@ -1,0 +1,32 @@
+"""``asg bench paper``: the generator's targets on the normal scenes of the held-out towns.
+
+Runs AttFuse as the target with (ACS-A, BO), (ACS-A, GA), (ACS-A, RS) and (ACS-R, BO) on the
+same scenes and seed, and reports AP@0.3/0.5/0.7 pooled over the scenes (normal and challenging)
+for each, as the paper's Tables I-III. Each configuration is an ``asg generate`` run folder under
+``OUT/<acs>-<search>``, so an interrupted benchmark resumes where it stopped.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"))
+
+
+def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1) -> dict:
+    from ..generate_cmd import run_generate
+    from ..perception.evaluate import scenes_of
+
+    next(iter(scenes_of("normal")))  # builds the normal set if needed
+    table = {}
+    for acs, search in CONFIGS:
+        run_dir = out / f"{acs}-{search}"
+        args = argparse.Namespace(town=None, net=None, scenes=Path("normal"), fusion=fusion, search=search,
+                                  acs=acs, aps="on", count=scenes, budget=budget, seed=seed, config=None, out=run_dir)
+        run_generate(args)
+        agg = json.loads((run_dir / "summary.json").read_text())["aggregate"]
+        table[f"{acs}-{search}"] = {"normal": agg["ap_normal"], "challenging": agg["ap_challenging"],
+                                    "after_acs_mean": agg["mean_scene_ap_after_acs"], "scenes": agg["scenes"],
+                                    "seconds_per_scene_median": agg["seconds_per_scene_median"]}
+    return {"fusion": fusion, "budget": budget, "table": table}

@@ -1,0 +1,38 @@
+"""The shipped detectors load safely (weights_only) and detect vehicles on scenes of a held-out town."""
+import json
+
+import pytest
+
+from asg.perception import build_detector
+from asg.perception.data import Sample
+from asg.perception.weights_io import WEIGHTS_DIR
+from asg.objective import ap_at
+from asg.scene.from_log import ExtractParams, extract_scenes
+from asg.scene.neighbours import with_nearest_collaborators
+from asg.sensors import load_lidar_spec, simulate_frame
+
+
+@pytest.fixture(scope="module")
+def held_out_samples(tmp_path_factory):
+    from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
+
+    log = tmp_path_factory.mktemp("ship") / "log"
+    simulate_sumo(SimulationRequest(out_dir=log, town="roundabout", seed=77, duration_s=20.0, density="normal"))
+    spec = load_lidar_spec("v2xp")
+    scenes = [with_nearest_collaborators(s, 2) for s in extract_scenes(log, ExtractParams(every=10, min_vehicles=5))][:3]
+    return [Sample(s.scene_id, simulate_frame(s, spec)) for s in scenes]
+
+
+@pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse"])
+def test_shipped_model_detects_vehicles(fusion, held_out_samples):
+    det = build_detector(fusion)
+    frames = [(*det.detect(s.frame), s.gt_eval()) for s in held_out_samples]
+    ap = ap_at(frames)
+    assert ap["0.3"] > 0.3, ap
+
+
+def test_model_cards_describe_the_weights():
+    for name in ("single", "early", "attfuse"):
+        card = json.loads((WEIGHTS_DIR / f"{name}.json").read_text())
+        assert card["steps"] > 0 and card["train_wall_s"] > 0 and card["dataset"] == "detector-train"
+        assert (WEIGHTS_DIR / card["weights"]).is_file()
