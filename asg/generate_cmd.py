@@ -17,7 +17,9 @@ from .pipeline import Generator, load_generate_config
 from .progress import console, progress_bar, stdout
 from .scene import Scene, load_scene
 
-DEMO = {"town": "fiveleg", "count": 2, "budget": 15}
+#: the no-argument demo: a held-out town, the best shipped model so far as target (AttFuse still
+#: steers the collaborator search), a short budget
+DEMO = {"town": "fiveleg", "count": 2, "budget": 15, "fusion": "late"}
 
 
 def _scenes_from_town(town: str | None, net: Path | None, seed: int, tmp: Path) -> Iterator[Scene]:
@@ -56,7 +58,8 @@ def run_generate(args: argparse.Namespace) -> int:
     budget = args.budget if args.budget is not None else (DEMO["budget"] if demo else None)
     if count < 1:
         raise InputError(f"--count must be at least 1, got {count}")
-    cfg = load_generate_config(args.config, fusion=args.fusion, search=args.search, acs=args.acs,
+    fusion = args.fusion or (DEMO["fusion"] if demo else None)
+    cfg = load_generate_config(args.config, fusion=fusion, search=args.search, acs=args.acs,
                                aps=None if args.aps is None else args.aps == "on", budget=budget)
     out = Path(args.out)
     target = build_detector(cfg.fusion)
