@@ -104,8 +104,10 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     total = steps or tcfg.steps
     cfg = load_detector_config()
     torch.set_num_threads(threads)
-    torch.manual_seed(tcfg.seed)
-    rng = np.random.default_rng(tcfg.seed)
+    previous = _previous_training(name) if not (out_dir or project_root() / "runs" / "train" / name).joinpath("last.pt").is_file() else {}
+    chunk = len(previous.get("chunks", []))  # a continuation chunk draws other batches than the first
+    torch.manual_seed(tcfg.seed + 1000 * chunk)
+    rng = np.random.default_rng([tcfg.seed, chunk])
     model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
     opt = torch.optim.Adam(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     milestones = [int(f * total) for f in tcfg.decay_at]
@@ -113,7 +115,6 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     run_dir = out_dir or project_root() / "runs" / "train" / name
     ckpt = run_dir / "last.pt"
     step, wall = 0, 0.0
-    previous = _previous_training(name) if not ckpt.is_file() else {}
     if previous:
         from .weights_io import load_state
 
@@ -164,7 +165,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     weights = WEIGHTS_DIR / f"{name}.pt"
     with atomic_path(weights) as tmp:
         torch.save(model.state_dict(), tmp)
-    chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "seed": tcfg.seed, "wall_s": round(wall, 1)}]
+    chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "seed": [tcfg.seed, chunk], "wall_s": round(wall, 1)}]
     card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
             "dataset": tcfg.dataset, "examples": len(batches.items), "steps": sum(c["steps"] for c in chunks),
             "batch_size": tcfg.batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
