@@ -6,7 +6,6 @@ with code 2; Ctrl-C exits with 130 and leaves no half-written file.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Callable, Sequence

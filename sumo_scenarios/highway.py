@@ -7,7 +7,6 @@ kerb-side (rightmost) lane, as in SUMO.
 """
 from __future__ import annotations
 
-import math
 import os
 import time
 from dataclasses import dataclass

@@ -6,9 +6,6 @@ netconvert.
 """
 from __future__ import annotations
 
-import math
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal

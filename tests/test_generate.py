@@ -1,5 +1,4 @@
 """The generator end to end with a fake detector (ground truth for well-seen boxes): fast."""
-import json
 import math
 
 import numpy as np

@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from asg.sensors import count_points_in_boxes, load_lidar_spec, occlusion_matrix, occlusion_scores, simulate_frame
-from asg.sensors.frame import render_frame
 from asg.sensors.lidar_spec import LidarSpec
 from asg.sensors.raycast import EmbreeCaster, TrimeshCaster
 from asg.sensors.world import World

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..scene import Scene
 from ..sensors import LidarSpec, simulate_frame
-from ..sensors.frame import CooperativeFrame, boxes_to_sensor, count_points_in_boxes, transform_points
+from ..sensors.frame import CooperativeFrame, boxes_to_sensor, count_points_in_boxes
 
 #: evaluation range: |x|, |y| <= this many metres in the ego frame (ground truth and detections)
 EVAL_RANGE_M = 48.0

@@ -43,11 +43,10 @@ class PillarEncoder(nn.Module):
         cfg = self.cfg
         n = cfg.grid_size
         cells = n * n
-        feats, index = [], []
-        for b, pts in enumerate(clouds):
+        feats = []
+        for pts in clouds:
             p, flat = pillar_indices(pts, cfg)
-            gid = flat + b * cells
-            uniq, inv = torch.unique(gid, return_inverse=True)
+            uniq, inv = torch.unique(flat, return_inverse=True)
             count = torch.zeros(len(uniq), device=p.device).index_add_(0, inv, torch.ones(len(p), device=p.device))
             mean = torch.zeros(len(uniq), 3, device=p.device).index_add_(0, inv, p[:, :3]) / count.clamp(min=1)[:, None]
             cx = (flat % n).float() * cfg.pillar_m - cfg.range_m + cfg.pillar_m / 2
@@ -63,5 +62,5 @@ class PillarEncoder(nn.Module):
             hh = h[start:start + len(f)]
             start += len(f)
             pooled = torch.zeros(len(uniq), cfg.pfn_channels).index_reduce_(0, inv, hh, "amax", include_self=False)
-            canvas[b, :, uniq - b * cells] = pooled.t()
+            canvas[b, :, uniq] = pooled.t()
         return canvas.view(batch, cfg.pfn_channels, n, n)
