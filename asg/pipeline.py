@@ -5,7 +5,6 @@ What the CLI and the benchmarks call. Works with any detector behind the V2XDete
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,8 +17,9 @@ from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import from_mapping, read_yaml
 
 from .objective import ObjectiveConfig, adversarial_loss, ap_at
-from .scene import Agent, Scene
-from .scene.feasibility import EVAL_RANGE_M, Plausibility, check_scene
+from .scene import Scene
+from .perception.data import in_range
+from .scene.feasibility import Plausibility, check_scene, in_eval_range
 from .scene.neighbours import vehicles_within
 from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, run_search
 from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
@@ -110,8 +110,7 @@ class Generator:
     def _detections(self, frame: CooperativeFrame) -> Detections:
         boxes, scores = self.target.detect(frame)
         gt = frame.ego_boxes
-        gt = gt[(np.abs(gt[:, 0]) <= EVAL_RANGE_M) & (np.abs(gt[:, 1]) <= EVAL_RANGE_M)] if len(gt) else gt
-        return boxes, scores, gt
+        return boxes, scores, gt[in_range(gt)] if len(gt) else gt
 
     def _score(self, frame: CooperativeFrame) -> tuple[float, dict[str, float]]:
         ap = ap_at([self._detections(frame)])
@@ -163,15 +162,9 @@ class Generator:
         return (*best, probs, len(combos))
 
     def pick_perturbed(self, scene: Scene, notes: list[str]) -> list[str]:
-        ego = scene.ego
-        c, s = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
-
-        def in_range(a: Agent) -> bool:
-            dx, dy = a.x_m - ego.x_m, a.y_m - ego.y_m
-            return abs(c * dx + s * dy) <= EVAL_RANGE_M and abs(-s * dx + c * dy) <= EVAL_RANGE_M
-
         sensing = set(scene.sensing_ids)
-        movable = [a for a in scene.vehicles if a.agent_id not in sensing and in_range(a)]
+        others = [a for a in scene.vehicles if a.agent_id not in sensing]
+        movable = [a for a, ok in zip(others, in_eval_range(scene.ego, others)) if ok]
         if len(movable) < self.cfg.perturbed:
             notes.append(f"APS: {len(movable)} vehicles can move (fewer than m = {self.cfg.perturbed}); moving them all")
         viewers = [scene.agent(i) for i in scene.sensing_ids]

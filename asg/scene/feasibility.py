@@ -45,6 +45,16 @@ def _building_object(b: Building) -> fcl.CollisionObject:
     return fcl.CollisionObject(model, fcl.Transform())
 
 
+def in_eval_range(ego: Agent, agents: Sequence[Agent]) -> np.ndarray:
+    """(n,) bool: box centres within |x|, |y| <= EVAL_RANGE_M in the ego's frame."""
+    if not agents:
+        return np.zeros(0, dtype=bool)
+    xy = np.array([[a.x_m, a.y_m] for a in agents]) - np.array([ego.x_m, ego.y_m])
+    c, s = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
+    local = np.stack([c * xy[:, 0] + s * xy[:, 1], -s * xy[:, 0] + c * xy[:, 1]], axis=1)
+    return np.all(np.abs(local) <= EVAL_RANGE_M, axis=1)
+
+
 @dataclass(frozen=True)
 class Plausibility:
     collisions: int
@@ -72,9 +82,6 @@ class FeasibilityChecker:
             self._static.registerObjects(objs)
         self._static.setup()
         self._has_static = bool(objs)
-        ego = scene.ego
-        self._ego_xy = np.array([ego.x_m, ego.y_m])
-        self._ego_yaw = ego.yaw_rad
         self._request = fcl.CollisionRequest()
 
     def collides(self, agents: Sequence[Agent]) -> int:
@@ -94,10 +101,7 @@ class FeasibilityChecker:
 
     def in_range(self, agents: Sequence[Agent]) -> np.ndarray:
         """(n,) bool: box centres within the evaluation range of the ego frame."""
-        xy = np.array([[a.x_m, a.y_m] for a in agents]) - self._ego_xy
-        c, s = math.cos(self._ego_yaw), math.sin(self._ego_yaw)
-        local = np.stack([c * xy[:, 0] + s * xy[:, 1], -s * xy[:, 0] + c * xy[:, 1]], axis=1)
-        return np.all(np.abs(local) <= EVAL_RANGE_M, axis=1)
+        return in_eval_range(self.scene.ego, agents)
 
     def on_road(self, agents: Sequence[Agent]) -> np.ndarray:
         return self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
