@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import gzip
 import json
-import math
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -65,19 +64,11 @@ def _choose_agents(scene: Scene, rng: np.random.Generator, use_rsu: bool, collab
         if not near:
             return None
         ego = near[int(rng.integers(len(near)))].agent_id
-    cands = [a.agent_id for a in _within(scene, ego)]
+    cands = sorted(a.agent_id for a in vehicles_within(scene, ego))
     if not cands:
         return None
     pick = rng.choice(len(cands), size=min(collaborators, len(cands)), replace=False)
-    from dataclasses import replace
-
     return replace(scene, ego_id=ego, collaborators=tuple(cands[i] for i in sorted(pick)))
-
-
-def _within(scene: Scene, ego_id: str, range_m: float = 70.0):
-    e = scene.agent(ego_id)
-    return sorted((a for a in scene.vehicles if a.agent_id != ego_id and math.hypot(a.x_m - e.x_m, a.y_m - e.y_m) <= range_m),
-                  key=lambda a: a.agent_id)
 
 
 def _log_frames(spec: DatasetSpec, town: str, density: str, seed: int, workdir: Path) -> list[Scene]:
@@ -88,7 +79,7 @@ def _log_frames(spec: DatasetSpec, town: str, density: str, seed: int, workdir: 
     for scene in extract_scenes(log, ExtractParams(every=spec.every, min_vehicles=3)):
         chosen = _choose_agents(scene, rng, bool(rng.random() < spec.ego_rsu_share), spec.collaborators)
         if chosen is not None:
-            out.append(chosen)
+            out.append(replace(chosen, log=log.name))  # the log's name, not its temporary path
         if spec.frames_per_log and len(out) >= spec.frames_per_log:
             break
     return out
