@@ -65,6 +65,17 @@ def boxes_to_sensor(boxes_world: np.ndarray, pose: SensorPose) -> np.ndarray:
     return out
 
 
+def boxes_to_world(boxes: np.ndarray, pose: SensorPose) -> np.ndarray:
+    """(M, 7) boxes in the sensor frame of ``pose`` → network frame (inverse of boxes_to_sensor)."""
+    c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
+    out = boxes.copy()
+    out[:, 0] = c * boxes[:, 0] - s * boxes[:, 1] + pose.x_m
+    out[:, 1] = s * boxes[:, 0] + c * boxes[:, 1] + pose.y_m
+    out[:, 2] = boxes[:, 2] + pose.z_m
+    out[:, 6] = boxes[:, 6] + pose.yaw_rad
+    return out
+
+
 def transform_points(points: np.ndarray, src: SensorPose, dst: SensorPose) -> np.ndarray:
     """(N, 4) points from sensor frame ``src`` to sensor frame ``dst`` (intensity kept)."""
     world = points[:, :3].astype(np.float64) @ src.rotation().T + src.origin

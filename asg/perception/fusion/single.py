@@ -5,21 +5,10 @@ import numpy as np
 import torch
 
 from ...registry import register
-from ...sensors.frame import CooperativeFrame, boxes_to_sensor
+from ...sensors.frame import CooperativeFrame, boxes_to_sensor, boxes_to_world
 from ..boxes import rotated_nms
 from ..model import PointPillars, postprocess
 from .base import Detections, V2XDetector
-
-
-def _world_boxes(boxes: np.ndarray, pose) -> np.ndarray:
-    """Sensor-frame boxes → network frame (inverse of boxes_to_sensor)."""
-    c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
-    out = boxes.copy()
-    out[:, 0] = c * boxes[:, 0] - s * boxes[:, 1] + pose.x_m
-    out[:, 1] = s * boxes[:, 0] + c * boxes[:, 1] + pose.y_m
-    out[:, 2] = boxes[:, 2] + pose.z_m
-    out[:, 6] = boxes[:, 6] + pose.yaw_rad
-    return out
 
 
 class _Single(V2XDetector):
@@ -54,7 +43,7 @@ class LateFusion(_Single):
         boxes, scores = [], []
         for aid, (b, s) in zip(frame.sensing_ids, per_agent):
             if len(b):
-                boxes.append(boxes_to_sensor(_world_boxes(b, frame.poses[aid]), ego_pose))
+                boxes.append(boxes_to_sensor(boxes_to_world(b, frame.poses[aid]), ego_pose))
                 scores.append(s)
         if not boxes:
             return np.zeros((0, 7)), np.zeros(0)
