@@ -66,6 +66,17 @@ def test_car_in_front_is_hit_where_expected(cross_map):
     assert not own.any()
 
 
+@pytest.mark.parametrize("type_id", ["car", "truck", "bus"])
+def test_sensor_never_sees_its_own_body_when_surrounded(cross_map, type_id):
+    # objects in every direction make every ray a candidate for the static scene, own body included
+    ring = [car(f"n{k}", 14 * math.cos(k * math.pi / 4), 14 * math.sin(k * math.pi / 4), k * math.pi / 4) for k in range(8)]
+    ego = car("ego", 0.0, 0.0, 0.3, type_id)
+    pts = World(make_scene(cross_map, [ego, *ring]), SMALL).render("ego")
+    half_l, half_w = ego.length_m / 2 + 0.01, ego.width_m / 2 + 0.01
+    own = (np.abs(pts[:, 0]) <= half_l) & (np.abs(pts[:, 1]) <= half_w)
+    assert not own.any()
+
+
 def test_embree_matches_trimesh_backend(cross_map):
     agents = [car("ego", 0.0, -1.6), car("a", 12.0, -1.6, type_id="van"), car("b", -9.0, 1.6, math.pi, "truck"),
               car("c", 1.6, 15.0, math.pi / 2, "suv"), rsu("r", 9.0, 9.0)]

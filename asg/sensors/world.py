@@ -10,7 +10,7 @@ A sensor never sees its own body: its rays start where they leave its own footpr
 Rendering casts only the rays that can hit something above the ground: per azimuth column, the
 nearest object and the highest elevation any object reaches bound the candidates, and each cast
 ray stops at its ground hit (Embree's tfar); the rest are ground hits or misses. Candidate rays
-of all sensors go to Embree in one batch split over two threads (embreex releases the GIL).
+of all sensors go to Embree in one batch split evenly over two threads (embreex releases the GIL).
 Static results are cached per sensor, so a re-render after moving vehicles costs only the moved
 vehicles' rays, independent of the number of buildings.
 """
@@ -89,6 +89,10 @@ class _SensorRays:
     dirs32: np.ndarray
     starts32: np.ndarray
     t_start: np.ndarray
+    #: (N,) distance to the ground plane (inf: never, or under the own body)
+    t_ground: np.ndarray
+    #: (N,) where a static hit stops mattering: min(ground, range)
+    t_limit: np.ndarray
 
     @staticmethod
     def make(agent: Agent, spec: LidarSpec, dirs_sensor: np.ndarray) -> "_SensorRays":
@@ -96,9 +100,14 @@ class _SensorRays:
         dirs_w = dirs_sensor @ pose.rotation().T
         half_l, half_w = (0.2, 0.2) if agent.kind == "rsu" else (agent.length_m / 2, agent.width_m / 2)
         with np.errstate(divide="ignore"):
-            t_start = np.minimum(half_l / np.abs(dirs_sensor[:, 0]), half_w / np.abs(dirs_sensor[:, 1]))
+            # 2 cm past the footprint: a ray leaving it exactly on a face could hit the own body
+            t_start = np.minimum(half_l / np.abs(dirs_sensor[:, 0]), half_w / np.abs(dirs_sensor[:, 1])) + 0.02
+            dz = dirs_w[:, 2]
+            t_ground = np.where(dz < -1e-9, pose.z_m / -np.minimum(dz, -1e-9), np.inf)
+        t_ground[t_ground < t_start] = np.inf  # the ground under the own body is not visible
         starts = pose.origin + dirs_w * t_start[:, None]
-        return _SensorRays(pose, dirs_w, dirs_w.astype(np.float32), starts.astype(np.float32), t_start)
+        return _SensorRays(pose, dirs_w, dirs_w.astype(np.float32), starts.astype(np.float32), t_start,
+                           t_ground, np.minimum(t_ground, spec.range_m))
 
 
 class _Template:
@@ -218,44 +227,44 @@ class World:
             self._rays(sid)
 
     def _fill_base(self, sensor_ids: list[str]) -> None:
-        """Cache ground + static hits for the sensors that have none yet (sensors in two threads)."""
+        """Cache ground + static hits for the sensors that have none yet: every sensor's candidate
+        rays go to Embree in one batch, split evenly over two threads."""
         todo = [s for s in dict.fromkeys(sensor_ids) if s not in self._base_cache]
-        for sid in todo:
-            self._rays(sid)
-        for sid, hits in zip(todo, _map_parallel(self._base_one, todo)):
+        if not todo:
+            return
+        rays = [self._rays(sid) for sid in todo]
+        cands = [self._candidates(r.pose, r.t_limit, self._static_index.get(sid), r.t_start < r.t_limit)
+                 for sid, r in zip(todo, rays)]
+        starts = np.concatenate([np.take(r.starts32, c, axis=0) for r, c in zip(rays, cands)])
+        dirs = np.concatenate([np.take(r.dirs32, c, axis=0) for r, c in zip(rays, cands)])
+        far = np.concatenate([np.take(r.t_limit - r.t_start, c) for r, c in zip(rays, cands)])
+        t_all, prim_all = _cast_split(self._static, starts, dirs, far)
+        start = 0
+        for sid, r, cand in zip(todo, rays, cands):
+            end = start + len(cand)
+            hits = _Hits(r.t_ground.copy(), np.full(len(r.t_ground), SURFACES["ground"], dtype=np.int8),
+                         np.abs(r.dirs_w[:, 2]))
+            t, prim = t_all[start:end], prim_all[start:end]
+            ok = np.flatnonzero(prim >= 0)
+            sel = cand[ok]
+            pp = prim[ok]
+            hits.t[sel] = t[ok] + r.t_start[sel]
+            hits.surface[sel] = np.take(self._static_surface, pp)
+            hits.cos_inc[sel] = np.abs(np.einsum("ij,ij->i", np.take(dirs[start:end], ok, axis=0),
+                                                 np.take(self._static_normals32, pp, axis=0)))
             self._base_cache[sid] = hits
-
-    def _base_one(self, sensor_id: str) -> _Hits:
-        """Ground and static-scene hits of one sensor."""
-        rays = self._ray_cache[sensor_id]
-        dz = rays.dirs_w[:, 2]
-        with np.errstate(divide="ignore"):
-            t_ground = np.where(dz < -1e-9, rays.pose.z_m / -dz, np.inf)
-        t_ground[t_ground < rays.t_start] = np.inf  # the ground under the own body is not visible
-        limit = np.minimum(t_ground, self.spec.range_m)
-        hits = _Hits(t_ground, np.full(len(t_ground), SURFACES["ground"], dtype=np.int8), np.abs(dz))
-        cand = self._candidates(rays.pose, limit, self._static_index.get(sensor_id), rays.t_start < limit)
-        if not len(cand):
-            return hits
-        d = np.take(rays.dirs32, cand, axis=0)
-        t, prim = self._static.first_hits(np.take(rays.starts32, cand, axis=0), d, np.take(limit - rays.t_start, cand))
-        ok = np.flatnonzero(prim >= 0)
-        sel = cand[ok]
-        pp = prim[ok]
-        hits.t[sel] = t[ok] + rays.t_start[sel]
-        hits.surface[sel] = np.take(self._static_surface, pp)
-        hits.cos_inc[sel] = np.abs(np.einsum("ij,ij->i", np.take(d, ok, axis=0), np.take(self._static_normals32, pp, axis=0)))
-        return hits
+            start = end
 
     def _candidates(self, pose: SensorPose, t_now: np.ndarray, own: int | None, reachable: np.ndarray) -> np.ndarray:
         """Indices of rays that may hit a static object (but ``own``, the sensor's body) before ``t_now``.
 
-        Per azimuth column: the nearest object distance and the highest elevation any object
-        reaches; a ray is a candidate if it gets that far before hitting the ground and is not
-        above that elevation.
+        ``t_now`` (channels * azimuth_steps,) must depend on the channel only (ground or range
+        limit), which makes each channel's horizontal reach R_c a constant. A ray (channel c,
+        column) is a candidate if some object spanning that column starts within R_c and its top
+        reaches at least the ray's elevation.
         """
         spec = self.spec
-        A = spec.azimuth_steps
+        A, C = spec.azimuth_steps, spec.channels
         if not len(self._static_outlines):
             return np.zeros(0, dtype=np.int64)
         lo, hi, r_min, r_max, ok = _spans(self._static_outlines, pose, A, spec.range_m)
@@ -266,16 +275,21 @@ class World:
         lo, hi, r_min, r_max, tops = lo[ok], hi[ok], r_min[ok], r_max[ok], self._static_tops[ok]
         dz = tops - pose.z_m
         el_top = np.arctan2(dz, np.where(dz > 0, r_min, r_max))
+        reach = (t_now * self._cos_el).reshape(C, A).max(axis=1)  # (C,) horizontal reach per channel
+        order = np.argsort(reach, kind="stable")
+        rank = np.empty(C, dtype=np.int64)
+        rank[order] = np.arange(C)
+        first = np.searchsorted(reach[order], r_min, side="left")  # first rank that reaches each object
+        live = first < C
+        lo, hi, first, el_top = lo[live], hi[live], first[live], el_top[live]
         lengths = hi - lo + 1
         offsets = np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
         cols = (np.repeat(lo, lengths) + offsets) % A
-        near = np.full(A, np.inf)
-        el_max = np.full(A, -np.inf)
-        np.minimum.at(near, cols, np.repeat(r_min, lengths))
-        np.maximum.at(el_max, cols, np.repeat(el_top, lengths))
-        mask = t_now * self._cos_el >= near[self._col]
-        mask &= self._el <= el_max[self._col] + 1e-9
-        mask &= reachable
+        top = np.full((C, A), -np.inf)
+        np.maximum.at(top, (np.repeat(first, lengths), cols), np.repeat(el_top, lengths))
+        np.maximum.accumulate(top, axis=0, out=top)  # rank j: every object reached by rank <= j
+        mask = self._el.reshape(C, A) <= top[rank] + 1e-9
+        mask &= reachable.reshape(C, A)
         return np.flatnonzero(mask)
 
     def _cast_instance(self, agent: Agent, pose: SensorPose, dirs_w: np.ndarray, hits: _Hits) -> None:
@@ -346,16 +360,22 @@ class World:
 _POOL = None
 
 
-def _map_parallel(func, items: list) -> list:
-    """``[func(x) for x in items]`` on two threads (Embree and large numpy ops release the GIL)."""
+def _cast_split(caster: Caster, origins: np.ndarray, directions: np.ndarray, far: np.ndarray):
+    """``caster.first_hits`` with the rays split in two halves, one on a worker thread (embreex
+    releases the GIL while it casts)."""
     global _POOL
-    if len(items) < 2:
-        return [func(x) for x in items]
+    n = len(origins)
+    if n < 2048:
+        return caster.first_hits(origins, directions, far)
     from concurrent.futures import ThreadPoolExecutor
 
     if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="asg-lidar")
-    return list(_POOL.map(func, items))
+        _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="asg-lidar")
+    h = n // 2
+    other = _POOL.submit(caster.first_hits, origins[h:], directions[h:], far[h:])
+    t0, p0 = caster.first_hits(origins[:h], directions[:h], far[:h])
+    t1, p1 = other.result()
+    return np.concatenate([t0, t1]), np.concatenate([p0, p1])
 
 
 def _pose_rt(a: Agent) -> tuple[np.ndarray, np.ndarray]:
