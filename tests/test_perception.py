@@ -100,6 +100,45 @@ def test_attention_rows_sum_to_one_and_mask_missing_agents():
     assert torch.all(att[1, 1] == 0)  # sample 1 has one agent: nothing attends to the padding
 
 
+def test_attention_equals_the_direct_formula():
+    """softmax(q k^T / sqrt(C)) v per cell with every agent projected, as the paper writes it."""
+    from asg.perception.model import ScaledDotAttention
+
+    torch.manual_seed(0)
+    att = ScaledDotAttention(8)
+    feats = torch.randn(2, 3, 8, 4, 5)
+    mask = torch.tensor([[True, True, True], [True, True, False]])
+    out, a = att(feats, mask)
+    x = feats.permute(0, 3, 4, 1, 2)  # (B, H, W, N, C)
+    q, k, v = att.q(x[..., :1, :]), att.k(x), att.v(x)
+    logits = (q @ k.transpose(-1, -2)) / math.sqrt(8)  # (B, H, W, 1, N)
+    logits = logits.masked_fill(~mask[:, None, None, None, :], float("-inf"))
+    ref_a = torch.softmax(logits, dim=-1)
+    ref = (ref_a @ v)[..., 0, :].permute(0, 3, 1, 2)
+    assert torch.allclose(out, ref, atol=1e-5)
+    assert torch.allclose(a, ref_a[..., 0, :].permute(0, 3, 1, 2), atol=1e-6)
+
+
+def test_folding_batch_norms_keeps_the_function():
+    from asg.perception.inference import fold_batch_norms
+
+    torch.manual_seed(0)
+    model = AttFuse(TINY)
+    model.train()
+    with torch.no_grad():  # a few batches give the norms non-trivial running statistics
+        for _ in range(3):
+            model([[torch.randn(400, 4) * 5, torch.randn(300, 4) * 5]])
+    model.eval()
+    clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5]]
+    with torch.no_grad():
+        ref = model(clouds)
+        fold_batch_norms(model)
+        out = model(clouds)
+    assert not any(isinstance(m, (torch.nn.BatchNorm1d, torch.nn.BatchNorm2d)) for m in model.modules())
+    for r, o in zip(ref, out):
+        assert torch.allclose(r, o, atol=1e-4)
+
+
 def test_registry_lists_all_fusions():
     from asg import perception  # noqa: F401
 

@@ -9,6 +9,7 @@ import torch
 from ...sensors.frame import CooperativeFrame
 from ..config import DetectorConfig, load_detector_config
 from ..data import in_range
+from ..inference import fold_batch_norms
 
 Detections = tuple[np.ndarray, np.ndarray]  # boxes (K, 7) in the ego sensor frame, scores (K,)
 
@@ -28,6 +29,7 @@ class V2XDetector(ABC):
 
             load_state(self.model, weights_file or weights_path(self.weights))
         self.model.eval()
+        fold_batch_norms(self.model)
 
     @abstractmethod
     def build_model(self) -> torch.nn.Module: ...
