@@ -15,7 +15,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 import torch
@@ -44,7 +44,12 @@ class TrainConfig:
     batch_size: int = 4
     lr: float = 0.002
     weight_decay: float = 0.0001
+    #: "step": lr x0.1 at each fraction in decay_at; "onecycle": warm up to lr over pct_start of
+    #: the steps (from lr / div_factor), then cosine annealing (Adam's beta1 cycled 0.95 <-> 0.85)
+    schedule: Literal["step", "onecycle"] = "step"
     decay_at: tuple[float, ...] = (0.7, 0.9)
+    pct_start: float = 0.4
+    div_factor: float = 10.0
     seed: int = 1
     checkpoint_every: int = 200
 
@@ -95,30 +100,35 @@ class _Batches:
 
 
 def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, log: Callable[[str], None] = print,
-          progress: Callable[[int, int, float], None] | None = None, threads: int = 2) -> Path:
-    """Train (or resume) the weights behind ``fusion``; returns the written weights file."""
+          progress: Callable[[int, int, float], None] | None = None, threads: int = 2, *,
+          train_config: TrainConfig | None = None, detector_config=None, weights_dir: Path = WEIGHTS_DIR,
+          validate: bool = True) -> Path:
+    """Train (or resume) the weights behind ``fusion``; returns the written weights file.
+
+    Configs default to configs/detectors/{train,pointpillars}.yaml and the weights to the shipped
+    ones (asg/perception/weights/); ``validate`` records normal-val AP in the model card.
+    """
     if fusion not in FUSION_TO_WEIGHTS:
         raise InputError(f"unknown fusion '{fusion}'; choose one of {', '.join(FUSION_TO_WEIGHTS)}")
     name = FUSION_TO_WEIGHTS[fusion]
-    tcfg = load_train_config(name)
+    tcfg = train_config or load_train_config(name)
     total = steps or tcfg.steps
-    cfg = load_detector_config()
+    cfg = detector_config or load_detector_config()
     torch.set_num_threads(threads)
-    previous = _previous_training(name) if not (out_dir or project_root() / "runs" / "train" / name).joinpath("last.pt").is_file() else {}
+    run_dir = out_dir or project_root() / "runs" / "train" / name
+    ckpt = run_dir / "last.pt"
+    previous = {} if ckpt.is_file() else _previous_training(name, weights_dir)
     chunk = len(previous.get("chunks", []))  # a continuation chunk draws other batches than the first
     torch.manual_seed(tcfg.seed + 1000 * chunk)
     rng = np.random.default_rng([tcfg.seed, chunk])
     model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
     opt = torch.optim.Adam(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
-    milestones = [int(f * total) for f in tcfg.decay_at]
-    sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=milestones, gamma=0.1)
-    run_dir = out_dir or project_root() / "runs" / "train" / name
-    ckpt = run_dir / "last.pt"
+    sched = _scheduler(opt, tcfg, total)
     step, wall = 0, 0.0
     if previous:
         from .weights_io import load_state
 
-        load_state(model, WEIGHTS_DIR / f"{name}.pt")
+        load_state(model, weights_dir / f"{name}.pt")
         model.train()
         log(f"continuing from the shipped {name} weights ({previous['steps_total']} steps so far)")
     if ckpt.is_file():
@@ -126,7 +136,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         sched.load_state_dict(state["scheduler"])
-        sched.milestones = Counter(milestones)  # the configured schedule wins over the saved one
+        _keep_configured_length(sched, tcfg, total)
         step, wall = int(state["step"]), float(state["wall_s"])
         rng.bit_generator.state = json.loads(state["rng"])
         torch.set_rng_state(state["torch_rng"])
@@ -162,18 +172,20 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
             _checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng)
     wall += time.perf_counter() - started
     model.eval()
-    weights = WEIGHTS_DIR / f"{name}.pt"
+    weights = weights_dir / f"{name}.pt"
     with atomic_path(weights) as tmp:
         torch.save(model.state_dict(), tmp)
-    chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "seed": [tcfg.seed, chunk], "wall_s": round(wall, 1)}]
+    chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
+                                            "seed": [tcfg.seed, chunk], "wall_s": round(wall, 1)}]
     card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
             "dataset": tcfg.dataset, "examples": len(batches.items), "steps": sum(c["steps"] for c in chunks),
             "batch_size": tcfg.batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
             "chunks": chunks, "threads": threads,
             "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp"}
-    write_text_atomic(WEIGHTS_DIR / f"{name}.json", json.dumps(card, indent=1))
-    log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training; validating ...")
-    card_validation(name, log)
+    write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
+    log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training")
+    if validate:
+        card_validation(name, log)
     return weights
 
 
@@ -196,16 +208,31 @@ def card_validation(name: str, log: Callable[[str], None] = print, set_name: str
     return card
 
 
-def _previous_training(name: str) -> dict:
-    """What the shipped weights of ``name`` were trained with (from its card), or {} if none:
-    a new run then continues from them (training in chunks across sittings)."""
-    card_path = WEIGHTS_DIR / f"{name}.json"
-    if not (WEIGHTS_DIR / f"{name}.pt").is_file() or not card_path.is_file():
+def _previous_training(name: str, weights_dir: Path = WEIGHTS_DIR) -> dict:
+    """What the weights of ``name`` in ``weights_dir`` were trained with (from its card), or {} if
+    none: a new run then continues from them (training in chunks across sittings)."""
+    card_path = weights_dir / f"{name}.json"
+    if not (weights_dir / f"{name}.pt").is_file() or not card_path.is_file():
         return {}
     card = json.loads(card_path.read_text())
     chunks = card.get("chunks") or [{"steps": card.get("steps", 0), "lr": card.get("lr"), "seed": card.get("seed"),
                                      "wall_s": card.get("train_wall_s", 0.0)}]
     return {"chunks": chunks, "steps_total": sum(c["steps"] for c in chunks)}
+
+
+def _scheduler(opt: torch.optim.Optimizer, tcfg: TrainConfig, total: int):
+    if tcfg.schedule == "onecycle":
+        return torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tcfg.lr, total_steps=total, pct_start=tcfg.pct_start,
+                                                   div_factor=tcfg.div_factor)
+    return torch.optim.lr_scheduler.MultiStepLR(opt, milestones=[int(f * total) for f in tcfg.decay_at], gamma=0.1)
+
+
+def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
+    """After loading a checkpoint, the configured schedule length wins over the saved one."""
+    if tcfg.schedule == "onecycle":
+        sched.total_steps = total
+    else:
+        sched.milestones = Counter(int(f * total) for f in tcfg.decay_at)
 
 
 def _checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng: np.random.Generator) -> None:
