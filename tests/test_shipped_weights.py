@@ -23,9 +23,10 @@ def held_out_samples(tmp_path_factory):
     return [Sample(s.scene_id, simulate_frame(s, spec)) for s in scenes]
 
 
-#: sanity floors of AP@0.3 on 3 held-out frames (random weights score 0): quality is tracked in the
-#: model cards; AttFuse is the least trained of the shipped models so far (see its card)
-FLOOR = {"none": 0.3, "late": 0.3, "early": 0.3, "attfuse": 0.07}
+#: floors of AP@0.3 on 3 held-out frames (random weights score 0), about 0.15 below what the shipped
+#: weights score there (none 0.68, late 0.88, early 0.83, attfuse 0.63); quality on the whole
+#: validation split is in the model cards
+FLOOR = {"none": 0.5, "late": 0.7, "early": 0.65, "attfuse": 0.45}
 
 
 @pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse"])
