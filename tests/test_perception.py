@@ -90,6 +90,26 @@ def test_nms_keeps_best_of_overlaps():
     assert keep.tolist() == [1, 2]
 
 
+def test_nms_equals_greedy_nms_on_the_full_iou_matrix():
+    from asg.objective.iou import bev_iou_matrix
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        n = int(rng.integers(1, 60))
+        centres = rng.uniform(-6, 6, (n, 2))
+        boxes = np.column_stack([centres, np.zeros(n), rng.uniform(3.5, 5.0, n), rng.uniform(1.6, 2.2, n),
+                                 np.full(n, 1.5), rng.uniform(-np.pi, np.pi, n)])
+        scores = rng.random(n)
+        order = np.argsort(-scores, kind="stable")
+        iou = bev_iou_matrix(boxes[order], boxes[order])
+        keep, suppressed = [], np.zeros(n, bool)
+        for i in range(n):
+            if not suppressed[i]:
+                keep.append(i)
+                suppressed |= iou[i] > 0.15
+        assert rotated_nms(boxes, scores, 0.15, 100).tolist() == order[keep].tolist()
+
+
 def test_attention_rows_sum_to_one_and_mask_missing_agents():
     model = AttFuse(TINY).eval()
     clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5], [torch.randn(300, 4) * 5]]

@@ -9,9 +9,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 import torch
 
-from ..objective.iou import bev_iou_matrix
+from ..objective.iou import bev_polygons
 from .config import DetectorConfig
 
 #: the direction classifier's bin boundary is at this yaw (rad)
@@ -107,17 +108,34 @@ def assign_targets(anchors: np.ndarray, gt: np.ndarray, cfg: DetectorConfig):
 
 
 def rotated_nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float, max_keep: int) -> np.ndarray:
-    """Indices kept by greedy NMS on rotated BEV IoU, in descending score."""
+    """Indices kept by greedy NMS on rotated BEV IoU, in descending score.
+
+    Each kept box is clipped (shapely) only against the later, not yet suppressed boxes whose
+    circumscribed circles meet its own, so the cost follows the number of kept boxes rather than
+    all pairs.
+    """
     order = np.argsort(-scores, kind="stable")
-    boxes = boxes[order]
-    iou = bev_iou_matrix(boxes, boxes)
+    boxes = np.asarray(boxes, dtype=float)[order]
+    n = len(boxes)
+    if not n:
+        return order[:0]
+    polys = bev_polygons(boxes)
+    radius = np.hypot(boxes[:, 3], boxes[:, 4]) / 2
+    area = boxes[:, 3] * boxes[:, 4]
+    suppressed = np.zeros(n, dtype=bool)
     keep = []
-    suppressed = np.zeros(len(boxes), dtype=bool)
-    for i in range(len(boxes)):
+    for i in range(n):
         if suppressed[i]:
             continue
         keep.append(i)
         if len(keep) >= max_keep:
             break
-        suppressed |= iou[i] > iou_threshold
+        rest = np.arange(i + 1, n)
+        near = ~suppressed[i + 1:] & (np.hypot(boxes[i + 1:, 0] - boxes[i, 0], boxes[i + 1:, 1] - boxes[i, 1])
+                                      < radius[i] + radius[i + 1:])
+        cand = rest[near]
+        if len(cand):
+            inter = shapely.area(shapely.intersection(polys[i], polys[cand]))
+            iou = inter / np.maximum(area[i] + area[cand] - inter, 1e-9)
+            suppressed[cand[iou > iou_threshold]] = True
     return order[np.array(keep, dtype=np.int64)]
