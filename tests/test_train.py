@@ -57,3 +57,9 @@ def test_interrupted_training_resumes_to_the_same_weights(sumo_log, tmp_path):
         assert all(torch.equal(a[k], b[k]) for k in a), schedule
         card = json.loads(resumed.with_suffix(".json").read_text())
         assert card["steps"] == 6 and card["chunks"][0]["schedule"] == schedule
+        assert not (tmp_path / f"run-split-{schedule}" / "last.pt").exists()
+    # the same command after a finished chunk: one more chunk from those weights, history kept
+    again = run(tmp_path, "split-onecycle", tcfg)
+    card = json.loads(again.with_suffix(".json").read_text())
+    assert card["steps"] == 12 and [c["seed"] for c in card["chunks"]] == [[5, 0], [5, 1]]
+    assert not all(torch.equal(b[k], v) for k, v in torch.load(again, weights_only=True).items())

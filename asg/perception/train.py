@@ -4,9 +4,10 @@ Weights: ``single`` (No and Late Fusion share it: one agent's cloud, its own lab
 (the fused cloud in the ego frame), ``attfuse`` (each agent's cloud in the ego frame). Labels are
 the vehicles in range with at least one LiDAR point (in the agent's own cloud for ``single``, in
 the fused cloud otherwise). Checkpoints go to ``runs/train/NAME/last.pt`` (model, optimiser,
-step, generator state: all plain tensors and numbers, loaded with ``weights_only=True``); a
-rerun resumes from there. At the end the weights and a model card are written to
-asg/perception/weights/.
+step, generator state, the earlier chunks: plain tensors, numbers and strings, loaded with
+``weights_only=True``); a rerun resumes from there. At the end the weights and a model card are
+written to asg/perception/weights/ and the checkpoint is removed, so the next run trains one more
+chunk starting from those weights.
 """
 from __future__ import annotations
 
@@ -117,7 +118,9 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     torch.set_num_threads(threads)
     run_dir = out_dir or project_root() / "runs" / "train" / name
     ckpt = run_dir / "last.pt"
-    previous = {} if ckpt.is_file() else _previous_training(name, weights_dir)
+    state = torch.load(ckpt, map_location="cpu", weights_only=True) if ckpt.is_file() else None
+    # the chunks before this one: from the checkpoint when resuming, else from the shipped card
+    previous = _previous_training(name, weights_dir) if state is None else json.loads(state.get("previous", "{}"))
     chunk = len(previous.get("chunks", []))  # a continuation chunk draws other batches than the first
     torch.manual_seed(tcfg.seed + 1000 * chunk)
     rng = np.random.default_rng([tcfg.seed, chunk])
@@ -125,14 +128,13 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     opt = torch.optim.Adam(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     sched = _scheduler(opt, tcfg, total)
     step, wall = 0, 0.0
-    if previous:
+    if previous and state is None:
         from .weights_io import load_state
 
         load_state(model, weights_dir / f"{name}.pt")
         model.train()
         log(f"continuing from the shipped {name} weights ({previous['steps_total']} steps so far)")
-    if ckpt.is_file():
-        state = torch.load(ckpt, map_location="cpu", weights_only=True)
+    if state is not None:
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         sched.load_state_dict(state["scheduler"])
@@ -169,7 +171,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         if step % 50 == 0:
             log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} (cls {float(loss['cls']):.3f} box {float(loss['box']):.3f})")
         if step % tcfg.checkpoint_every == 0 or step == total:
-            _checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng)
+            _checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng, previous)
     wall += time.perf_counter() - started
     model.eval()
     weights = weights_dir / f"{name}.pt"
@@ -183,6 +185,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
             "chunks": chunks, "threads": threads,
             "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp"}
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
+    ckpt.unlink(missing_ok=True)  # the chunk is complete: the next run starts a new one from these weights
     log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training")
     if validate:
         card_validation(name, log)
@@ -235,9 +238,10 @@ def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
         sched.milestones = Counter(int(f * total) for f in tcfg.decay_at)
 
 
-def _checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng: np.random.Generator) -> None:
+def _checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng: np.random.Generator,
+                previous: dict) -> None:
     state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
              "step": step, "wall_s": wall_s, "rng": json.dumps(rng.bit_generator.state),
-             "torch_rng": torch.get_rng_state()}
+             "torch_rng": torch.get_rng_state(), "previous": json.dumps(previous)}
     with atomic_path(path) as tmp:
         torch.save(state, tmp)

@@ -7,9 +7,10 @@ A :class:`World` holds, in the network frame (x east, y north, z up, metres):
   shared per-class template mesh (instancing by hand), so moving one never rebuilds anything.
 
 A sensor never sees its own body: its rays start where they leave its own footprint prism.
-Rendering casts only the rays that can hit something above the ground: per azimuth column, the
-nearest object and the highest elevation any object reaches bound the candidates, and each cast
-ray stops at its ground hit (Embree's tfar); the rest are ground hits or misses. Candidate rays
+Rendering casts only the rays that can hit something above the ground: a ray is a candidate if
+some object spanning its azimuth column starts within the ray's horizontal reach (before the
+ground or the range) and rises to the ray's elevation; each cast ray stops at its ground hit
+(Embree's tfar); the rest are ground hits or misses. Candidate rays
 of all sensors go to Embree in one batch split evenly over two threads (embreex releases the GIL).
 Static results are cached per sensor, so a re-render after moving vehicles costs only the moved
 vehicles' rays, independent of the number of buildings.
@@ -139,7 +140,6 @@ class World:
         self._dirs_sensor32 = self._dirs_sensor.astype(np.float32)
         self._el = np.repeat(spec.elevations_rad(), spec.azimuth_steps)
         self._cos_el = np.cos(self._el)
-        self._col = np.tile(np.arange(spec.azimuth_steps), spec.channels)
         self._templates: dict[tuple, _Template] = {}
         self._build_static()
         self._base_cache: dict[str, _Hits] = {}
