@@ -110,7 +110,7 @@ class Generator:
     def _detections(self, frame: CooperativeFrame) -> Detections:
         boxes, scores = self.target.detect(frame)
         gt = frame.ego_boxes
-        return boxes, scores, gt[in_range(gt)] if len(gt) else gt
+        return boxes, scores, gt[in_range(gt)]
 
     def _score(self, frame: CooperativeFrame) -> tuple[float, dict[str, float]]:
         ap = ap_at([self._detections(frame)])

@@ -29,7 +29,11 @@ def bev_iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if not len(ii):
         return out
     pa, pb = bev_polygons(a), bev_polygons(b)
-    inter = shapely.area(shapely.intersection(pa[ii], pb[jj]))
-    union = a[ii, 3] * a[ii, 4] + b[jj, 3] * b[jj, 4] - inter
-    out[ii, jj] = inter / np.maximum(union, 1e-9)
+    out[ii, jj] = polygon_iou(pa[ii], a[ii, 3] * a[ii, 4], pb[jj], b[jj, 3] * b[jj, 4])
     return out
+
+
+def polygon_iou(pa, area_a, pb, area_b) -> np.ndarray:
+    """Element-wise (broadcast) IoU of footprint polygons whose areas (m^2) are given."""
+    inter = shapely.area(shapely.intersection(pa, pb))
+    return inter / np.maximum(area_a + area_b - inter, 1e-9)

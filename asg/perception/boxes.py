@@ -9,10 +9,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import shapely
 import torch
 
-from ..objective.iou import bev_polygons
+from ..objective.iou import bev_polygons, polygon_iou
 from .config import DetectorConfig
 
 #: the direction classifier's bin boundary is at this yaw (rad)
@@ -135,7 +134,6 @@ def rotated_nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float, max
                                       < radius[i] + radius[i + 1:])
         cand = rest[near]
         if len(cand):
-            inter = shapely.area(shapely.intersection(polys[i], polys[cand]))
-            iou = inter / np.maximum(area[i] + area[cand] - inter, 1e-9)
+            iou = polygon_iou(polys[i], area[i], polys[cand], area[cand])
             suppressed[cand[iou > iou_threshold]] = True
     return order[np.array(keep, dtype=np.int64)]
