@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from asg.objective.ap import average_precision
-from asg.perception.boxes import assign_targets, make_anchors, rotated_nms
+from asg.perception.boxes import assign_targets, make_anchors, rotated_nms, select_boxes, vote_boxes
 from asg.perception.config import DetectorConfig
 from asg.perception.head import detection_loss
 from asg.perception.model import AttFuse, PointPillars, postprocess
@@ -88,6 +88,23 @@ def test_nms_keeps_best_of_overlaps():
     boxes = np.array([[0, 0, 0, 4, 2, 1.5, 0.0], [0.2, 0, 0, 4, 2, 1.5, 0.05], [10, 0, 0, 4, 2, 1.5, 0.0]])
     keep = rotated_nms(boxes, np.array([0.5, 0.9, 0.7]), 0.15, 10)
     assert keep.tolist() == [1, 2]
+
+
+def test_box_voting_averages_overlapping_candidates_by_score():
+    # two candidates for one car (the second facing the other way: the same heading for IoU), one far car
+    boxes = np.array([[0.0, 0, 0, 4, 2, 1.5, 0.1], [0.4, 0.2, 0, 4.4, 2, 1.5, 0.2 - np.pi],
+                      [20, 0, 0, 4, 2, 1.5, 1.0]])
+    scores = np.array([0.8, 0.4, 0.6])
+    out = vote_boxes(boxes, scores, np.array([0, 2]), 0.3, 2.0)
+    w = np.array([0.64, 0.16]) / 0.8
+    assert np.allclose(out[0, :6], w @ boxes[:2, :6])
+    assert out[0, 6] == pytest.approx(0.1 + w[1] * 0.1)  # kept direction, averaged heading
+    assert np.allclose(out[1], boxes[2])  # alone: unchanged
+    cfg = DetectorConfig(vote_iou=0.0)
+    kept, kept_scores = select_boxes(boxes, scores, cfg)
+    assert np.allclose(kept, boxes[[0, 2]]) and kept_scores.tolist() == [0.8, 0.6]
+    voted, _ = select_boxes(boxes, scores, DetectorConfig(vote_iou=0.3, vote_power=2.0))
+    assert np.allclose(voted, out)
 
 
 def test_nms_equals_greedy_nms_on_the_full_iou_matrix():

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import torch
 
-from ..objective.iou import bev_polygons, polygon_iou
+from ..objective.iou import bev_iou_matrix, bev_polygons, polygon_iou
 from .config import DetectorConfig
 
 #: the direction classifier's bin boundary is at this yaw (rad)
@@ -137,3 +137,34 @@ def rotated_nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float, max
             iou = polygon_iou(polys[i], area[i], polys[cand], area[cand])
             suppressed[cand[iou > iou_threshold]] = True
     return order[np.array(keep, dtype=np.int64)]
+
+
+def vote_boxes(boxes: np.ndarray, scores: np.ndarray, keep: np.ndarray, iou_threshold: float,
+               power: float) -> np.ndarray:
+    """Box voting: each kept box (K, 7) replaced by the average of all candidates (N, 7) whose BEV
+    IoU with it is at least ``iou_threshold``, weighted by score ** power.
+
+    Yaw is averaged as the offset from the kept box's yaw folded into [-pi/2, pi/2) (a candidate
+    facing the other way counts as the same heading), so the kept direction is preserved.
+    """
+    boxes = np.asarray(boxes, dtype=float)
+    kept = boxes[keep]
+    if not len(kept):
+        return kept.copy()
+    member = bev_iou_matrix(kept, boxes) >= iou_threshold  # (K, N)
+    member[np.arange(len(keep)), keep] = True
+    w = member * (np.asarray(scores, dtype=float)[None, :] ** power)  # (K, N)
+    w /= w.sum(axis=1, keepdims=True)
+    out = kept.copy()
+    out[:, :6] = w @ boxes[:, :6]
+    dyaw = limit_period(boxes[None, :, 6] - kept[:, None, 6], 0.5, math.pi)
+    out[:, 6] = np.angle(np.exp(1j * (kept[:, 6] + (w * dyaw).sum(axis=1))))
+    return out
+
+
+def select_boxes(boxes: np.ndarray, scores: np.ndarray, cfg: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Rotated NMS, then box voting when ``cfg.vote_iou`` > 0: (boxes (K, 7), scores (K,))."""
+    keep = rotated_nms(boxes, scores, cfg.nms_iou, cfg.max_detections)
+    if cfg.vote_iou <= 0:
+        return np.asarray(boxes, dtype=float)[keep], np.asarray(scores, dtype=float)[keep]
+    return vote_boxes(boxes, scores, keep, cfg.vote_iou, cfg.vote_power), np.asarray(scores, dtype=float)[keep]

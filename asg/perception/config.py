@@ -27,6 +27,10 @@ class DetectorConfig:
     score_threshold: float = 0.2
     nms_iou: float = 0.15
     max_detections: int = 100
+    #: box voting after NMS: kept boxes averaged with candidates of IoU >= vote_iou (0: off),
+    #: weighted by score ** vote_power
+    vote_iou: float = 0.3
+    vote_power: float = 2.0
 
     @property
     def grid_size(self) -> int:

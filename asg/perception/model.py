@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from .backbone import Backbone
-from .boxes import DIR_OFFSET, decode, limit_period, make_anchors, rotated_nms
+from .boxes import DIR_OFFSET, decode, limit_period, make_anchors, select_boxes
 from .config import DetectorConfig
 from .head import AnchorHead
 from .pillars import PillarEncoder
@@ -101,7 +101,8 @@ class AttFuse(nn.Module):
 @torch.no_grad()
 def postprocess(cls: torch.Tensor, box: torch.Tensor, d: torch.Tensor, anchors: torch.Tensor,
                 cfg: DetectorConfig, top_k: int = 300) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per sample: (boxes (K, 7), scores (K,)) above the score threshold, after rotated NMS."""
+    """Per sample: (boxes (K, 7), scores (K,)) above the score threshold, after rotated NMS and box
+    voting."""
     out = []
     for b in range(cls.shape[0]):
         scores = torch.sigmoid(cls[b])
@@ -118,6 +119,5 @@ def postprocess(cls: torch.Tensor, box: torch.Tensor, d: torch.Tensor, anchors: 
         bx = boxes.numpy().astype(np.float64)
         bx[:, 6] = np.angle(np.exp(1j * bx[:, 6]))
         sc = scores[keep].numpy().astype(np.float64)
-        k = rotated_nms(bx, sc, cfg.nms_iou, cfg.max_detections)
-        out.append((bx[k], sc[k]))
+        out.append(select_boxes(bx, sc, cfg))
     return out

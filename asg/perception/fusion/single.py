@@ -6,7 +6,7 @@ import torch
 
 from ...registry import register
 from ...sensors.frame import CooperativeFrame, boxes_to_sensor, boxes_to_world
-from ..boxes import rotated_nms
+from ..boxes import select_boxes
 from ..model import PointPillars, postprocess
 from .base import Detections, V2XDetector
 
@@ -35,7 +35,8 @@ class NoFusion(_Single):
 
 @register("fusion", "late")
 class LateFusion(_Single):
-    """Each agent detects in its own frame; boxes are moved to the ego frame; one rotated NMS."""
+    """Each agent detects in its own frame; boxes are moved to the ego frame; one rotated NMS (with
+    box voting, so agents seeing the same vehicle average their boxes)."""
 
     def detect(self, frame: CooperativeFrame) -> Detections:
         per_agent = self.detect_own([frame.clouds[a] for a in frame.sensing_ids])
@@ -48,5 +49,4 @@ class LateFusion(_Single):
         if not boxes:
             return np.zeros((0, 7)), np.zeros(0)
         b, s = np.vstack(boxes), np.concatenate(scores)
-        keep = rotated_nms(b, s, self.cfg.nms_iou, self.cfg.max_detections)
-        return self._clip(b[keep], s[keep])
+        return self._clip(*select_boxes(b, s, self.cfg))
