@@ -169,7 +169,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         if progress:
             progress(step, total, losses[-1])
         if step % 50 == 0:
-            log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} (cls {float(loss['cls']):.3f} box {float(loss['box']):.3f})")
+            log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} (cls {float(loss['cls'].detach()):.3f} box {float(loss['box'].detach()):.3f})")
         if step % tcfg.checkpoint_every == 0 or step == total:
             _checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng, previous)
     wall += time.perf_counter() - started
