@@ -25,6 +25,19 @@ def test_iou_identical_disjoint_symmetric():
     assert bev_iou_matrix(box()[None], box(yaw=math.pi / 2)[None])[0, 0] == pytest.approx(4 / 12)
 
 
+def test_footprints_match_the_agent_outline_and_known_polygons_give_the_same_iou():
+    from asg.objective.iou import bev_footprints, bev_polygons
+    from asg.scene import footprint_xy
+
+    rng = np.random.default_rng(3)
+    boxes = np.column_stack([rng.uniform(-9, 9, (12, 2)), np.zeros(12), rng.uniform(3, 12, 12), rng.uniform(1.5, 3, 12),
+                             np.full(12, 1.5), rng.uniform(-np.pi, np.pi, 12)])
+    expected = np.stack([footprint_xy(b[0], b[1], b[6], b[3], b[4]) for b in boxes])
+    assert np.allclose(bev_footprints(boxes), expected)
+    polys = bev_polygons(boxes)
+    assert np.allclose(bev_iou_matrix(boxes[:5], boxes, polys[:5], polys), bev_iou_matrix(boxes[:5], boxes))
+
+
 def test_ap_perfect():
     gt = np.stack([box(), box(10, 0)])
     assert average_precision([(gt, np.array([0.9, 0.8]), gt)], 0.7) == pytest.approx(1.0)

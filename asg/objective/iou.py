@@ -4,19 +4,34 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from ..scene.agent import footprint_xy
+#: a box's corners in its own frame, in units of half length and half width: the order of
+#: scene.agent.footprint_xy (counter-clockwise from front-left)
+_CORNER_SIGNS = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
+
+
+def bev_footprints(boxes: np.ndarray) -> np.ndarray:
+    """(M, 7) boxes → (M, 4, 2) footprint corners, counter-clockwise (as scene.agent.footprint_xy)."""
+    boxes = np.asarray(boxes, dtype=float).reshape(-1, 7)
+    local = _CORNER_SIGNS[None] * (boxes[:, None, 3:5] / 2)  # (M, 4, 2)
+    c, s = np.cos(boxes[:, 6])[:, None], np.sin(boxes[:, 6])[:, None]
+    x = local[..., 0] * c - local[..., 1] * s + boxes[:, None, 0]
+    y = local[..., 0] * s + local[..., 1] * c + boxes[:, None, 1]
+    return np.stack([x, y], axis=-1)
 
 
 def bev_polygons(boxes: np.ndarray) -> np.ndarray:
     """(M, 7) boxes → (M,) shapely polygons of their footprints."""
     if not len(boxes):
         return np.empty(0, dtype=object)
-    corners = np.stack([footprint_xy(b[0], b[1], b[6], b[3], b[4]) for b in boxes])
-    return shapely.polygons(corners)
+    return shapely.polygons(bev_footprints(boxes))
 
 
-def bev_iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(Ma, Mb) rotated BEV IoU; pairs whose circumscribed circles do not meet are 0 without clipping."""
+def bev_iou_matrix(a: np.ndarray, b: np.ndarray, polys_a: np.ndarray | None = None,
+                   polys_b: np.ndarray | None = None) -> np.ndarray:
+    """(Ma, Mb) rotated BEV IoU; pairs whose circumscribed circles do not meet are 0 without clipping.
+
+    ``polys_a`` / ``polys_b``: the boxes' footprint polygons (bev_polygons) when already built.
+    """
     a = np.asarray(a, dtype=float).reshape(-1, 7)
     b = np.asarray(b, dtype=float).reshape(-1, 7)
     out = np.zeros((len(a), len(b)))
@@ -28,7 +43,8 @@ def bev_iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ii, jj = np.nonzero(d < ra[:, None] + rb[None, :])
     if not len(ii):
         return out
-    pa, pb = bev_polygons(a), bev_polygons(b)
+    pa = bev_polygons(a) if polys_a is None else polys_a
+    pb = bev_polygons(b) if polys_b is None else polys_b
     out[ii, jj] = polygon_iou(pa[ii], a[ii, 3] * a[ii, 4], pb[jj], b[jj, 3] * b[jj, 4])
     return out
 
