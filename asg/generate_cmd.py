@@ -48,7 +48,9 @@ def _scenes_from_dir(path: Path) -> Iterator[Scene]:
     return (load_scene(f) for f in files)
 
 
-def run_generate(args: argparse.Namespace) -> int:
+def run_generate(args: argparse.Namespace, table_console=None) -> int:
+    """Run ``asg generate`` with parsed ``args``; the before/after table goes to ``table_console``
+    (a rich Console; stdout by default)."""
     from .io.run import load_done, write_scene, write_summary
     from .perception import build_detector
 
@@ -97,12 +99,12 @@ def run_generate(args: argparse.Namespace) -> int:
     if not entries:
         raise InputError("no scene could be generated (see the messages above)")
     summary = write_summary(out, entries, asdict(cfg) | {"seed": args.seed}, time.perf_counter() - started)
-    _print_table(summary)
+    _print_table(summary, table_console or stdout)
     console.print(f"wrote {out}/summary.json and {len(entries)} scene folders")
     return 0
 
 
-def _print_table(summary: dict) -> None:
+def _print_table(summary: dict, out) -> None:
     table = Table(title="AP before / after (fractions)")
     table.add_column("scene")
     for col in ("normal 0.3/0.5/0.7", "after ACS", "final", "moved", "s"):
@@ -114,5 +116,5 @@ def _print_table(summary: dict) -> None:
     agg = summary["aggregate"]
     table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(agg["mean_scene_ap_after_acs"]) + "*", fmt(agg["ap_challenging"]), "",
                   f"{agg['seconds_per_scene_median']:.1f}")
-    stdout.print(table)
-    stdout.print("* mean over scenes")
+    out.print(table)
+    out.print("* mean over scenes")

@@ -16,6 +16,7 @@ CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("rand
 
 def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1) -> dict:
     from ..generate_cmd import run_generate
+    from ..progress import console
     from ..perception.evaluate import scenes_of
 
     next(iter(scenes_of("normal")))  # builds the normal set if needed
@@ -24,7 +25,7 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
         run_dir = out / f"{acs}-{search}"
         args = argparse.Namespace(town=None, net=None, scenes=Path("normal"), fusion=fusion, search=search,
                                   acs=acs, aps="on", count=scenes, budget=budget, seed=seed, config=None, out=run_dir)
-        run_generate(args)
+        run_generate(args, table_console=console)  # per-scene tables to stderr: stdout holds the result
         agg = json.loads((run_dir / "summary.json").read_text())["aggregate"]
         table[f"{acs}-{search}"] = {"normal": agg["ap_normal"], "challenging": agg["ap_challenging"],
                                     "after_acs_mean": agg["mean_scene_ap_after_acs"], "scenes": agg["scenes"],
