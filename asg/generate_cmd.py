@@ -51,7 +51,7 @@ def _scenes_from_dir(path: Path) -> Iterator[Scene]:
 def run_generate(args: argparse.Namespace, table_console=None) -> int:
     """Run ``asg generate`` with parsed ``args``; the before/after table goes to ``table_console``
     (a rich Console; stdout by default)."""
-    from .io.run import load_done, write_scene, write_summary
+    from .io.run import load_done, previous_wall_s, write_scene, write_summary
     from .perception import build_detector
 
     demo = args.town is None and args.net is None and args.scenes is None
@@ -71,7 +71,7 @@ def run_generate(args: argparse.Namespace, table_console=None) -> int:
     gen = Generator(cfg, target, acs_model)
     done = load_done(out)
     entries = [done[k] for k in sorted(done)]
-    started = time.perf_counter()
+    started = time.perf_counter() - (previous_wall_s(out) if done else 0.0)  # a resumed run adds its time
     with tempfile.TemporaryDirectory() as tmp:
         scenes = _scenes_from_dir(Path(args.scenes)) if args.scenes else _scenes_from_town(town, args.net, args.seed, Path(tmp))
         scenes = list(itertools.islice(scenes, count))

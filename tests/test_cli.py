@@ -161,3 +161,34 @@ def test_render_bad_inputs(capsys, tmp_path):
         assert code == 2
         assert_one_line_error(err, needle)
     assert not (tmp_path / "x.png").exists()
+
+
+def test_generate_writes_the_run_folder_and_resumes(capsys, tmp_path):
+    import json
+
+    scene = _one_scene(tmp_path, capsys)
+    scenes_dir = scene.parent
+    out = tmp_path / "gen"
+    argv = ["generate", "--scenes", str(scenes_dir), "--fusion", "none", "--search", "rs", "--acs", "random",
+            "--count", "1", "--budget", "3", "--seed", "1", "--out", str(out)]
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    (entry,) = summary["scenes"]
+    folder = out / "scenes" / entry["scene_id"]
+    for name in ("initial.yaml", "after_acs.yaml", "final.yaml", "history.csv", "initial.png", "after_acs.png",
+                 "final.png", "detections.npz", "result.json"):
+        assert (folder / name).is_file(), name
+    assert len(list((folder / "clouds").glob("*.pcd"))) == 3
+    history = (folder / "history.csv").read_text().splitlines()
+    assert history[0].startswith("step") and len(history) == 1 + 3
+    for key in ("ap_normal", "ap_after_acs", "ap_final"):
+        assert set(entry[key]) == {"0.3", "0.5", "0.7"} and all(0 <= v <= 1 for v in entry[key].values())
+    assert entry["plausibility"] == {"collisions": 0, "off_road": 0, "out_of_range": 0}
+    assert entry["evaluations"] == 1 + 3 + 3 and len(entry["perturbed"]) <= 3
+    agg = summary["aggregate"]
+    assert agg["scenes"] == 1 and set(agg["ap_challenging"]) == {"0.3", "0.5", "0.7"} and agg["wall_s"] > 0
+    # the same command again: the finished scene is kept as it is, the wall time carried over
+    before = (folder / "result.json").read_text()
+    assert main(argv) == 0
+    assert (folder / "result.json").read_text() == before
+    assert json.loads((out / "summary.json").read_text())["aggregate"]["wall_s"] >= agg["wall_s"]

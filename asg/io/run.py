@@ -84,6 +84,14 @@ def load_done(out_dir: Path) -> dict[str, dict]:
     return done
 
 
+def previous_wall_s(out_dir: Path) -> float:
+    """Wall time recorded by the earlier runs that wrote ``out_dir`` (0 if none): a resumed run adds to it."""
+    try:
+        return float(json.loads((out_dir / "summary.json").read_text())["aggregate"]["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0.0
+
+
 def pooled_ap(out_dir: Path, entries: list[dict], key: str) -> dict[str, float]:
     """AP over the detections of all scenes together (one global ranking), as the paper's tables."""
     from ..objective import ap_at
