@@ -16,8 +16,8 @@ CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("rand
 
 def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1) -> dict:
     from ..generate_cmd import run_generate
-    from ..progress import console
     from ..perception.evaluate import scenes_of
+    from ..progress import console
 
     next(iter(scenes_of("normal")))  # builds the normal set if needed
     table = {}
