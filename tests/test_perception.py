@@ -107,6 +107,17 @@ def test_box_voting_averages_overlapping_candidates_by_score():
     assert np.allclose(voted, out)
 
 
+@pytest.mark.parametrize("line", ["vote_iou: 1.5", "nms_iou: 0", "pillar_m: -0.5", "vote_power: -1"])
+def test_out_of_range_detector_config_is_one_clear_error(tmp_path, line):
+    from asg.perception.config import load_detector_config
+
+    path = tmp_path / "detector.yaml"
+    path.write_text(line + "\n")
+    with pytest.raises(InputError, match=f"{line.split(':')[0]} = .* is out of range") as err:
+        load_detector_config(path)
+    assert "\n" not in str(err.value)
+
+
 def test_nms_equals_greedy_nms_on_the_full_iou_matrix():
     from asg.objective.iou import bev_iou_matrix
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import load_dataclass
 
@@ -31,6 +32,16 @@ class DetectorConfig:
     #: weighted by score ** vote_power
     vote_iou: float = 0.3
     vote_power: float = 2.0
+
+    def __post_init__(self) -> None:
+        checks = [("range_m", self.range_m > 0), ("pillar_m", self.pillar_m > 0),
+                  ("score_threshold", 0 <= self.score_threshold < 1), ("nms_iou", 0 < self.nms_iou <= 1),
+                  ("vote_iou", 0 <= self.vote_iou <= 1), ("vote_power", self.vote_power >= 0),
+                  ("max_detections", self.max_detections >= 1)]
+        for name, ok in checks:
+            if not ok:
+                raise InputError(f"detector config: {name} = {getattr(self, name)!r} is out of range; "
+                                 "see configs/detectors/pointpillars.yaml for sensible values")
 
     @property
     def grid_size(self) -> int:
