@@ -88,6 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse (none and late share weights)")
     p.add_argument("--steps", type=int, default=None, help="override the configured number of steps")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--validate-only", action="store_true",
+                   help="no training: re-measure the shipped weights on normal-val and update their model card "
+                        "(after changing configs/detectors/pointpillars.yaml)")
 
     p = _add(sub, "evaluate", "AP of a detector on a scene set", commands.evaluate)
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse")

@@ -192,3 +192,17 @@ def test_generate_writes_the_run_folder_and_resumes(capsys, tmp_path):
     assert main(argv) == 0
     assert (folder / "result.json").read_text() == before
     assert json.loads((out / "summary.json").read_text())["aggregate"]["wall_s"] >= agg["wall_s"]
+
+
+def test_train_validate_only_updates_the_card_without_training(capsys, monkeypatch):
+    import asg.perception.train as train_mod
+
+    calls = []
+    monkeypatch.setattr(train_mod, "card_validation", lambda name, log: calls.append(name) or {"weights": f"{name}.pt"})
+    monkeypatch.setattr(train_mod, "train", lambda *a, **k: pytest.fail("--validate-only must not train"))
+    assert main(["train", "--fusion", "late", "--validate-only"]) == 0
+    assert calls == ["single"]  # late shares the single-agent weights
+    assert "updated the model card of single.pt" in capsys.readouterr().err
+    code, err = run(capsys, "train", "--fusion", "single", "--validate-only")
+    assert code == 2
+    assert_one_line_error(err, "unknown fusion 'single'")
