@@ -231,10 +231,11 @@ def bench_paper(args: argparse.Namespace) -> int:
         print(json.dumps(result))
     else:
         table = Table(title=f"AP of {result['fusion']} (pooled over scenes)")
-        for col in ("ACS-search", "normal 0.3/0.5/0.7", "challenging 0.3/0.5/0.7", "scenes"):
+        for col in ("ACS-search", "normal 0.3/0.5/0.7", "after ACS", "challenging 0.3/0.5/0.7", "scenes"):
             table.add_column(col)
         for k, v in result["table"].items():
             fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7"))
-            table.add_row(k, fmt(v["normal"]), fmt(v["challenging"]), str(v["scenes"]))
+            after = fmt(v["after_acs"]) if v["after_acs"] else fmt(v["after_acs_mean"]) + " (mean)"
+            table.add_row(k, fmt(v["normal"]), after, fmt(v["challenging"]), str(v["scenes"]))
         stdout.print(table)
     return 0

@@ -114,7 +114,9 @@ def _print_table(summary: dict, out) -> None:
         table.add_row(e["scene_id"][-32:], fmt(e["ap_normal"]), fmt(e["ap_after_acs"]), fmt(e["ap_final"]),
                       str(len(e["perturbed"])), f"{e['seconds']:.1f}")
     agg = summary["aggregate"]
-    table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(agg["mean_scene_ap_after_acs"]) + "*", fmt(agg["ap_challenging"]), "",
-                  f"{agg['seconds_per_scene_median']:.1f}")
+    pooled_acs = agg.get("ap_after_acs")
+    table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(pooled_acs) if pooled_acs else fmt(agg["mean_scene_ap_after_acs"]) + "*",
+                  fmt(agg["ap_challenging"]), "", f"{agg['seconds_per_scene_median']:.1f}")
     out.print(table)
-    out.print("* mean over scenes")
+    if not pooled_acs:
+        out.print("* mean over scenes (this folder has scenes written before after-ACS detections were stored)")

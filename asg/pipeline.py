@@ -204,7 +204,7 @@ class Generator:
             notes.append(f"final scene failed the independent plausibility check {plaus.to_dict()}; kept the scene after ACS")
             final, ap_f, loss_f, frame_f, delta = after, ap_a, loss_a, frame_a, []
             plaus = check_scene(after, final)
-        detections = {k: self._detections(f) for k, f in (("initial", frame_n), ("final", frame_f))}
+        detections = {k: self._detections(f) for k, f in (("initial", frame_n), ("after_acs", frame_a), ("final", frame_f))}
         return SceneResult(
             scene.scene_id, initial, after, final, ap_n, ap_a, ap_f, loss_n, loss_f, 1 + n_combos + len(history),
             time.perf_counter() - t0, tuple(perturbed), delta, plaus, history,

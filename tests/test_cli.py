@@ -186,7 +186,9 @@ def test_generate_writes_the_run_folder_and_resumes(capsys, tmp_path):
     assert entry["plausibility"] == {"collisions": 0, "off_road": 0, "out_of_range": 0}
     assert entry["evaluations"] == 1 + 3 + 3 and len(entry["perturbed"]) <= 3
     agg = summary["aggregate"]
-    assert agg["scenes"] == 1 and set(agg["ap_challenging"]) == {"0.3", "0.5", "0.7"} and agg["wall_s"] > 0
+    assert agg["scenes"] == 1 and agg["wall_s"] > 0
+    for key, per_scene in (("ap_normal", "ap_normal"), ("ap_after_acs", "ap_after_acs"), ("ap_challenging", "ap_final")):
+        assert agg[key] == pytest.approx(entry[per_scene], abs=1e-6)  # one scene: pooled = its own AP
     # the same command again: the finished scene is kept as it is, the wall time carried over
     before = (folder / "result.json").read_text()
     assert main(argv) == 0

@@ -28,6 +28,7 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
         run_generate(args, table_console=console)  # per-scene tables to stderr: stdout holds the result
         agg = json.loads((run_dir / "summary.json").read_text())["aggregate"]
         table[f"{acs}-{search}"] = {"normal": agg["ap_normal"], "challenging": agg["ap_challenging"],
+                                    "after_acs": agg.get("ap_after_acs"),
                                     "after_acs_mean": agg["mean_scene_ap_after_acs"], "scenes": agg["scenes"],
                                     "seconds_per_scene_median": agg["seconds_per_scene_median"]}
     return {"fusion": fusion, "budget": budget, "table": table}

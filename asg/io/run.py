@@ -74,7 +74,8 @@ def write_scene(out_dir: Path, r: SceneResult, m_ids: list[str]) -> dict:
 
 def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:
     with np.load(out_dir / "scenes" / scene_id / "detections.npz") as z:
-        return {k: (z[f"{k}_boxes"], z[f"{k}_scores"], z[f"{k}_gt"]) for k in ("initial", "final") if f"{k}_boxes" in z}
+        return {k: (z[f"{k}_boxes"], z[f"{k}_scores"], z[f"{k}_gt"]) for k in ("initial", "after_acs", "final")
+                if f"{k}_boxes" in z}
 
 
 def load_done(out_dir: Path) -> dict[str, dict]:
@@ -92,11 +93,15 @@ def previous_wall_s(out_dir: Path) -> float:
         return 0.0
 
 
-def pooled_ap(out_dir: Path, entries: list[dict], key: str) -> dict[str, float]:
-    """AP over the detections of all scenes together (one global ranking), as the paper's tables."""
+def pooled_ap(out_dir: Path, entries: list[dict], key: str) -> dict[str, float] | None:
+    """AP over the detections of all scenes together (one global ranking), as the paper's tables;
+    None if a scene lacks that stage's detections (a folder written before they were stored)."""
     from ..objective import ap_at
 
-    frames = [load_detections(out_dir, e["scene_id"])[key] for e in entries]
+    per_scene = [load_detections(out_dir, e["scene_id"]) for e in entries]
+    if any(key not in d for d in per_scene):
+        return None
+    frames = [d[key] for d in per_scene]
     return {k: round(v, 6) for k, v in ap_at(frames).items()} if frames else {"0.3": 0.0, "0.5": 0.0, "0.7": 0.0}
 
 
@@ -114,6 +119,7 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
         "aggregate": {
             "scenes": len(entries),
             "ap_normal": pooled_ap(out_dir, entries, "initial"),
+            "ap_after_acs": pooled_ap(out_dir, entries, "after_acs"),
             "ap_challenging": pooled_ap(out_dir, entries, "final"),
             "mean_scene_ap_normal": mean_ap(entries, "ap_normal"),
             "mean_scene_ap_after_acs": mean_ap(entries, "ap_after_acs"),
