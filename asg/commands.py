@@ -168,12 +168,10 @@ def dataset_build(args: argparse.Namespace) -> int:
 
 
 def train(args: argparse.Namespace) -> int:
-    from .perception.train import FUSION_TO_WEIGHTS, card_validation, train as run
+    from .perception.train import card_validation, train as run, weights_for
 
-    if args.fusion not in FUSION_TO_WEIGHTS:
-        raise InputError(f"unknown fusion '{args.fusion}'; choose one of {', '.join(FUSION_TO_WEIGHTS)}")
     if args.validate_only:
-        card = card_validation(FUSION_TO_WEIGHTS[args.fusion], console.print)
+        card = card_validation(weights_for(args.fusion), console.print)
         console.print(f"updated the model card of {card['weights']}")
         return 0
     if args.steps is not None and args.steps < 1:

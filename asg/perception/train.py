@@ -38,6 +38,13 @@ from .weights_io import WEIGHTS_DIR
 FUSION_TO_WEIGHTS = {"none": "single", "late": "single", "early": "early", "attfuse": "attfuse"}
 
 
+def weights_for(fusion: str) -> str:
+    """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError if unknown."""
+    if fusion not in FUSION_TO_WEIGHTS:
+        raise InputError(f"unknown fusion '{fusion}'; choose one of {', '.join(FUSION_TO_WEIGHTS)}")
+    return FUSION_TO_WEIGHTS[fusion]
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     dataset: str = "detector-train"
@@ -109,9 +116,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     Configs default to configs/detectors/{train,pointpillars}.yaml and the weights to the shipped
     ones (asg/perception/weights/); ``validate`` records normal-val AP in the model card.
     """
-    if fusion not in FUSION_TO_WEIGHTS:
-        raise InputError(f"unknown fusion '{fusion}'; choose one of {', '.join(FUSION_TO_WEIGHTS)}")
-    name = FUSION_TO_WEIGHTS[fusion]
+    name = weights_for(fusion)
     tcfg = train_config or load_train_config(name)
     total = steps or tcfg.steps
     cfg = detector_config or load_detector_config()
