@@ -93,12 +93,12 @@ def previous_wall_s(out_dir: Path) -> float:
         return 0.0
 
 
-def pooled_ap(out_dir: Path, entries: list[dict], key: str) -> dict[str, float] | None:
-    """AP over the detections of all scenes together (one global ranking), as the paper's tables;
-    None if a scene lacks that stage's detections (a folder written before they were stored)."""
+def pooled_ap(per_scene: list[dict[str, tuple]], key: str) -> dict[str, float] | None:
+    """AP over one stage's detections of all scenes together (one global ranking), as the paper's
+    tables; ``per_scene`` as load_detections gives them. None if a scene lacks that stage (a folder
+    written before it was stored)."""
     from ..objective import ap_at
 
-    per_scene = [load_detections(out_dir, e["scene_id"]) for e in entries]
     if any(key not in d for d in per_scene):
         return None
     frames = [d[key] for d in per_scene]
@@ -113,14 +113,15 @@ def mean_ap(entries: list[dict], key: str) -> dict[str, float]:
 
 def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: float) -> dict:
     seconds = [e["seconds"] for e in entries]
+    detections = [load_detections(out_dir, e["scene_id"]) for e in entries]
     summary = {
         "config": config,
         "scenes": entries,
         "aggregate": {
             "scenes": len(entries),
-            "ap_normal": pooled_ap(out_dir, entries, "initial"),
-            "ap_after_acs": pooled_ap(out_dir, entries, "after_acs"),
-            "ap_challenging": pooled_ap(out_dir, entries, "final"),
+            "ap_normal": pooled_ap(detections, "initial"),
+            "ap_after_acs": pooled_ap(detections, "after_acs"),
+            "ap_challenging": pooled_ap(detections, "final"),
             "mean_scene_ap_normal": mean_ap(entries, "ap_normal"),
             "mean_scene_ap_after_acs": mean_ap(entries, "ap_after_acs"),
             "mean_scene_ap_challenging": mean_ap(entries, "ap_final"),
