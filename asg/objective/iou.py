@@ -4,19 +4,13 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-#: a box's corners in its own frame, in units of half length and half width: the order of
-#: scene.agent.footprint_xy (counter-clockwise from front-left)
-_CORNER_SIGNS = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
+from ..scene.agent import footprints_xy
 
 
 def bev_footprints(boxes: np.ndarray) -> np.ndarray:
-    """(M, 7) boxes → (M, 4, 2) footprint corners, counter-clockwise (as scene.agent.footprint_xy)."""
+    """(M, 7) boxes → (M, 4, 2) footprint corners, counter-clockwise (scene.agent.footprints_xy)."""
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 7)
-    local = _CORNER_SIGNS[None] * (boxes[:, None, 3:5] / 2)  # (M, 4, 2)
-    c, s = np.cos(boxes[:, 6])[:, None], np.sin(boxes[:, 6])[:, None]
-    x = local[..., 0] * c - local[..., 1] * s + boxes[:, None, 0]
-    y = local[..., 0] * s + local[..., 1] * c + boxes[:, None, 1]
-    return np.stack([x, y], axis=-1)
+    return footprints_xy(boxes[:, 0], boxes[:, 1], boxes[:, 6], boxes[:, 3], boxes[:, 4])
 
 
 def bev_polygons(boxes: np.ndarray) -> np.ndarray:

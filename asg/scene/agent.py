@@ -66,9 +66,25 @@ class Agent:
         )
 
 
+#: a rectangle's corners in its own frame, in half lengths and half widths, counter-clockwise
+#: from front-left
+_CORNER_SIGNS = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
+
+
+def footprints_xy(x_m, y_m, yaw_rad, length_m, width_m) -> np.ndarray:
+    """Corners (M, 4, 2) of M rectangles given as arrays (M,) of centre, heading and size,
+    counter-clockwise from front-left."""
+    x_m, y_m, yaw_rad, length_m, width_m = np.broadcast_arrays(*(np.asarray(v, dtype=float).reshape(-1) for v in
+                                                               (x_m, y_m, yaw_rad, length_m, width_m)))
+    u = _CORNER_SIGNS[None, :, 0] * (length_m[:, None] / 2)  # (M, 4) along the heading
+    v = _CORNER_SIGNS[None, :, 1] * (width_m[:, None] / 2)  # (M, 4) to the left
+    c, s = np.cos(yaw_rad)[:, None], np.sin(yaw_rad)[:, None]
+    return np.stack([u * c - v * s + x_m[:, None], u * s + v * c + y_m[:, None]], axis=-1)
+
+
 def footprint_xy(x_m: float, y_m: float, yaw_rad: float, length_m: float, width_m: float) -> np.ndarray:
-    """Corners (4, 2) of a rectangle centred at (x, y), heading ``yaw_rad``, counter-clockwise."""
+    """Corners (4, 2) of a rectangle centred at (x, y), heading ``yaw_rad``, counter-clockwise
+    (footprints_xy for one rectangle, without its array overhead: this one is on hot paths)."""
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-    hl, hw = length_m / 2, width_m / 2
-    local = np.array([[hl, hw], [-hl, hw], [-hl, -hw], [hl, -hw]])
+    local = _CORNER_SIGNS * np.array([length_m / 2, width_m / 2])
     return local @ np.array([[c, s], [-s, c]]) + np.array([x_m, y_m])
