@@ -91,6 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--validate-only", action="store_true",
                    help="no training: re-measure the shipped weights on normal-val and update their model card "
                         "(after changing configs/detectors/pointpillars.yaml)")
+    p.add_argument("--init-from", default=None, metavar="WEIGHTS",
+                   help="start a new sequence of chunks from other shipped weights (e.g. single) instead of "
+                        "continuing this model's own")
 
     p = _add(sub, "evaluate", "AP of a detector on a scene set", commands.evaluate)
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse")

@@ -208,3 +208,6 @@ def test_train_validate_only_updates_the_card_without_training(capsys, monkeypat
     code, err = run(capsys, "train", "--fusion", "single", "--validate-only")
     assert code == 2
     assert_one_line_error(err, "unknown fusion 'single'")
+    code, err = run(capsys, "train", "--fusion", "early", "--validate-only", "--init-from", "single")
+    assert code == 2
+    assert_one_line_error(err, "cannot be combined with --init-from")

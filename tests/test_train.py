@@ -2,7 +2,9 @@
 import gzip
 import itertools
 import json
+import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -10,6 +12,7 @@ from asg.perception.train import TrainConfig, train
 from asg.scene.from_log import ExtractParams, extract_scenes
 from asg.scene.neighbours import with_nearest_collaborators
 
+from conftest import car, make_scene
 from test_perception import TINY
 
 
@@ -63,3 +66,95 @@ def test_interrupted_training_resumes_to_the_same_weights(sumo_log, tmp_path):
     card = json.loads(again.with_suffix(".json").read_text())
     assert card["steps"] == 12 and [c["seed"] for c in card["chunks"]] == [[5, 0], [5, 1]]
     assert not all(torch.equal(b[k], v) for k, v in torch.load(again, weights_only=True).items())
+
+
+def _world_xy(boxes, pose):
+    from asg.sensors.frame import boxes_to_world
+
+    return sorted(map(tuple, np.round(boxes_to_world(boxes, pose)[:, :2], 3)))
+
+
+def test_fused_views_show_the_frame_from_each_sensing_agent(cross_map):
+    """views='all': one example per sensing agent, in its own frame, its cloud first, labelled
+    with every vehicle the agents see together except its own body."""
+    from asg.perception.data import Sample
+    from asg.sensors import simulate_frame
+    from asg.sensors.lidar_spec import LidarSpec
+
+    spec = LidarSpec(name="t", channels=16, points_per_s=16 * 360 * 10, rotation_hz=10.0, range_m=40.0)
+    agents = [car("e", -8.0, -1.6), car("c", 10.0, 1.6, math.pi), car("x", 2.0, -1.6), car("y", 20.0, -1.6)]
+    s = Sample("t", simulate_frame(make_scene(cross_map, agents, ego="e", collaborators=("c",)), spec))
+    f = s.frame
+    (ego_clouds, ego_boxes), = s.fused_views("ego")
+    assert all(np.array_equal(a, b) for a, b in zip(ego_clouds, s.clouds_in_ego()))
+    assert np.array_equal(ego_boxes, s.gt_visible_ego())
+    views = s.fused_views("all")
+    assert len(views) == len(f.sensing_ids) == 2
+    world = {a.agent_id: (round(a.x_m, 3), round(a.y_m, 3)) for a in agents}
+    for agent_id, (clouds, boxes) in zip(f.sensing_ids, views):
+        assert len(clouds) == 2 and np.array_equal(clouds[0], f.clouds[agent_id])
+        # the same world seen from agent_id: every other car, the ego vehicle included, none twice
+        assert _world_xy(boxes, f.poses[agent_id]) == sorted(v for k, v in world.items() if k != agent_id)
+    # the other agent's cloud, moved into the collaborator's frame, lands on the same world points
+    from asg.sensors.frame import transform_points
+
+    moved = views[1][0][1]
+    back = transform_points(moved, f.poses["c"], f.poses["e"])
+    assert np.allclose(back[:, :3], f.clouds["e"][:, :3], atol=1e-4)
+    with pytest.raises(ValueError):
+        s.fused_views("some")
+
+
+def test_init_from_single_weights(tmp_path):
+    """AttFuse and Early Fusion start from PointPillars weights: every shared tensor copied, the
+    attention an average (v = identity); wrong weights are one clear error."""
+    from asg.perception.model import AttFuse, PointPillars
+    from asg.perception.train import init_from_weights
+    from asg.perception.weights_io import save_state
+    from sumo_scenarios.errors import InputError
+
+    torch.manual_seed(0)
+    single = PointPillars(TINY)
+    save_state(single, tmp_path / "single.pt")
+    att = AttFuse(TINY)
+    init_from_weights(att, tmp_path / "single.pt")
+    mine = att.state_dict()
+    assert all(torch.equal(mine[k], v) for k, v in single.state_dict().items())
+    assert torch.equal(att.fusion.v.weight, torch.eye(att.fusion.v.weight.shape[0]))
+    early = PointPillars(TINY)
+    init_from_weights(early, tmp_path / "single.pt")
+    assert all(torch.equal(early.state_dict()[k], v) for k, v in single.state_dict().items())
+    from dataclasses import replace
+
+    with pytest.raises(InputError, match="do not match"):
+        init_from_weights(AttFuse(replace(TINY, filters=(16, 32, 64))), tmp_path / "single.pt")
+    with pytest.raises(InputError, match="not found"):
+        init_from_weights(att, tmp_path / "none.pt")
+
+
+def test_train_init_from_starts_a_new_sequence(sumo_log, tmp_path):
+    from asg.perception.model import PointPillars
+    from asg.perception.weights_io import save_state
+    from sumo_scenarios.errors import InputError
+
+    data = tiny_dataset(sumo_log, tmp_path / "tiny")
+    weights_dir = tmp_path / "weights"
+    weights_dir.mkdir()
+    save_state(PointPillars(TINY), weights_dir / "single.pt")
+    (weights_dir / "single.json").write_text(json.dumps({"steps": 40, "train_wall_s": 12.5}))
+    tcfg = TrainConfig(dataset=str(data), steps=2, batch_size=1, schedule="onecycle", seed=5, checkpoint_every=1,
+                       views="all")
+    kw = dict(log=lambda *_: None, threads=1, train_config=tcfg, detector_config=TINY, weights_dir=weights_dir,
+              validate=False)
+    out = train("early", out_dir=tmp_path / "run", init_from="single", **kw)
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert card["init_from"] == {"weights": "single.pt", "steps": 40, "train_wall_s": 12.5}
+    assert card["steps"] == 2 and card["examples"] == 3 * 3  # each of 3 sensing agents' views of 3 frames
+    # the next plain run continues this sequence and keeps its origin
+    again = json.loads(train("early", out_dir=tmp_path / "run", **kw).with_suffix(".json").read_text())
+    assert again["steps"] == 4 and again["init_from"]["weights"] == "single.pt"
+    with pytest.raises(InputError, match="choose one of"):
+        train("early", out_dir=tmp_path / "run", init_from="nope", **kw)
+    (tmp_path / "run" / "last.pt").write_bytes((tmp_path / "weights" / "early.pt").read_bytes())
+    with pytest.raises(InputError, match="unfinished chunk"):
+        train("early", out_dir=tmp_path / "run", init_from="single", **kw)

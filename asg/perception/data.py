@@ -61,6 +61,29 @@ class Sample:
         return out
 
 
+    def fused_views(self, detecting: str = "ego", min_points: int = 1) -> list[tuple[list[np.ndarray], np.ndarray]]:
+        """Training views for the fusion models: per detecting agent, (every sensing agent's cloud
+        in its frame, its own first; the boxes in its frame in range with ``min_points`` fused
+        points). ``detecting``: "ego" (the ego only, as at inference) or "all" (each sensing agent
+        in turn: the same frame seen from 3 centres, 3 times the distinct examples). A detecting
+        agent's own body is never a label (the ego's is not at inference either)."""
+        f = self.frame
+        if detecting not in ("ego", "all"):
+            raise ValueError(f"detecting must be 'ego' or 'all', not {detecting!r}")
+        if detecting == "ego":
+            return [(self.clouds_in_ego(), self.gt_visible_ego(min_points))]
+        out = []
+        for a in f.sensing_ids:
+            order = [a] + [x for x in f.sensing_ids if x != a]
+            clouds = [f.clouds[x] if x == a else f.cloud_in(x, a) for x in order]
+            boxes = f.boxes_in(a)
+            if a != f.ego_id:  # its own body out, the ego vehicle in
+                boxes = np.vstack([boxes[np.asarray(f.gt_ids) != a], _ego_box_in(f, a)])
+            n = count_points_in_boxes(np.vstack(clouds), boxes)
+            out.append((clouds, boxes[in_range(boxes) & (n >= min_points)]))
+        return out
+
+
 def _ego_box_in(frame: CooperativeFrame, agent_id: str) -> np.ndarray:
     box = frame.ego_box_world
     if box is None:

@@ -60,6 +60,9 @@ class TrainConfig:
     div_factor: float = 10.0
     seed: int = 1
     checkpoint_every: int = 200
+    #: fusion models: "ego" trains on each frame as its ego sees it; "all" on each sensing agent's
+    #: view in turn (3 times the distinct examples from the same frames)
+    views: Literal["ego", "all"] = "ego"
 
 
 def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
@@ -82,16 +85,14 @@ def render_samples(dataset: str, split: str | None = "train", progress: Callable
 class _Batches:
     """Training examples of one kind, drawn with a seeded generator."""
 
-    def __init__(self, kind: str, samples: list[Sample]):
+    def __init__(self, kind: str, samples: list[Sample], views: str = "ego"):
         self.kind = kind
         if kind == "single":
-            self.items = [view for s in samples for view in s.own_views()]
-        elif kind == "early":
-            self.items = [([np.vstack(s.clouds_in_ego())], s.gt_visible_ego()) for s in samples]
+            self.items = [([c], b) for s in samples for c, b in s.own_views()]
         else:
-            self.items = [(s.clouds_in_ego(), s.gt_visible_ego()) for s in samples]
-        if kind == "single":
-            self.items = [([c], b) for c, b in self.items]
+            self.items = [v for s in samples for v in s.fused_views(views)]
+            if kind == "early":
+                self.items = [([np.vstack(clouds)], b) for clouds, b in self.items]
 
     def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg):
         picks = rng.integers(len(self.items), size=batch)
@@ -110,11 +111,13 @@ class _Batches:
 def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, log: Callable[[str], None] = print,
           progress: Callable[[int, int, float], None] | None = None, threads: int = 2, *,
           train_config: TrainConfig | None = None, detector_config=None, weights_dir: Path = WEIGHTS_DIR,
-          validate: bool = True) -> Path:
+          validate: bool = True, init_from: str | None = None) -> Path:
     """Train (or resume) the weights behind ``fusion``; returns the written weights file.
 
     Configs default to configs/detectors/{train,pointpillars}.yaml and the weights to the shipped
     ones (asg/perception/weights/); ``validate`` records normal-val AP in the model card.
+    ``init_from`` (a weights name, e.g. "single"): start a new sequence of chunks from those
+    weights instead of continuing this model's own (see :func:`init_from_weights`).
     """
     name = weights_for(fusion)
     tcfg = train_config or load_train_config(name)
@@ -124,8 +127,15 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     run_dir = out_dir or project_root() / "runs" / "train" / name
     ckpt = run_dir / "last.pt"
     state = torch.load(ckpt, map_location="cpu", weights_only=True) if ckpt.is_file() else None
+    if init_from and state is not None:
+        raise InputError(f"{ckpt} holds an unfinished chunk: resume it without --init-from, or delete it to start over")
     # the chunks before this one: from the checkpoint when resuming, else from the shipped card
-    previous = _previous_training(name, weights_dir) if state is None else json.loads(state.get("previous", "{}"))
+    if init_from:
+        previous = {"init_from": _init_record(init_from, weights_dir), "chunks": []}
+    elif state is None:
+        previous = _previous_training(name, weights_dir)
+    else:
+        previous = json.loads(state.get("previous", "{}"))
     chunk = len(previous.get("chunks", []))  # a continuation chunk draws other batches than the first
     torch.manual_seed(tcfg.seed + 1000 * chunk)
     rng = np.random.default_rng([tcfg.seed, chunk])
@@ -133,7 +143,11 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     opt = torch.optim.Adam(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     sched = _scheduler(opt, tcfg, total)
     step, wall = 0, 0.0
-    if previous and state is None:
+    if init_from:
+        init_from_weights(model, weights_dir / f"{init_from}.pt")
+        model.train()
+        log(f"starting {name} from the {init_from} weights ({previous['init_from']['steps']} steps)")
+    elif previous.get("chunks") and state is None:
         from .weights_io import load_state
 
         load_state(model, weights_dir / f"{name}.pt")
@@ -151,7 +165,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     t0 = time.perf_counter()
     log(f"rendering {tcfg.dataset} ...")
     samples = render_samples(tcfg.dataset, "train")
-    batches = _Batches(name, samples)
+    batches = _Batches(name, samples, tcfg.views)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     anchors = model.anchors.numpy()
     model.train()
@@ -183,11 +197,13 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     with atomic_path(weights) as tmp:
         torch.save(model.state_dict(), tmp)
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
-                                            "seed": [tcfg.seed, chunk], "wall_s": round(wall, 1)}]
+                                            "seed": [tcfg.seed, chunk], "views": tcfg.views,
+                                            "wall_s": round(wall, 1)}]
     card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
             "dataset": tcfg.dataset, "examples": len(batches.items), "steps": sum(c["steps"] for c in chunks),
             "batch_size": tcfg.batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
             "chunks": chunks, "threads": threads,
+            **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
             "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp"}
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
     ckpt.unlink(missing_ok=True)  # the chunk is complete: the next run starts a new one from these weights
@@ -225,7 +241,44 @@ def _previous_training(name: str, weights_dir: Path = WEIGHTS_DIR) -> dict:
     card = json.loads(card_path.read_text())
     chunks = card.get("chunks") or [{"steps": card.get("steps", 0), "lr": card.get("lr"), "seed": card.get("seed"),
                                      "wall_s": card.get("train_wall_s", 0.0)}]
-    return {"chunks": chunks, "steps_total": sum(c["steps"] for c in chunks)}
+    out = {"chunks": chunks, "steps_total": sum(c["steps"] for c in chunks)}
+    if card.get("init_from"):
+        out["init_from"] = card["init_from"]
+    return out
+
+
+def _init_record(init_from: str, weights_dir: Path) -> dict:
+    """What a new sequence starts from: the weights name, their steps and training time (from
+    their card), recorded in the new model card."""
+    names = sorted(set(FUSION_TO_WEIGHTS.values()))
+    if init_from not in names:
+        raise InputError(f"unknown weights '{init_from}' for --init-from; choose one of {', '.join(names)}")
+    if not (weights_dir / f"{init_from}.pt").is_file():
+        raise InputError(f"{weights_dir / f'{init_from}.pt'}: weights not found; train them first with 'asg train'")
+    card_path = weights_dir / f"{init_from}.json"
+    card = json.loads(card_path.read_text()) if card_path.is_file() else {}
+    return {"weights": f"{init_from}.pt", "steps": card.get("steps", 0), "train_wall_s": card.get("train_wall_s", 0.0)}
+
+
+def init_from_weights(model: torch.nn.Module, path: Path) -> None:
+    """Load a PointPillars state_dict (e.g. the single-agent weights) into ``model``.
+
+    Every tensor must match; AttFuse's attention is the only part allowed to be missing, and it
+    starts as (nearly) a plain average of the agents' features: v = identity, k scaled by 0.1 so
+    the first attention is close to uniform while q and k still get gradients.
+    """
+    from .weights_io import load_state
+
+    base = PointPillars(model.cfg)
+    load_state(base, path)  # one clear error for a missing, corrupt or mismatched file
+    missing = model.load_state_dict(base.state_dict(), strict=False).missing_keys
+    if any(not k.startswith("fusion.") for k in missing):
+        raise InputError(f"{path}: weights do not match this model (missing {missing[0]})")
+    if isinstance(model, AttFuse):
+        with torch.no_grad():
+            model.fusion.v.weight.copy_(torch.eye(model.fusion.v.weight.shape[0]))
+            model.fusion.v.bias.zero_()
+            model.fusion.k.weight.mul_(0.1)
 
 
 def _scheduler(opt: torch.optim.Optimizer, tcfg: TrainConfig, total: int):
