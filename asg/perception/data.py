@@ -60,7 +60,6 @@ class Sample:
             out.append((f.clouds[a], b[in_range(b) & (n >= min_points)]))
         return out
 
-
     def fused_views(self, detecting: str = "ego", min_points: int = 1) -> list[tuple[list[np.ndarray], np.ndarray]]:
         """Training views for the fusion models: per detecting agent, (every sensing agent's cloud
         in its frame, its own first; the boxes in its frame in range with ``min_points`` fused
