@@ -34,8 +34,7 @@ class Sample:
         return self.frame.sensing_ids
 
     def clouds_in_ego(self) -> list[np.ndarray]:
-        f = self.frame
-        return [f.clouds[a] if a == f.ego_id else f.cloud_in(a, f.ego_id) for a in f.sensing_ids]
+        return self.frame.clouds_in_frame_of(self.frame.ego_id)
 
     def gt_eval(self) -> np.ndarray:
         """Every vehicle (but the ego) within the evaluation range, ego frame: what AP counts."""
@@ -73,8 +72,7 @@ class Sample:
             return [(self.clouds_in_ego(), self.gt_visible_ego(min_points))]
         out = []
         for a in f.sensing_ids:
-            order = [a] + [x for x in f.sensing_ids if x != a]
-            clouds = [f.clouds[x] if x == a else f.cloud_in(x, a) for x in order]
+            clouds = f.clouds_in_frame_of(a)
             boxes = f.boxes_in(a)
             if a != f.ego_id:  # its own body out, the ego vehicle in
                 boxes = np.vstack([boxes[np.asarray(f.gt_ids) != a], _ego_box_in(f, a)])

@@ -44,6 +44,12 @@ class CooperativeFrame:
         """``agent_id``'s cloud moved into ``frame_of``'s sensor frame (N, 4)."""
         return transform_points(self.clouds[agent_id], self.poses[agent_id], self.poses[frame_of])
 
+    def clouds_in_frame_of(self, frame_of: str) -> list[np.ndarray]:
+        """Every sensing agent's cloud (N_i, 4) moved into ``frame_of``'s sensor frame, its own
+        first (untouched), then the others in sensing order (for the ego: sensing order)."""
+        others = [a for a in self.sensing_ids if a != frame_of]
+        return [self.clouds[frame_of]] + [self.cloud_in(a, frame_of) for a in others]
+
     def points_in_boxes(self) -> dict[str, np.ndarray]:
         """Points inside each ground-truth box, per sensing agent and ``"fused"`` (their sum): (M,) int."""
         out = {aid: count_points_in_boxes(self.clouds[aid], self.boxes_in(aid)) for aid in self.sensing_ids}

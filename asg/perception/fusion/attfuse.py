@@ -19,8 +19,7 @@ class AttFuseDetector(V2XDetector):
         return AttFuse(self.cfg)
 
     def _clouds(self, frame: CooperativeFrame) -> list[torch.Tensor]:
-        return [torch.from_numpy(frame.clouds[a] if a == frame.ego_id else frame.cloud_in(a, frame.ego_id))
-                for a in frame.sensing_ids]
+        return [torch.from_numpy(c) for c in frame.clouds_in_frame_of(frame.ego_id)]
 
     @torch.no_grad()
     def detect(self, frame: CooperativeFrame) -> Detections:

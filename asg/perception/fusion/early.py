@@ -11,7 +11,7 @@ from .base import Detections, V2XDetector
 
 
 def fused_cloud(frame: CooperativeFrame) -> np.ndarray:
-    return np.vstack([frame.clouds[a] if a == frame.ego_id else frame.cloud_in(a, frame.ego_id) for a in frame.sensing_ids])
+    return np.vstack(frame.clouds_in_frame_of(frame.ego_id))
 
 
 @register("fusion", "early")
