@@ -66,6 +66,28 @@ def test_projection_returns_a_member_of_q(busy_scene):
         assert checker.check(space.moved_agents(p)).ok
 
 
+def test_feasible_set_fills_for_a_tight_queue():
+    # three cars 1 m apart in one lane: each alone accepts a few percent of uniform moves, so joint
+    # rejection sampling (p^3) would keep almost nothing in 2,000 draws; Q must still fill, with
+    # every member plausible (neighbours in the queue can collide with each other) and reproducible
+    from sumo_scenarios.lanes import Lane, LaneMap
+
+    one_lane = LaneMap([Lane("e_0", np.array([[-100.0, 0.0], [100.0, 0.0]]), 3.2, 13.9)])
+    agents = [rsu("r", 0.0, 8.0)] + [car(f"c{i}", -5.6 * i, 0.0) for i in range(3)]
+    scene = make_scene(one_lane, agents)
+    ids = ["c0", "c1", "c2"]
+    space = SearchSpace(scene, ids, SpaceConfig(n_q=50, max_draw_factor=40))
+    q = FeasibleSet(space, np.random.default_rng(0))
+    assert len(q) == 51 and len({m.tobytes() for m in q.members}) == 51
+    checker = FeasibilityChecker(scene, ids)
+    assert all(checker.check(space.moved_agents(m)).ok for m in q.members)
+    assert np.array_equal(q.members, FeasibleSet(space, np.random.default_rng(0)).members)
+    # joint rejection on the same draw count keeps (almost) nothing
+    rng = np.random.default_rng(0)
+    joint = sum(checker.check(space.moved_agents(x)).ok for x in rng.uniform(-1, 1, (2000, 9)))
+    assert joint <= 5
+
+
 def test_boxed_in_vehicle_has_empty_feasible_set():
     # a car squeezed between two buses on a one-lane road cannot move without touching one or leaving it
     from sumo_scenarios.lanes import Lane, LaneMap

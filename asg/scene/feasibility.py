@@ -23,11 +23,15 @@ from .scene import Scene
 EVAL_RANGE_M = 48.0
 
 
-def _box_object(a: Agent) -> fcl.CollisionObject:
+def box_object(a: Agent) -> fcl.CollisionObject:
     c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     return fcl.CollisionObject(fcl.Box(a.length_m, a.width_m, a.height_m),
                                fcl.Transform(rot, np.array([a.x_m, a.y_m, a.z_m + a.height_m / 2])))
+
+
+def collide_boxes(a: fcl.CollisionObject, b: fcl.CollisionObject) -> bool:
+    return fcl.collide(a, b, fcl.CollisionRequest(), fcl.CollisionResult()) > 0
 
 
 def _building_object(b: Building) -> fcl.CollisionObject:
@@ -77,7 +81,7 @@ class FeasibilityChecker:
         self.movable_ids = tuple(movable_ids)
         fixed = [a for a in scene.agents if a.agent_id not in self.movable_ids]
         self._static = fcl.DynamicAABBTreeCollisionManager()
-        objs = [_box_object(a) for a in fixed] + [_building_object(b) for b in scene.buildings]
+        objs = [box_object(a) for a in fixed] + [_building_object(b) for b in scene.buildings]
         if objs:
             self._static.registerObjects(objs)
         self._static.setup()
@@ -86,18 +90,21 @@ class FeasibilityChecker:
 
     def collides(self, agents: Sequence[Agent]) -> int:
         """How many of ``agents`` touch something fixed or each other."""
-        objs = [_box_object(a) for a in agents]
-        hit = set()
-        for i, o in enumerate(objs):
-            if self._has_static:
-                data = fcl.CollisionData(request=self._request)
-                self._static.collide(o, data, fcl.defaultCollisionCallback)
-                if data.result.is_collision:
-                    hit.add(i)
-            for j in range(i + 1, len(objs)):
-                if fcl.collide(o, objs[j], self._request, fcl.CollisionResult()) > 0:
-                    hit.update((i, j))
+        hit = self._pairwise_hits([box_object(a) for a in agents])
+        hit.update(i for i, a in enumerate(agents) if self.collides_fixed(a))
         return len(hit)
+
+    def collides_fixed(self, agent: Agent) -> bool:
+        """Does ``agent`` touch a vehicle, RSU or building that does not move?"""
+        if not self._has_static:
+            return False
+        data = fcl.CollisionData(request=self._request)
+        self._static.collide(box_object(agent), data, fcl.defaultCollisionCallback)
+        return bool(data.result.is_collision)
+
+    def _pairwise_hits(self, objs: list) -> set[int]:
+        return {k for i, o in enumerate(objs) for j in range(i + 1, len(objs))
+                if collide_boxes(o, objs[j]) for k in (i, j)}
 
     def in_range(self, agents: Sequence[Agent]) -> np.ndarray:
         """(n,) bool: box centres within the evaluation range of the ego frame."""

@@ -1,9 +1,10 @@
 """The perturbation search space and its feasible set Q.
 
 A perturbation of m vehicles is x in [-1, 1]^(3m): per vehicle (dx, dy, dyaw) divided by the
-bounds (2.5 m, 2.5 m, 45 deg), dx and dy in the network frame. Q holds N_Q joint samples, drawn
-uniformly and kept only if every moved vehicle stays on the drivable area, collides with nothing
-and stays in the evaluation range. Projection onto Q: nearest member in normalised units (L2).
+bounds (2.5 m, 2.5 m, 45 deg), dx and dy in the network frame. Q holds N_Q joint samples, uniform
+over the plausible ones: every moved vehicle stays on the drivable area, collides with nothing and
+stays in the evaluation range (see FeasibleSet for how they are drawn). Projection onto Q: nearest
+member in normalised units (L2).
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import numpy as np
 from sumo_scenarios.errors import InputError
 
 from ..scene import Agent, Scene
-from ..scene.feasibility import FeasibilityChecker
+from ..scene.feasibility import FeasibilityChecker, box_object, collide_boxes
 
 
 @dataclass(frozen=True)
@@ -52,37 +53,96 @@ class SearchSpace:
         return {vid: self.scene.agent(vid).moved(*d) for vid, d in zip(self.vehicle_ids, deltas)}
 
 
+@dataclass
+class _Pool:
+    """One vehicle's moves that pass its own constraints: normalised (K, 3), the moved agents,
+    their fcl boxes and centres (K, 2), and the radius of the circle around its footprint."""
+
+    x: np.ndarray
+    agents: list[Agent]
+    drawn: int
+    radius_m: float
+
+    def __post_init__(self):
+        self.objects = [box_object(a) for a in self.agents]
+        self.xy = np.array([[a.x_m, a.y_m] for a in self.agents]).reshape(-1, 2)
+
+
 class FeasibleSet:
-    """Q: plausible joint perturbations (K, 3m) in normalised units; row 0 is always 'no move'."""
+    """Q: plausible joint perturbations (K, 3m) in normalised units; row 0 is always 'no move'.
+
+    Sampled in two steps, with the same result as drawing joint perturbations uniformly and
+    rejecting the implausible ones, but far fewer draws: each vehicle's own constraints (on the
+    drivable area, in range, clear of everything that does not move) do not depend on the other
+    moved vehicles, so each vehicle first gets a pool of uniform moves that pass them; joint
+    samples then combine one move from each pool at random and are kept only if the moved
+    vehicles stay clear of each other. Joint rejection sampling needs about 1 / (p_1 ... p_m)
+    draws per member; in a dense lane (p_i of a few percent each) it filled only a few dozen of
+    the 1000 members in 20,000 draws.
+    """
 
     def __init__(self, space: SearchSpace, rng: np.random.Generator):
         self.space = space
         checker = FeasibilityChecker(space.scene, space.vehicle_ids)
+        budget = space.cfg.n_q * space.cfg.max_draw_factor
+        pools = [self._vehicle_pool(checker, vid, rng, budget) for vid in space.vehicle_ids]
+        self.drawn = sum(p.drawn for p in pools)
+        empty = [vid for vid, p in zip(space.vehicle_ids, pools) if not len(p.x)]
+        if empty:
+            raise EmptyFeasibleSet(
+                f"scene {space.scene.scene_id}: no plausible move for vehicle {empty[0]} in {budget} draws; "
+                "the scene cannot be perturbed")
         kept = [np.zeros(space.dim)]
         drawn = 0
-        batch = 256
-        while len(kept) < space.cfg.n_q + 1 and drawn < space.cfg.n_q * space.cfg.max_draw_factor:
-            xs = rng.uniform(-1.0, 1.0, size=(batch, space.dim))
+        while len(kept) < space.cfg.n_q + 1 and drawn < budget:
+            batch = min(256, budget - drawn)
+            picks = np.stack([rng.integers(0, len(p.x), size=batch) for p in pools], axis=1)  # (batch, m)
             drawn += batch
-            ok = self._cheap_filter(checker, xs)
-            for x in xs[ok]:
-                if checker.collides(list(space.moved_agents(x).values())) == 0:
-                    kept.append(x)
-                    if len(kept) >= space.cfg.n_q + 1:
-                        break
+            for row in picks[self._clear_pairs(pools, picks)]:
+                kept.append(np.concatenate([p.x[k] for p, k in zip(pools, row)]))
+                if len(kept) >= space.cfg.n_q + 1:
+                    break
+        self.drawn += drawn
         self.members = np.array(kept)
-        self.drawn = drawn
         if len(self.members) < 2:
             raise EmptyFeasibleSet(
-                f"scene {space.scene.scene_id}: no plausible move for vehicles {', '.join(space.vehicle_ids)} "
-                f"in {drawn} draws; the scene cannot be perturbed")
+                f"scene {space.scene.scene_id}: no plausible joint move for vehicles {', '.join(space.vehicle_ids)} "
+                f"in {drawn} draws (each can move alone, not together); the scene cannot be perturbed")
 
-    def _cheap_filter(self, checker: FeasibilityChecker, xs: np.ndarray) -> np.ndarray:
-        """On road and in range for every moved vehicle (vectorised over samples)."""
-        agents = [a for x in xs for a in self.space.moved_agents(x).values()]
-        m = len(self.space.vehicle_ids)
-        ok = (checker.on_road(agents) & checker.in_range(agents)).reshape(len(xs), m)
-        return ok.all(axis=1)
+    @staticmethod
+    def _clear_pairs(pools: list["_Pool"], picks: np.ndarray) -> np.ndarray:
+        """(batch,) bool: the picked moves (batch, m) keep every pair of moved vehicles apart.
+        Pairs whose bounding circles are apart are clear without asking fcl."""
+        ok = np.ones(len(picks), dtype=bool)
+        for i in range(len(pools)):
+            for j in range(i + 1, len(pools)):
+                gap = np.linalg.norm(pools[i].xy[picks[:, i]] - pools[j].xy[picks[:, j]], axis=1)
+                near = np.flatnonzero(ok & (gap < pools[i].radius_m + pools[j].radius_m))
+                for r in near:
+                    ok[r] = not collide_boxes(pools[i].objects[picks[r, i]], pools[j].objects[picks[r, j]])
+        return ok
+
+    def _vehicle_pool(self, checker: FeasibilityChecker, vehicle_id: str, rng: np.random.Generator,
+                      budget: int) -> "_Pool":
+        """Up to N_Q uniform moves of one vehicle that pass its own constraints."""
+        base = self.space.scene.agent(vehicle_id)
+        scale = self.space.scale[:3]
+        xs: list[np.ndarray] = []
+        agents: list[Agent] = []
+        drawn = 0
+        while len(xs) < self.space.cfg.n_q and drawn < budget:
+            batch = min(512, budget - drawn)
+            draws = rng.uniform(-1.0, 1.0, size=(batch, 3))
+            drawn += batch
+            moved = [base.moved(*(x * scale)) for x in draws]
+            ok = checker.on_road(moved) & checker.in_range(moved)
+            for x, a in zip(draws[ok], (a for a, k in zip(moved, ok) if k)):
+                if not checker.collides_fixed(a):
+                    xs.append(x)
+                    agents.append(a)
+                    if len(xs) >= self.space.cfg.n_q:
+                        break
+        return _Pool(np.array(xs).reshape(-1, 3), agents, drawn, 0.5 * math.hypot(base.length_m, base.width_m))
 
     def __len__(self) -> int:
         return len(self.members)
