@@ -71,7 +71,7 @@ class _Pool:
 class FeasibleSet:
     """Q: plausible joint perturbations (K, 3m) in normalised units; row 0 is always 'no move'.
 
-    Sampled in two steps, with the same result as drawing joint perturbations uniformly and
+    Sampled in two steps, with the same distribution as drawing joint perturbations uniformly and
     rejecting the implausible ones, but far fewer draws: each vehicle's own constraints (on the
     drivable area, in range, clear of everything that does not move) do not depend on the other
     moved vehicles, so each vehicle first gets a pool of uniform moves that pass them; joint
