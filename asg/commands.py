@@ -227,7 +227,9 @@ def bench_generate(args: argparse.Namespace) -> int:
 def bench_paper(args: argparse.Namespace) -> int:
     from .benchmarks.paper import bench_paper as run
 
-    result = run(Path(args.out), scenes=args.scenes, budget=args.budget, fusion=args.fusion)
+    if args.jobs < 1:
+        raise InputError(f"--jobs must be at least 1, got {args.jobs}")
+    result = run(Path(args.out), scenes=args.scenes, budget=args.budget, fusion=args.fusion, jobs=args.jobs)
     if args.json:
         print(json.dumps(result))
     else:

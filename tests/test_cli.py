@@ -211,3 +211,10 @@ def test_train_validate_only_updates_the_card_without_training(capsys, monkeypat
     code, err = run(capsys, "train", "--fusion", "early", "--validate-only", "--init-from", "single")
     assert code == 2
     assert_one_line_error(err, "cannot be combined with --init-from")
+
+
+def test_bench_paper_bad_jobs(capsys, out):
+    code, err = run(capsys, "bench", "paper", "--jobs", "0", "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "--jobs")
+    assert_nothing_written(out)

@@ -14,21 +14,49 @@ from pathlib import Path
 CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"))
 
 
-def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1) -> dict:
-    from ..generate_cmd import run_generate
+def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1,
+                jobs: int = 1) -> dict:
+    """Run (or resume) the four configurations and collect their pooled AP. ``jobs`` > 1 runs them
+    in that many worker processes, the machine's threads shared among them; each configuration's
+    result does not depend on which worker ran it."""
     from ..perception.evaluate import scenes_of
-    from ..progress import console
 
-    next(iter(scenes_of("normal")))  # builds the normal set if needed
+    next(iter(scenes_of("normal")))  # builds the normal set if needed (once, before any worker)
+    todo = [(out / f"{acs}-{search}", acs, search) for acs, search in CONFIGS]
+    if jobs <= 1:
+        for run_dir, acs, search in todo:
+            _run_config(run_dir, acs, search, scenes, budget, fusion, seed)
+    else:
+        import multiprocessing
+        import os
+        from concurrent.futures import ProcessPoolExecutor
+
+        threads = max(1, (os.cpu_count() or 1) // jobs)
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = [pool.submit(_run_config, run_dir, acs, search, scenes, budget, fusion, seed, threads)
+                       for run_dir, acs, search in todo]
+            for f in futures:
+                f.result()
     table = {}
-    for acs, search in CONFIGS:
-        run_dir = out / f"{acs}-{search}"
-        args = argparse.Namespace(town=None, net=None, scenes=Path("normal"), fusion=fusion, search=search,
-                                  acs=acs, aps="on", count=scenes, budget=budget, seed=seed, config=None, out=run_dir)
-        run_generate(args, table_console=console)  # per-scene tables to stderr: stdout holds the result
+    for run_dir, acs, search in todo:
         agg = json.loads((run_dir / "summary.json").read_text())["aggregate"]
         table[f"{acs}-{search}"] = {"normal": agg["ap_normal"], "challenging": agg["ap_challenging"],
                                     "after_acs": agg.get("ap_after_acs"),
                                     "after_acs_mean": agg["mean_scene_ap_after_acs"], "scenes": agg["scenes"],
                                     "seconds_per_scene_median": agg["seconds_per_scene_median"]}
     return {"fusion": fusion, "budget": budget, "table": table}
+
+
+def _run_config(run_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str, seed: int,
+                threads: int | None = None) -> None:
+    """One configuration as an ``asg generate`` run into ``run_dir`` (resumes a partial one)."""
+    from ..generate_cmd import run_generate
+    from ..progress import console
+
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+    args = argparse.Namespace(town=None, net=None, scenes=Path("normal"), fusion=fusion, search=search,
+                              acs=acs, aps="on", count=scenes, budget=budget, seed=seed, config=None, out=run_dir)
+    run_generate(args, table_console=console)  # per-scene tables to stderr: stdout holds the result
