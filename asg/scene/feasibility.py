@@ -90,16 +90,18 @@ class FeasibilityChecker:
 
     def collides(self, agents: Sequence[Agent]) -> int:
         """How many of ``agents`` touch something fixed or each other."""
-        hit = self._pairwise_hits([box_object(a) for a in agents])
-        hit.update(i for i, a in enumerate(agents) if self.collides_fixed(a))
+        objs = [box_object(a) for a in agents]
+        hit = self._pairwise_hits(objs)
+        hit.update(i for i, o in enumerate(objs) if self.touches_fixed(o))
         return len(hit)
 
-    def collides_fixed(self, agent: Agent) -> bool:
-        """Does ``agent`` touch a vehicle, RSU or building that does not move?"""
+    def touches_fixed(self, box: fcl.CollisionObject) -> bool:
+        """Does ``box`` (a moved vehicle's, from :func:`box_object`) touch a vehicle, RSU or
+        building that does not move?"""
         if not self._has_static:
             return False
         data = fcl.CollisionData(request=self._request)
-        self._static.collide(box_object(agent), data, fcl.defaultCollisionCallback)
+        self._static.collide(box, data, fcl.defaultCollisionCallback)
         return bool(data.result.is_collision)
 
     def _pairwise_hits(self, objs: list) -> set[int]:

@@ -55,17 +55,14 @@ class SearchSpace:
 
 @dataclass
 class _Pool:
-    """One vehicle's moves that pass its own constraints: normalised (K, 3), the moved agents,
-    their fcl boxes and centres (K, 2), and the radius of the circle around its footprint."""
+    """One vehicle's moves that pass its own constraints: normalised (K, 3), the moved vehicle's
+    fcl boxes and centres (K, 2), the draws used, and the radius of the circle around its footprint."""
 
     x: np.ndarray
-    agents: list[Agent]
+    objects: list
+    xy: np.ndarray
     drawn: int
     radius_m: float
-
-    def __post_init__(self):
-        self.objects = [box_object(a) for a in self.agents]
-        self.xy = np.array([[a.x_m, a.y_m] for a in self.agents]).reshape(-1, 2)
 
 
 class FeasibleSet:
@@ -128,7 +125,8 @@ class FeasibleSet:
         base = self.space.scene.agent(vehicle_id)
         scale = self.space.scale[:3]
         xs: list[np.ndarray] = []
-        agents: list[Agent] = []
+        objects: list = []
+        xy: list[tuple[float, float]] = []
         drawn = 0
         while len(xs) < self.space.cfg.n_q and drawn < budget:
             batch = min(512, budget - drawn)
@@ -137,12 +135,15 @@ class FeasibleSet:
             moved = [base.moved(*(x * scale)) for x in draws]
             ok = checker.on_road(moved) & checker.in_range(moved)
             for x, a in zip(draws[ok], (a for a, k in zip(moved, ok) if k)):
-                if not checker.collides_fixed(a):
+                box = box_object(a)
+                if not checker.touches_fixed(box):
                     xs.append(x)
-                    agents.append(a)
+                    objects.append(box)
+                    xy.append((a.x_m, a.y_m))
                     if len(xs) >= self.space.cfg.n_q:
                         break
-        return _Pool(np.array(xs).reshape(-1, 3), agents, drawn, 0.5 * math.hypot(base.length_m, base.width_m))
+        return _Pool(np.array(xs).reshape(-1, 3), objects, np.array(xy).reshape(-1, 2), drawn,
+                     0.5 * math.hypot(base.length_m, base.width_m))
 
     def __len__(self) -> int:
         return len(self.members)
