@@ -226,6 +226,7 @@ def bench_generate(args: argparse.Namespace) -> int:
 
 def bench_paper(args: argparse.Namespace) -> int:
     from .benchmarks.paper import bench_paper as run
+    from .io.run import after_acs_ap
 
     if args.jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {args.jobs}")
@@ -238,7 +239,8 @@ def bench_paper(args: argparse.Namespace) -> int:
             table.add_column(col)
         for k, v in result["table"].items():
             fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7"))
-            after = fmt(v["after_acs"]) if v["after_acs"] else fmt(v["after_acs_mean"]) + " (mean)"
+            after_ap, pooled = after_acs_ap(v)
+            after = fmt(after_ap) + ("" if pooled else " (mean)")
             table.add_row(k, fmt(v["normal"]), after, fmt(v["challenging"]), str(v["scenes"]))
         stdout.print(table)
     return 0

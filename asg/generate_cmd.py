@@ -105,6 +105,8 @@ def run_generate(args: argparse.Namespace, table_console=None) -> int:
 
 
 def _print_table(summary: dict, out) -> None:
+    from .io.run import after_acs_ap
+
     table = Table(title="AP before / after (fractions)")
     table.add_column("scene")
     for col in ("normal 0.3/0.5/0.7", "after ACS", "final", "moved", "s"):
@@ -114,9 +116,9 @@ def _print_table(summary: dict, out) -> None:
         table.add_row(e["scene_id"][-32:], fmt(e["ap_normal"]), fmt(e["ap_after_acs"]), fmt(e["ap_final"]),
                       str(len(e["perturbed"])), f"{e['seconds']:.1f}")
     agg = summary["aggregate"]
-    pooled_acs = agg.get("ap_after_acs")
-    table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(pooled_acs) if pooled_acs else fmt(agg["mean_scene_ap_after_acs"]) + "*",
+    after_ap, pooled = after_acs_ap(agg)
+    table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(after_ap) + ("" if pooled else "*"),
                   fmt(agg["ap_challenging"]), "", f"{agg['seconds_per_scene_median']:.1f}")
     out.print(table)
-    if not pooled_acs:
+    if not pooled:
         out.print("* mean over scenes (this folder has scenes written before after-ACS detections were stored)")
