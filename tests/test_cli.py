@@ -218,3 +218,10 @@ def test_bench_paper_bad_jobs(capsys, out):
     assert code == 2
     assert_one_line_error(err, "--jobs")
     assert_nothing_written(out)
+
+
+def test_bench_paper_refuses_a_folder_of_other_scenes(capsys, out):
+    (out / "scenes-5").mkdir(parents=True)
+    code, err = run(capsys, "bench", "paper", "--scenes", "4", "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "other scenes (scenes-5)")

@@ -113,3 +113,22 @@ def test_fewer_vehicles_than_m_is_reported(cross_map):
 def test_unknown_search_name_in_config():
     with pytest.raises(InputError, match="unknown search algorithm 'sa'"):
         GenerateConfig(search="sa").validate()
+
+
+def test_bench_paper_spreads_its_scenes_over_the_set(tmp_path, busy_scene):
+    """The benchmark takes scenes evenly over the set (the set lists logs one after another), in
+    set order, and keeps a pick already written."""
+    import dataclasses
+
+    from asg.benchmarks.paper import pick_scenes
+    from asg.scene import load_scene, save_scene
+
+    for i in range(10):
+        save_scene(dataclasses.replace(busy_scene, scene_id=f"s{i:02d}"), tmp_path / "set" / f"s{i:02d}.yaml")
+    picked = pick_scenes(tmp_path / "pick", 4, set_name=str(tmp_path / "set"))
+    ids = [load_scene(f).scene_id for f in sorted(picked.glob("*.yaml"))]
+    assert ids == ["s00", "s02", "s05", "s08"]
+    before = {f.name: f.stat().st_mtime_ns for f in picked.glob("*.yaml")}
+    pick_scenes(tmp_path / "pick", 4, set_name=str(tmp_path / "set"))
+    assert {f.name: f.stat().st_mtime_ns for f in picked.glob("*.yaml")} == before
+    assert len(list(pick_scenes(tmp_path / "all", 30, set_name=str(tmp_path / "set")).glob("*.yaml"))) == 10

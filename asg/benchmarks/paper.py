@@ -1,7 +1,8 @@
 """``asg bench paper``: the generator's targets on the normal scenes of the held-out towns.
 
 Runs AttFuse as the target with (ACS-A, BO), (ACS-A, GA), (ACS-A, RS) and (ACS-R, BO) on the
-same scenes and seed, and reports AP@0.3/0.5/0.7 pooled over the scenes (normal and challenging)
+same scenes and seed (``scenes`` of the normal set spread evenly over it, so both held-out towns,
+many logs and both ego kinds are in; written once to ``OUT/scenes-N``), and reports AP@0.3/0.5/0.7 pooled over the scenes (normal and challenging)
 for each, as the paper's Tables I-III. Each configuration is an ``asg generate`` run folder under
 ``OUT/<acs>-<search>``, so an interrupted benchmark resumes where it stopped.
 """
@@ -11,6 +12,8 @@ import argparse
 import json
 from pathlib import Path
 
+from sumo_scenarios.errors import InputError
+
 CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"))
 
 
@@ -19,13 +22,14 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
     """Run (or resume) the four configurations and collect their pooled AP. ``jobs`` > 1 runs them
     in that many worker processes, the machine's threads shared among them; each configuration's
     result does not depend on which worker ran it."""
-    from ..perception.evaluate import scenes_of
-
-    next(iter(scenes_of("normal")))  # builds the normal set if needed (once, before any worker)
+    earlier = [d.name for d in out.glob("scenes-*") if d.name != f"scenes-{scenes}"]
+    if earlier:
+        raise InputError(f"{out} holds a benchmark on other scenes ({earlier[0]}); give another --out or the same --scenes")
+    scene_dir = pick_scenes(out / f"scenes-{scenes}", scenes)
     todo = [(out / f"{acs}-{search}", acs, search) for acs, search in CONFIGS]
     if jobs <= 1:
         for run_dir, acs, search in todo:
-            _run_config(run_dir, acs, search, scenes, budget, fusion, seed)
+            _run_config(run_dir, scene_dir, acs, search, scenes, budget, fusion, seed)
     else:
         import multiprocessing
         import os
@@ -33,7 +37,7 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
 
         threads = max(1, (os.cpu_count() or 1) // jobs)
         with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_run_config, run_dir, acs, search, scenes, budget, fusion, seed, threads)
+            futures = [pool.submit(_run_config, run_dir, scene_dir, acs, search, scenes, budget, fusion, seed, threads)
                        for run_dir, acs, search in todo]
             for f in futures:
                 f.result()
@@ -47,8 +51,26 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
     return {"fusion": fusion, "budget": budget, "table": table}
 
 
-def _run_config(run_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str, seed: int,
-                threads: int | None = None) -> None:
+def pick_scenes(scene_dir: Path, count: int, set_name: str = "normal") -> Path:
+    """Write ``count`` scenes of ``set_name`` spread evenly over it (indices round(i * n / count))
+    as ``scene_dir/NNN_<scene_id>.yaml`` (kept if already there) and return ``scene_dir``. The set
+    lists its logs one after another, so the first ``count`` would all come from one log."""
+    from ..perception.evaluate import scenes_of
+    from ..scene import save_scene
+
+    all_scenes = list(scenes_of(set_name))  # builds the normal set if needed (once, before any worker)
+    count = min(count, len(all_scenes))
+    picks = sorted({round(i * len(all_scenes) / count) for i in range(count)})
+    scene_dir.mkdir(parents=True, exist_ok=True)
+    for rank, i in enumerate(picks):
+        path = scene_dir / f"{rank:03d}_{all_scenes[i].scene_id}.yaml"
+        if not path.is_file():
+            save_scene(all_scenes[i], path)  # atomic
+    return scene_dir
+
+
+def _run_config(run_dir: Path, scene_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str,
+                seed: int, threads: int | None = None) -> None:
     """One configuration as an ``asg generate`` run into ``run_dir`` (resumes a partial one)."""
     from ..generate_cmd import run_generate
     from ..progress import console
@@ -57,6 +79,6 @@ def _run_config(run_dir: Path, acs: str, search: str, scenes: int, budget: int, 
         import torch
 
         torch.set_num_threads(threads)
-    args = argparse.Namespace(town=None, net=None, scenes=Path("normal"), fusion=fusion, search=search,
+    args = argparse.Namespace(town=None, net=None, scenes=scene_dir, fusion=fusion, search=search,
                               acs=acs, aps="on", count=scenes, budget=budget, seed=seed, config=None, out=run_dir)
     run_generate(args, table_console=console)  # per-scene tables to stderr: stdout holds the result
