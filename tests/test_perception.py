@@ -138,14 +138,44 @@ def test_nms_equals_greedy_nms_on_the_full_iou_matrix():
         assert rotated_nms(boxes, scores, 0.15, 100).tolist() == order[keep].tolist()
 
 
-def test_attention_rows_sum_to_one_and_mask_missing_agents():
-    model = AttFuse(TINY).eval()
+@pytest.mark.parametrize("where", ["output", "stages"])
+def test_attention_rows_sum_to_one_and_mask_missing_agents(where):
+    from dataclasses import replace
+
+    model = AttFuse(replace(TINY, attfuse_fusion=where)).eval()
     clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5], [torch.randn(300, 4) * 5]]
     with torch.no_grad():
         model(clouds)
     att = model.last_attention  # (B, N, H, W)
     assert torch.allclose(att.sum(dim=1), torch.ones_like(att[:, 0]))
     assert torch.all(att[1, 1] == 0)  # sample 1 has one agent: nothing attends to the padding
+    assert att.shape[-2:] == (TINY.head_size, TINY.head_size)
+
+
+@pytest.mark.parametrize("where", ["output", "stages"])
+def test_attfuse_from_single_weights_is_the_single_model_on_copies(tmp_path, where):
+    """Started from PointPillars weights (v = identity), AttFuse fed the same cloud by every agent
+    predicts exactly what the single-agent model predicts, wherever it fuses."""
+    from dataclasses import replace
+
+    from asg.perception.train import init_from_weights
+
+    torch.manual_seed(0)
+    single = PointPillars(TINY)
+    single.train()
+    with torch.no_grad():  # non-trivial batch-norm statistics
+        for _ in range(3):
+            single([torch.randn(400, 4) * 5])
+    save_state(single.eval(), tmp_path / "single.pt")
+    att = AttFuse(replace(TINY, attfuse_fusion=where))
+    init_from_weights(att, tmp_path / "single.pt")
+    att.eval()
+    cloud = torch.randn(600, 4) * 5
+    with torch.no_grad():
+        ref = single([cloud])
+        out = att([[cloud, cloud.clone(), cloud.clone()]])
+    for r, o in zip(ref, out):
+        assert torch.allclose(r, o, atol=1e-4)
 
 
 def test_attention_equals_the_direct_formula():
@@ -167,11 +197,14 @@ def test_attention_equals_the_direct_formula():
     assert torch.allclose(a, ref_a[..., 0, :].permute(0, 3, 1, 2), atol=1e-6)
 
 
-def test_folding_batch_norms_keeps_the_function():
+@pytest.mark.parametrize("where", ["output", "stages"])
+def test_folding_batch_norms_keeps_the_function(where):
+    from dataclasses import replace
+
     from asg.perception.inference import fold_batch_norms
 
     torch.manual_seed(0)
-    model = AttFuse(TINY)
+    model = AttFuse(replace(TINY, attfuse_fusion=where))
     model.train()
     with torch.no_grad():  # a few batches give the norms non-trivial running statistics
         for _ in range(3):

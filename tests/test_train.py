@@ -108,6 +108,8 @@ def test_fused_views_show_the_frame_from_each_sensing_agent(cross_map):
 def test_init_from_single_weights(tmp_path):
     """AttFuse and Early Fusion start from PointPillars weights: every shared tensor copied, the
     attention an average (v = identity); wrong weights are one clear error."""
+    from dataclasses import replace
+
     from asg.perception.model import AttFuse, PointPillars
     from asg.perception.train import init_from_weights
     from asg.perception.weights_io import save_state
@@ -121,10 +123,13 @@ def test_init_from_single_weights(tmp_path):
     mine = att.state_dict()
     assert all(torch.equal(mine[k], v) for k, v in single.state_dict().items())
     assert torch.equal(att.fusion.v.weight, torch.eye(att.fusion.v.weight.shape[0]))
+    staged = AttFuse(replace(TINY, attfuse_fusion="stages"))
+    init_from_weights(staged, tmp_path / "single.pt")
+    assert len(staged.attentions()) == 3
+    assert all(torch.equal(a.v.weight, torch.eye(a.v.weight.shape[0])) for a in staged.attentions())
     early = PointPillars(TINY)
     init_from_weights(early, tmp_path / "single.pt")
     assert all(torch.equal(early.state_dict()[k], v) for k, v in single.state_dict().items())
-    from dataclasses import replace
 
     with pytest.raises(InputError, match="do not match"):
         init_from_weights(AttFuse(replace(TINY, filters=(16, 32, 64))), tmp_path / "single.pt")

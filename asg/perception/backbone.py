@@ -34,9 +34,19 @@ class Backbone(nn.Module):
             cin = cout
         self.out_channels = 3 * cfg.upsample_channels
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        self.stage_channels = tuple(cfg.filters)
+
+    def stage_outputs(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """(B, pfn, n, n) → each stage's output (B, filters[k], n / 2^(k+1), n / 2^(k+1))."""
         outs = []
-        for stage, up in zip(self.stages, self.ups):
+        for stage in self.stages:
             x = stage(x)
-            outs.append(up(x))
-        return torch.cat(outs, dim=1)
+            outs.append(x)
+        return outs
+
+    def upsample(self, stage_outs: list[torch.Tensor]) -> torch.Tensor:
+        """Stage outputs → (B, 3 * upsample_channels, n/2, n/2)."""
+        return torch.cat([up(x) for up, x in zip(self.ups, stage_outs)], dim=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.upsample(self.stage_outputs(x))

@@ -32,12 +32,18 @@ class DetectorConfig:
     #: weighted by score ** vote_power
     vote_iou: float = 0.3
     vote_power: float = 2.0
+    #: where AttFuse fuses the agents: "output" (the concatenated, upsampled backbone output; the
+    #: head's 1x1 convolutions follow, so the fused prediction is linear in the agents' features) or
+    #: "stages" (each backbone stage's output before its upsampling block, as the reference
+    #: implementation does: the upsampling convolutions and ReLU follow the fusion)
+    attfuse_fusion: str = "output"
 
     def __post_init__(self) -> None:
         checks = [("range_m", self.range_m > 0), ("pillar_m", self.pillar_m > 0),
                   ("score_threshold", 0 <= self.score_threshold < 1), ("nms_iou", 0 < self.nms_iou <= 1),
                   ("vote_iou", 0 <= self.vote_iou <= 1), ("vote_power", self.vote_power >= 0),
-                  ("max_detections", self.max_detections >= 1)]
+                  ("max_detections", self.max_detections >= 1),
+                  ("attfuse_fusion", self.attfuse_fusion in ("output", "stages"))]
         for name, ok in checks:
             if not ok:
                 raise InputError(f"detector config: {name} = {getattr(self, name)!r} is out of range; "

@@ -70,17 +70,29 @@ class ScaledDotAttention(nn.Module):
 
 class AttFuse(nn.Module):
     """Each agent's cloud (already in the ego frame) → shared pillars + backbone → per-cell
-    attention across agents → the ego's fused features → anchor head."""
+    attention across agents → the ego's fused features → anchor head.
+
+    ``cfg.attfuse_fusion``: "output" fuses the backbone's upsampled output (``fusion`` is one
+    attention); "stages" fuses each stage before its upsampling block (``fusion`` holds one
+    attention per stage). ``last_attention`` (B, N, n/2, n/2): the ego row at the head's
+    resolution (the output, or the first stage).
+    """
 
     def __init__(self, cfg: DetectorConfig):
         super().__init__()
         self.cfg = cfg
         self.encoder = PillarEncoder(cfg)
         self.backbone = Backbone(cfg)
-        self.fusion = ScaledDotAttention(self.backbone.out_channels)
+        if cfg.attfuse_fusion == "stages":
+            self.fusion = nn.ModuleList(ScaledDotAttention(c) for c in self.backbone.stage_channels)
+        else:
+            self.fusion = ScaledDotAttention(self.backbone.out_channels)
         self.head = AnchorHead(cfg, self.backbone.out_channels)
         self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
         self.last_attention: torch.Tensor | None = None
+
+    def attentions(self) -> list[ScaledDotAttention]:
+        return list(self.fusion) if isinstance(self.fusion, nn.ModuleList) else [self.fusion]
 
     def forward(self, agent_clouds: list[list[torch.Tensor]]):
         """``agent_clouds[b]`` lists sample b's clouds, ego first (at most 5 agents)."""
@@ -91,9 +103,17 @@ class AttFuse(nn.Module):
             for j in range(n):
                 flat.append(clouds[j] if j < len(clouds) else empty)
                 mask[b, j] = j < len(clouds)
-        f = self.backbone(self.encoder(flat))
-        f = f.view(len(agent_clouds), n, *f.shape[1:])
-        fused, att = self.fusion(f, mask)
+        bev = self.encoder(flat)
+        per_sample = lambda f: f.view(len(agent_clouds), n, *f.shape[1:])
+        if isinstance(self.fusion, nn.ModuleList):
+            fused_stages, atts = [], []
+            for att_module, f in zip(self.fusion, self.backbone.stage_outputs(bev)):
+                fused, att = att_module(per_sample(f), mask)
+                fused_stages.append(fused)
+                atts.append(att)
+            fused, att = self.backbone.upsample(fused_stages), atts[0]
+        else:
+            fused, att = self.fusion(per_sample(self.backbone(bev)), mask)
         self.last_attention = att.detach()
         return self.head(fused)
 

@@ -276,9 +276,10 @@ def init_from_weights(model: torch.nn.Module, path: Path) -> None:
         raise InputError(f"{path}: weights do not match this model (missing {missing[0]})")
     if isinstance(model, AttFuse):
         with torch.no_grad():
-            model.fusion.v.weight.copy_(torch.eye(model.fusion.v.weight.shape[0]))
-            model.fusion.v.bias.zero_()
-            model.fusion.k.weight.mul_(0.1)
+            for att in model.attentions():
+                att.v.weight.copy_(torch.eye(att.v.weight.shape[0]))
+                att.v.bias.zero_()
+                att.k.weight.mul_(0.1)
 
 
 def _scheduler(opt: torch.optim.Optimizer, tcfg: TrainConfig, total: int):
