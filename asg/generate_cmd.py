@@ -17,9 +17,10 @@ from .pipeline import Generator, load_generate_config
 from .progress import console, progress_bar, stdout
 from .scene import Scene, load_scene
 
-#: the no-argument demo: a held-out town, the best shipped model so far as target (AttFuse still
-#: steers the collaborator search), a short budget
-DEMO = {"town": "fiveleg", "count": 2, "budget": 15, "fusion": "late"}
+#: the no-argument demo: a held-out town, the best shipped model as target (Early Fusion: highest
+#: normal-val AP at every threshold, and a third of Late's inference time; AttFuse still steers the
+#: collaborator search), a short budget
+DEMO = {"town": "fiveleg", "count": 2, "budget": 15, "fusion": "early"}
 
 
 def _scenes_from_town(town: str | None, net: Path | None, seed: int, tmp: Path) -> Iterator[Scene]:
