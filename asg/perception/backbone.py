@@ -33,7 +33,6 @@ class Backbone(nn.Module):
                                               nn.BatchNorm2d(cfg.upsample_channels, eps=1e-3, momentum=0.01), nn.ReLU()))
             cin = cout
         self.out_channels = 3 * cfg.upsample_channels
-
         self.stage_channels = tuple(cfg.filters)
 
     def stage_outputs(self, x: torch.Tensor) -> list[torch.Tensor]:
