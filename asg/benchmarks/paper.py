@@ -1,9 +1,10 @@
 """``asg bench paper``: the generator's targets on the normal scenes of the held-out towns.
 
 Runs AttFuse as the target with (ACS-A, BO), (ACS-A, GA), (ACS-A, RS) and (ACS-R, BO) on the
-same scenes and seed (``scenes`` of the normal set spread evenly over it, so that both held-out
-towns, many logs and both ego kinds are in; written once to ``OUT/scenes-N``), and reports AP@0.3/0.5/0.7 pooled
-over the scenes (normal and challenging) for each, as the paper's Tables I-III. Each configuration is an ``asg generate`` run folder under
+same scenes and seed, and reports AP@0.3/0.5/0.7 pooled over the scenes (normal and challenging)
+for each, as the paper's Tables I-III. The scenes are spread evenly over the normal set, so that
+both held-out towns, many logs and both ego kinds are in; they are written once to
+``OUT/scenes-N``. Each configuration is an ``asg generate`` run folder under
 ``OUT/<acs>-<search>``, so an interrupted benchmark resumes where it stopped.
 """
 from __future__ import annotations
