@@ -239,7 +239,7 @@ def bench_paper(args: argparse.Namespace) -> int:
             table.add_column(col)
         for k, v in result["table"].items():
             fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7"))
-            after_ap, pooled = after_acs_ap(v)
+            after_ap, pooled = after_acs_ap(v["after_acs"], v["after_acs_mean"])
             after = fmt(after_ap) + ("" if pooled else " (mean)")
             table.add_row(k, fmt(v["normal"]), after, fmt(v["challenging"]), str(v["scenes"]))
         stdout.print(table)

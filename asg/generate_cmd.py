@@ -117,7 +117,7 @@ def _print_table(summary: dict, out) -> None:
         table.add_row(e["scene_id"][-32:], fmt(e["ap_normal"]), fmt(e["ap_after_acs"]), fmt(e["ap_final"]),
                       str(len(e["perturbed"])), f"{e['seconds']:.1f}")
     agg = summary["aggregate"]
-    after_ap, pooled = after_acs_ap(agg)
+    after_ap, pooled = after_acs_ap(agg.get("ap_after_acs"), agg["mean_scene_ap_after_acs"])
     table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(after_ap) + ("" if pooled else "*"),
                   fmt(agg["ap_challenging"]), "", f"{agg['seconds_per_scene_median']:.1f}")
     out.print(table)

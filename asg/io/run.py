@@ -111,14 +111,10 @@ def mean_ap(entries: list[dict], key: str) -> dict[str, float]:
     return {t: round(float(np.mean([e[key][t] for e in entries])), 6) for t in ("0.3", "0.5", "0.7")}
 
 
-def after_acs_ap(aggregate: dict) -> tuple[dict[str, float], bool]:
-    """The after-ACS AP of a summary's (or bench table row's) aggregate and whether it is pooled over
-    scenes (True) or only the mean of per-scene APs (False: folders written before after-ACS
-    detections were stored)."""
-    pooled = aggregate.get("ap_after_acs") or aggregate.get("after_acs")
-    if pooled:
-        return pooled, True
-    return aggregate.get("mean_scene_ap_after_acs") or aggregate["after_acs_mean"], False
+def after_acs_ap(pooled: dict[str, float] | None, mean: dict[str, float]) -> tuple[dict[str, float], bool]:
+    """The after-ACS AP to show: the pooled one and True, or, for folders written before after-ACS
+    detections were stored (``pooled`` None), the mean of per-scene APs and False."""
+    return (pooled, True) if pooled else (mean, False)
 
 
 def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: float) -> dict:
