@@ -225,3 +225,8 @@ def test_bench_paper_refuses_a_folder_of_other_scenes(capsys, out):
     code, err = run(capsys, "bench", "paper", "--scenes", "4", "--out", str(out))
     assert code == 2
     assert_one_line_error(err, "other scenes (scenes-5)")
+    old = out.parent / "old-bench"  # written before the benchmark stored its scene pick
+    (old / "attention-bo" / "scenes").mkdir(parents=True)
+    code, err = run(capsys, "bench", "paper", "--scenes", "4", "--out", str(old))
+    assert code == 2
+    assert_one_line_error(err, "other scenes (a run without its scene folder)")

@@ -23,11 +23,10 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
     """Run (or resume) the four configurations and collect their pooled AP. ``jobs`` > 1 runs them
     in that many worker processes, the machine's threads shared among them; each configuration's
     result does not depend on which worker ran it."""
-    earlier = [d.name for d in out.glob("scenes-*") if d.name != f"scenes-{scenes}"]
-    if earlier:
-        raise InputError(f"{out} holds a benchmark on other scenes ({earlier[0]}); give another --out or the same --scenes")
-    scene_dir = pick_scenes(out / f"scenes-{scenes}", scenes)
+    scene_dir = out / f"scenes-{scenes}"
     todo = [(out / f"{acs}-{search}", acs, search) for acs, search in CONFIGS]
+    _refuse_other_scenes(out, scene_dir, [run_dir for run_dir, _, _ in todo])
+    pick_scenes(scene_dir, scenes)
     if jobs <= 1:
         for run_dir, acs, search in todo:
             _run_config(run_dir, scene_dir, acs, search, scenes, budget, fusion, seed)
@@ -50,6 +49,17 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
                                     "after_acs_mean": agg["mean_scene_ap_after_acs"], "scenes": agg["scenes"],
                                     "seconds_per_scene_median": agg["seconds_per_scene_median"]}
     return {"fusion": fusion, "budget": budget, "table": table}
+
+
+def _refuse_other_scenes(out: Path, scene_dir: Path, run_dirs: list[Path]) -> None:
+    """A resumed benchmark must run on the scenes it started with: refuse ``out`` if it holds
+    another pick (``scenes-M``), or configuration runs made without ``scene_dir`` (a benchmark
+    written before the pick was stored), whose done scenes would mix into the table."""
+    earlier = [d.name for d in out.glob("scenes-*") if d != scene_dir]
+    if not earlier and not scene_dir.is_dir() and any((d / "scenes").is_dir() for d in run_dirs):
+        earlier = ["a run without its scene folder"]
+    if earlier:
+        raise InputError(f"{out} holds a benchmark on other scenes ({earlier[0]}); give another --out or the same --scenes")
 
 
 def pick_scenes(scene_dir: Path, count: int, set_name: str = "normal") -> Path:
