@@ -163,3 +163,31 @@ def test_train_init_from_starts_a_new_sequence(sumo_log, tmp_path):
     (tmp_path / "run" / "last.pt").write_bytes((tmp_path / "weights" / "early.pt").read_bytes())
     with pytest.raises(InputError, match="unfinished chunk"):
         train("early", out_dir=tmp_path / "run", init_from="single", **kw)
+
+
+def test_resumed_onecycle_follows_the_configured_length():
+    """A chunk resumed with another configured length anneals on that length (peak and end move)."""
+    from asg.perception.train import _keep_configured_length, _scheduler
+
+    def lrs(sched, n):
+        out = []
+        for _ in range(n):
+            sched.optimizer.step()
+            sched.step()
+            out.append(sched.get_last_lr()[0])
+        return out
+
+    def fresh(steps):
+        opt = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=0.001)
+        return _scheduler(opt, TrainConfig(dataset="x", steps=steps, schedule="onecycle", lr=0.001), steps)
+
+    long = fresh(40)
+    lrs(long, 10)  # a checkpoint of a 40-step chunk at step 10 ...
+    resumed = fresh(30)
+    resumed.load_state_dict(long.state_dict())
+    _keep_configured_length(resumed, TrainConfig(dataset="x", steps=30, schedule="onecycle", lr=0.001), 30)
+    short = fresh(30)
+    lrs(short, 10)
+    tail = lrs(resumed, 20)
+    assert tail == pytest.approx(lrs(short, 20))  # ... resumed as a 30-step one
+    assert lrs(long, 20)[-1] > 10 * tail[-1]  # the saved 40-step phases would still be annealing

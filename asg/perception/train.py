@@ -290,9 +290,16 @@ def _scheduler(opt: torch.optim.Optimizer, tcfg: TrainConfig, total: int):
 
 
 def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
-    """After loading a checkpoint, the configured schedule length wins over the saved one."""
+    """After loading a checkpoint, the configured schedule length wins over the saved one.
+
+    OneCycleLR keeps its phase boundaries (steps) in its state, so they are taken from a scheduler
+    of the configured length built on a throwaway optimizer (setting ``total_steps`` alone would
+    only move the final step, not where the peak and the annealing end).
+    """
     if tcfg.schedule == "onecycle":
-        sched.total_steps = total
+        reference = _scheduler(torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=tcfg.lr), tcfg, total)
+        sched.total_steps = reference.total_steps
+        sched._schedule_phases = reference._schedule_phases
     else:
         sched.milestones = Counter(int(f * total) for f in tcfg.decay_at)
 
