@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -237,6 +238,8 @@ def test_corrupt_and_mismatched_weights(tmp_path):
     save_state(AttFuse(TINY), other)
     with pytest.raises(InputError, match="do not match"):
         load_state(PointPillars(TINY), other)
+    with pytest.raises(InputError, match="attfuse_fusion"):  # output-fusion weights, stage-fusion model
+        load_state(AttFuse(dataclasses.replace(TINY, attfuse_fusion="stages")), other)
     wrong_size = tmp_path / "wide.pt"
     save_state(PointPillars(DetectorConfig(range_m=16.0, pillar_m=0.5, pfn_channels=16, layers=(1, 1, 1),
                                            filters=(16, 32, 64), upsample_channels=16)), wrong_size)

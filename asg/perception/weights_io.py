@@ -12,6 +12,11 @@ from sumo_scenarios.errors import InputError
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 
 
+#: what to do when weights and model disagree (another fusion, or another attfuse_fusion)
+_MISMATCH_HINT = ("; use the matching --fusion and the detector config they were trained with "
+                  "(configs/detectors/pointpillars.yaml, e.g. attfuse_fusion), or retrain")
+
+
 def weights_path(name: str) -> Path:
     return WEIGHTS_DIR / f"{name}.pt"
 
@@ -32,12 +37,12 @@ def load_state(model: nn.Module, path: str | Path) -> nn.Module:
     missing, unexpected = _diff(model.state_dict(), state)
     if missing or unexpected:
         what = f"missing {missing[0]}" if missing else f"unexpected {unexpected[0]}"
-        raise InputError(f"{p}: weights do not match this model ({what}); use the matching --fusion or retrain")
+        raise InputError(f"{p}: weights do not match this model ({what}){_MISMATCH_HINT}")
     try:
         model.load_state_dict(state)
     except RuntimeError as exc:
         first = str(exc).splitlines()[1].strip() if len(str(exc).splitlines()) > 1 else str(exc)
-        raise InputError(f"{p}: weights do not match this model ({first}); use the matching --fusion or retrain") from None
+        raise InputError(f"{p}: weights do not match this model ({first}){_MISMATCH_HINT}") from None
     model.eval()
     return model
 
