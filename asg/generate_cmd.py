@@ -17,9 +17,9 @@ from .pipeline import Generator, load_generate_config
 from .progress import console, progress_bar, stdout
 from .scene import Scene, load_scene
 
-#: the no-argument demo: a held-out town, a strong shipped model as target (Early Fusion: within
-#: 2 points of Late's AP@0.7 and ahead at 0.3 / 0.5 on normal-val, in a third of Late's inference
-#: time; AttFuse still steers the collaborator search), a short budget
+#: the no-argument demo: a held-out town, the strongest shipped model as target (Early Fusion:
+#: ahead of Late at AP@0.7, in a third of Late's inference time; AttFuse still steers the
+#: collaborator search), a short budget
 DEMO = {"town": "fiveleg", "count": 2, "budget": 15, "fusion": "early"}
 
 

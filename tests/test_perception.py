@@ -1,5 +1,5 @@
-import dataclasses
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -141,8 +141,6 @@ def test_nms_equals_greedy_nms_on_the_full_iou_matrix():
 
 @pytest.mark.parametrize("where", ["output", "stages"])
 def test_attention_rows_sum_to_one_and_mask_missing_agents(where):
-    from dataclasses import replace
-
     model = AttFuse(replace(TINY, attfuse_fusion=where)).eval()
     clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5], [torch.randn(300, 4) * 5]]
     with torch.no_grad():
@@ -157,8 +155,6 @@ def test_attention_rows_sum_to_one_and_mask_missing_agents(where):
 def test_attfuse_from_single_weights_is_the_single_model_on_copies(tmp_path, where):
     """Started from PointPillars weights (v = identity), AttFuse fed the same cloud by every agent
     predicts exactly what the single-agent model predicts, wherever it fuses."""
-    from dataclasses import replace
-
     from asg.perception.train import init_from_weights
 
     torch.manual_seed(0)
@@ -200,8 +196,6 @@ def test_attention_equals_the_direct_formula():
 
 @pytest.mark.parametrize("where", ["output", "stages"])
 def test_folding_batch_norms_keeps_the_function(where):
-    from dataclasses import replace
-
     from asg.perception.inference import fold_batch_norms
 
     torch.manual_seed(0)
@@ -239,7 +233,7 @@ def test_corrupt_and_mismatched_weights(tmp_path):
     with pytest.raises(InputError, match="do not match"):
         load_state(PointPillars(TINY), other)
     with pytest.raises(InputError, match="attfuse_fusion"):  # output-fusion weights, stage-fusion model
-        load_state(AttFuse(dataclasses.replace(TINY, attfuse_fusion="stages")), other)
+        load_state(AttFuse(replace(TINY, attfuse_fusion="stages")), other)
     wrong_size = tmp_path / "wide.pt"
     save_state(PointPillars(DetectorConfig(range_m=16.0, pillar_m=0.5, pfn_channels=16, layers=(1, 1, 1),
                                            filters=(16, 32, 64), upsample_channels=16)), wrong_size)
