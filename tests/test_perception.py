@@ -7,7 +7,7 @@ import torch
 
 from asg.objective.ap import average_precision
 from asg.perception.boxes import assign_targets, make_anchors, rotated_nms, select_boxes, vote_boxes
-from asg.perception.config import DetectorConfig
+from asg.perception.config import ATTFUSE_FUSIONS, DetectorConfig
 from asg.perception.head import detection_loss
 from asg.perception.model import AttFuse, PointPillars, postprocess
 from asg.perception.weights_io import load_state, save_state
@@ -139,7 +139,7 @@ def test_nms_equals_greedy_nms_on_the_full_iou_matrix():
         assert rotated_nms(boxes, scores, 0.15, 100).tolist() == order[keep].tolist()
 
 
-@pytest.mark.parametrize("where", ["output", "stages"])
+@pytest.mark.parametrize("where", ATTFUSE_FUSIONS)
 def test_attention_rows_sum_to_one_and_mask_missing_agents(where):
     model = AttFuse(replace(TINY, attfuse_fusion=where)).eval()
     clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5], [torch.randn(300, 4) * 5]]
@@ -148,10 +148,11 @@ def test_attention_rows_sum_to_one_and_mask_missing_agents(where):
     att = model.last_attention  # (B, N, H, W)
     assert torch.allclose(att.sum(dim=1), torch.ones_like(att[:, 0]))
     assert torch.all(att[1, 1] == 0)  # sample 1 has one agent: nothing attends to the padding
-    assert att.shape[-2:] == (TINY.head_size, TINY.head_size)
+    side = TINY.grid_size if where == "pillars" else TINY.head_size
+    assert att.shape[-2:] == (side, side)
 
 
-@pytest.mark.parametrize("where", ["output", "stages"])
+@pytest.mark.parametrize("where", ATTFUSE_FUSIONS)
 def test_attfuse_from_single_weights_is_the_single_model_on_copies(tmp_path, where):
     """Started from PointPillars weights (v = identity), AttFuse fed the same cloud by every agent
     predicts exactly what the single-agent model predicts, wherever it fuses."""
@@ -194,7 +195,7 @@ def test_attention_equals_the_direct_formula():
     assert torch.allclose(a, ref_a[..., 0, :].permute(0, 3, 1, 2), atol=1e-6)
 
 
-@pytest.mark.parametrize("where", ["output", "stages"])
+@pytest.mark.parametrize("where", ATTFUSE_FUSIONS)
 def test_folding_batch_norms_keeps_the_function(where):
     from asg.perception.inference import fold_batch_norms
 

@@ -35,10 +35,11 @@ class Backbone(nn.Module):
         self.out_channels = 3 * cfg.upsample_channels
         self.stage_channels = tuple(cfg.filters)
 
-    def stage_outputs(self, x: torch.Tensor) -> list[torch.Tensor]:
-        """(B, pfn, n, n) → each stage's output (B, filters[k], n / 2^(k+1), n / 2^(k+1))."""
+    def stage_outputs(self, x: torch.Tensor, start: int = 0) -> list[torch.Tensor]:
+        """(B, pfn, n, n) → each stage's output (B, filters[k], n / 2^(k+1), n / 2^(k+1)); with
+        ``start`` = k > 0, ``x`` is stage k-1's output and only stages k, k+1, ... run."""
         outs = []
-        for stage in self.stages:
+        for stage in self.stages[start:]:
             x = stage(x)
             outs.append(x)
         return outs

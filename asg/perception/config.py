@@ -9,6 +9,10 @@ from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import load_dataclass
 
 
+#: where AttFuse may fuse (see ``DetectorConfig.attfuse_fusion``)
+ATTFUSE_FUSIONS = ("output", "stages", "stage1", "pillars")
+
+
 @dataclass(frozen=True)
 class DetectorConfig:
     """PointPillars settings. Frames: the detecting agent's sensor frame (x forward, metres)."""
@@ -35,7 +39,10 @@ class DetectorConfig:
     #: where AttFuse fuses the agents: "output" (the concatenated, upsampled backbone output; the
     #: head's 1x1 convolutions follow, so the fused prediction is linear in the agents' features) or
     #: "stages" (each backbone stage's output before its upsampling block, as the reference
-    #: implementation does: the upsampling convolutions and ReLU follow the fusion)
+    #: implementation does: the upsampling convolutions and ReLU follow the fusion), or earlier, so
+    #: that the rest of the backbone sees every agent's features of a vehicle together: "stage1"
+    #: (the first stage's output; stages 2 and 3 and every upsampling block run once, on the fused
+    #: map) or "pillars" (the pillar canvas; the whole backbone runs once)
     attfuse_fusion: str = "output"
 
     def __post_init__(self) -> None:
@@ -43,7 +50,7 @@ class DetectorConfig:
                   ("score_threshold", 0 <= self.score_threshold < 1), ("nms_iou", 0 < self.nms_iou <= 1),
                   ("vote_iou", 0 <= self.vote_iou <= 1), ("vote_power", self.vote_power >= 0),
                   ("max_detections", self.max_detections >= 1),
-                  ("attfuse_fusion", self.attfuse_fusion in ("output", "stages"))]
+                  ("attfuse_fusion", self.attfuse_fusion in ATTFUSE_FUSIONS)]
         for name, ok in checks:
             if not ok:
                 raise InputError(f"detector config: {name} = {getattr(self, name)!r} is out of range; "

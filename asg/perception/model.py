@@ -69,24 +69,29 @@ class ScaledDotAttention(nn.Module):
 
 
 class AttFuse(nn.Module):
-    """Each agent's cloud (already in the ego frame) → shared pillars + backbone → per-cell
-    attention across agents → the ego's fused features → anchor head.
+    """Each agent's cloud (already in the ego frame) → shared pillars (+ backbone) → per-cell
+    attention across agents → the ego's fused features → (rest of the backbone →) anchor head.
 
-    ``cfg.attfuse_fusion``: "output" fuses the backbone's upsampled output (``fusion`` is one
-    attention); "stages" fuses each stage before its upsampling block (``fusion`` holds one
-    attention per stage). ``last_attention`` (B, N, n/2, n/2): the ego row at the head's
-    resolution (the output, or the first stage).
+    ``cfg.attfuse_fusion`` places the fusion: "output" fuses the backbone's upsampled output
+    (``fusion`` is one attention); "stages" fuses each stage before its upsampling block
+    (``fusion`` holds one attention per stage); "stage1" fuses the first stage's output and runs
+    the later stages and the upsampling on the fused map; "pillars" fuses the pillar canvases and
+    runs the backbone once. ``last_attention`` (B, N, h, w): the ego row at the fusion's resolution
+    (n/2 for output, stages (its first) and stage1; n for pillars), row = y, column = x.
     """
 
     def __init__(self, cfg: DetectorConfig):
         super().__init__()
         self.cfg = cfg
+        self.placement = cfg.attfuse_fusion
         self.encoder = PillarEncoder(cfg)
         self.backbone = Backbone(cfg)
-        if cfg.attfuse_fusion == "stages":
+        if self.placement == "stages":
             self.fusion = nn.ModuleList(ScaledDotAttention(c) for c in self.backbone.stage_channels)
         else:
-            self.fusion = ScaledDotAttention(self.backbone.out_channels)
+            channels = {"output": self.backbone.out_channels, "stage1": self.backbone.stage_channels[0],
+                        "pillars": cfg.pfn_channels}[self.placement]
+            self.fusion = ScaledDotAttention(channels)
         self.head = AnchorHead(cfg, self.backbone.out_channels)
         self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
         self.last_attention: torch.Tensor | None = None
@@ -105,15 +110,22 @@ class AttFuse(nn.Module):
                 mask[b, j] = j < len(clouds)
         bev = self.encoder(flat)
         per_sample = lambda f: f.view(len(agent_clouds), n, *f.shape[1:])
-        if isinstance(self.fusion, nn.ModuleList):
+        backbone = self.backbone
+        if self.placement == "stages":
             fused_stages, atts = [], []
-            for att_module, f in zip(self.fusion, self.backbone.stage_outputs(bev)):
+            for att_module, f in zip(self.fusion, backbone.stage_outputs(bev)):
                 fused, att = att_module(per_sample(f), mask)
                 fused_stages.append(fused)
                 atts.append(att)
-            fused, att = self.backbone.upsample(fused_stages), atts[0]
+            fused, att = backbone.upsample(fused_stages), atts[0]
+        elif self.placement == "stage1":
+            first, att = self.fusion(per_sample(backbone.stages[0](bev)), mask)
+            fused = backbone.upsample([first] + backbone.stage_outputs(first, start=1))
+        elif self.placement == "pillars":
+            canvas, att = self.fusion(per_sample(bev), mask)
+            fused = backbone(canvas)
         else:
-            fused, att = self.fusion(per_sample(self.backbone(bev)), mask)
+            fused, att = self.fusion(per_sample(backbone(bev)), mask)
         self.last_attention = att.detach()
         return self.head(fused)
 

@@ -18,6 +18,9 @@ class Caster(Protocol):
 
         ``far`` (N,): ignore hits beyond this distance (lets the caster stop early)."""
 
+    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray) -> np.ndarray:
+        """Only the (N,) index of the first triangle hit within ``far`` (-1: none)."""
+
 
 class EmbreeCaster:
     """First hits through Intel Embree (embreex); triangles: (F, 3, 3) float, any frame."""
@@ -43,6 +46,16 @@ class EmbreeCaster:
         t = out["tfar"].astype(np.float64)
         t[prim < 0] = np.inf
         return t, prim
+
+    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray) -> np.ndarray:
+        """Embree's plain intersect query: triangle ids only, no per-ray distances, normals or
+        barycentrics to convert (the renderer gets the distance from the triangle's plane)."""
+        if len(origins) == 0 or self.n_triangles == 0:
+            return np.full(len(origins), -1, dtype=np.int32)
+        if far.dtype != np.float32 or far.max() > 1e30:
+            far = np.minimum(far, 1e30).astype(np.float32)
+        return self._scene.run(np.ascontiguousarray(origins, dtype=np.float32),
+                               np.ascontiguousarray(directions, dtype=np.float32), dists=np.ascontiguousarray(far))
 
 
 class TrimeshCaster:
@@ -79,6 +92,9 @@ class TrimeshCaster:
             t[beyond] = np.inf
             prim[beyond] = -1
         return t, prim
+
+    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray) -> np.ndarray:
+        return self.first_hits(origins, directions, far)[1]
 
 
 def make_caster(backend: str, triangles: np.ndarray) -> Caster:

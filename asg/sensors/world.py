@@ -11,7 +11,9 @@ Rendering casts only the rays that can hit something above the ground: a ray is 
 some object spanning its azimuth column starts within the ray's horizontal reach (before the
 ground or the range) and rises to the ray's elevation; each cast ray stops at its ground hit
 (Embree's tfar); the rest are ground hits or misses. Candidate rays
-of all sensors go to Embree in one batch split evenly over two threads (embreex releases the GIL).
+are cast in two tasks, even and odd channels, on two threads (embreex releases the GIL);
+Embree returns only the hit triangle, and the distance is that triangle's plane along the ray. The
+per-ray work around the cast runs in compiled loops (:mod:`asg.sensors.kernels`).
 Static results are cached per sensor, so a re-render after moving vehicles costs only the moved
 vehicles' rays, independent of the number of buildings.
 """
@@ -28,6 +30,7 @@ from sumo_scenarios.errors import InputError
 
 from ..scene import Agent, Scene
 from .lidar_spec import LidarSpec
+from .kernels import gather_rays, hits_to_points, outline_spans, static_candidates, take_hits
 from .meshes import REFLECTIVITY, SURFACES, agent_template, building_mesh
 from .raycast import Caster, make_caster
 
@@ -94,6 +97,17 @@ class _SensorRays:
     t_ground: np.ndarray
     #: (N,) where a static hit stops mattering: min(ground, range)
     t_limit: np.ndarray
+    #: (N,) float32 length of each ray from its start to t_limit (Embree's far limit)
+    far32: np.ndarray
+    #: (C,) horizontal reach of each channel (m): the furthest a ray of it can hit an object
+    reach_m: np.ndarray
+    #: (N,) bool: rays that leave the own body before t_limit
+    reachable: np.ndarray
+
+    def ground_hits(self) -> "_Hits":
+        """Hits of the ground alone: the start of every render."""
+        return _Hits(self.t_ground.copy(), np.full(len(self.t_ground), SURFACES["ground"], dtype=np.int8),
+                     np.abs(self.dirs_w[:, 2]))
 
     @staticmethod
     def make(agent: Agent, spec: LidarSpec, dirs_sensor: np.ndarray) -> "_SensorRays":
@@ -107,8 +121,12 @@ class _SensorRays:
             t_ground = np.where(dz < -1e-9, pose.z_m / -np.minimum(dz, -1e-9), np.inf)
         t_ground[t_ground < t_start] = np.inf  # the ground under the own body is not visible
         starts = pose.origin + dirs_w * t_start[:, None]
+        t_limit = np.minimum(t_ground, spec.range_m)
+        cos_el = np.repeat(np.cos(spec.elevations_rad()), spec.azimuth_steps)
+        reach_m = (t_limit * cos_el).reshape(spec.channels, spec.azimuth_steps).max(axis=1)
         return _SensorRays(pose, dirs_w, dirs_w.astype(np.float32), starts.astype(np.float32), t_start,
-                           t_ground, np.minimum(t_ground, spec.range_m))
+                           t_ground, t_limit, np.minimum(t_limit - t_start, 1e30).astype(np.float32), reach_m,
+                           t_start < t_limit)
 
 
 class _Template:
@@ -138,7 +156,8 @@ class World:
             raise InputError(f"scene {scene.scene_id}: no agent '{sorted(unknown)[0]}'")
         self._dirs_sensor = spec.directions()
         self._dirs_sensor32 = self._dirs_sensor.astype(np.float32)
-        self._el = np.repeat(spec.elevations_rad(), spec.azimuth_steps)
+        self._el_channel = spec.elevations_rad()
+        self._el = np.repeat(self._el_channel, spec.azimuth_steps)
         self._cos_el = np.cos(self._el)
         self._templates: dict[tuple, _Template] = {}
         self._build_static()
@@ -174,10 +193,11 @@ class World:
             outlines.append(a.footprint_xy())
             tops.append(a.z_m + a.height_m)
         self._static_tris = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
-        self._static_normals32 = (np.concatenate(normals) if normals else np.zeros((0, 3))).astype(np.float32)
+        self._static_v0 = np.ascontiguousarray(self._static_tris[:, 0], dtype=np.float64)
+        self._static_normals = np.ascontiguousarray(np.concatenate(normals) if normals else np.zeros((0, 3)), dtype=np.float64)
         self._static_surface = np.concatenate(surfaces) if surfaces else np.zeros(0, dtype=np.int8)
         self._static = make_caster(self.spec.backend, self._static_tris)
-        self._static_outlines = _pad_outlines(outlines)
+        self._static_outlines = np.ascontiguousarray(_pad_outlines(outlines), dtype=np.float64)
         self._static_tops = np.asarray(tops, dtype=float)
 
     # ---- rendering ---------------------------------------------------------------------------
@@ -227,70 +247,46 @@ class World:
             self._rays(sid)
 
     def _fill_base(self, sensor_ids: list[str]) -> None:
-        """Cache ground + static hits for the sensors that have none yet: every sensor's candidate
-        rays go to Embree in one batch, split evenly over two threads."""
+        """Cache ground + static hits for the sensors that have none yet. The work (candidates,
+        Embree cast, hits) is split in two tasks, the even and the odd channels of every sensor
+        (about equal work), one on a worker thread: the compiled kernels and embreex release the
+        GIL."""
         todo = [s for s in dict.fromkeys(sensor_ids) if s not in self._base_cache]
         if not todo:
             return
-        rays = [self._rays(sid) for sid in todo]
-        cands = [self._candidates(r.pose, r.t_limit, self._static_index.get(sid), r.t_start < r.t_limit)
-                 for sid, r in zip(todo, rays)]
-        starts = np.concatenate([np.take(r.starts32, c, axis=0) for r, c in zip(rays, cands)])
-        dirs = np.concatenate([np.take(r.dirs32, c, axis=0) for r, c in zip(rays, cands)])
-        far = np.concatenate([np.take(r.t_limit - r.t_start, c) for r, c in zip(rays, cands)])
-        t_all, prim_all = _cast_split(self._static, starts, dirs, far)
-        start = 0
-        for sid, r, cand in zip(todo, rays, cands):
-            end = start + len(cand)
-            hits = _Hits(r.t_ground.copy(), np.full(len(r.t_ground), SURFACES["ground"], dtype=np.int8),
-                         np.abs(r.dirs_w[:, 2]))
-            t, prim = t_all[start:end], prim_all[start:end]
-            ok = np.flatnonzero(prim >= 0)
-            sel = cand[ok]
-            pp = prim[ok]
-            hits.t[sel] = t[ok] + r.t_start[sel]
-            hits.surface[sel] = np.take(self._static_surface, pp)
-            hits.cos_inc[sel] = np.abs(np.einsum("ij,ij->i", np.take(dirs[start:end], ok, axis=0),
-                                                 np.take(self._static_normals32, pp, axis=0)))
-            self._base_cache[sid] = hits
-            start = end
+        hits = {sid: self._rays(sid).ground_hits() for sid in todo}
 
-    def _candidates(self, pose: SensorPose, t_now: np.ndarray, own: int | None, reachable: np.ndarray) -> np.ndarray:
-        """Indices of rays that may hit a static object (but ``own``, the sensor's body) before ``t_now``.
+        def channels_from(first: int) -> None:
+            for sid in todo:
+                self._cast_static(sid, first, 2, hits[sid])
 
-        ``t_now`` (channels * azimuth_steps,) must depend on the channel only (ground or range
-        limit), which makes each channel's horizontal reach R_c a constant. A ray (channel c,
-        column) is a candidate if some object spanning that column starts within R_c and its top
-        reaches at least the ray's elevation.
-        """
-        spec = self.spec
-        A, C = spec.azimuth_steps, spec.channels
+        _run_on_two_threads([lambda: channels_from(0), lambda: channels_from(1)])
+        self._base_cache.update(hits)
+
+    def _cast_static(self, sensor_id: str, first_channel: int, channel_step: int, hits: _Hits) -> None:
+        """Static hits of one sensor's channels first_channel, first_channel + channel_step, ...,
+        written into ``hits`` (rows of other channels untouched)."""
+        rays = self._rays(sensor_id)
+        cand = self._candidates(rays, self._static_index.get(sensor_id), first_channel, channel_step)
+        if not len(cand):
+            return
+        starts, dirs, far = gather_rays(cand, rays.starts32, rays.dirs32, rays.far32)
+        prim = self._static.first_prims(starts, dirs, far)
+        take_hits(cand, prim, rays.pose.origin, rays.dirs_w, self._static_v0, self._static_normals,
+                  self._static_surface, hits.t, hits.surface, hits.cos_inc)
+
+    def _candidates(self, rays: "_SensorRays", own: int | None, first_channel: int = 0,
+                    channel_step: int = 1) -> np.ndarray:
+        """Indices of ``rays`` (of channels first_channel, + channel_step, ...) that may hit a static
+        object (but ``own``, the sensor's body) before their limit (ground or range); see
+        :func:`kernels.static_candidates`. The limit depends on the channel only, which makes
+        each channel's horizontal reach a constant."""
         if not len(self._static_outlines):
             return np.zeros(0, dtype=np.int64)
-        lo, hi, r_min, r_max, ok = _spans(self._static_outlines, pose, A, spec.range_m)
-        if own is not None:
-            ok[own] = False
-        if not ok.any():
-            return np.zeros(0, dtype=np.int64)
-        lo, hi, r_min, r_max, tops = lo[ok], hi[ok], r_min[ok], r_max[ok], self._static_tops[ok]
-        dz = tops - pose.z_m
-        el_top = np.arctan2(dz, np.where(dz > 0, r_min, r_max))
-        reach = (t_now * self._cos_el).reshape(C, A).max(axis=1)  # (C,) horizontal reach per channel
-        order = np.argsort(reach, kind="stable")
-        rank = np.empty(C, dtype=np.int64)
-        rank[order] = np.arange(C)
-        first = np.searchsorted(reach[order], r_min, side="left")  # first rank that reaches each object
-        live = first < C
-        lo, hi, first, el_top = lo[live], hi[live], first[live], el_top[live]
-        lengths = hi - lo + 1
-        offsets = np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
-        cols = (np.repeat(lo, lengths) + offsets) % A
-        top = np.full((C, A), -np.inf)
-        np.maximum.at(top, (np.repeat(first, lengths), cols), np.repeat(el_top, lengths))
-        np.maximum.accumulate(top, axis=0, out=top)  # rank j: every object reached by rank <= j
-        mask = self._el.reshape(C, A) <= top[rank] + 1e-9
-        mask &= reachable.reshape(C, A)
-        return np.flatnonzero(mask)
+        p = rays.pose
+        return static_candidates(self._static_outlines, self._static_tops, -1 if own is None else own, p.x_m, p.y_m,
+                                 p.z_m, p.yaw_rad, self.spec.azimuth_steps, float(self.spec.range_m), rays.reach_m,
+                                 self._el_channel, rays.reachable, first_channel, channel_step)
 
     def _cast_instance(self, agent: Agent, pose: SensorPose, dirs_w: np.ndarray, hits: _Hits) -> None:
         """Cast the rays that may reach ``agent`` in its local frame against its class template."""
@@ -318,14 +314,16 @@ class World:
 
     def _to_points(self, sensor_id: str, hits: _Hits, seed: int) -> np.ndarray:
         spec = self.spec
+        if spec.noise_std_m <= 0 and spec.dropoff <= 0:
+            return hits_to_points(hits.t, hits.surface, hits.cos_inc, self._dirs_sensor32, REFLECTIVITY,
+                                  float(spec.range_m))
         t = hits.t
         valid = t <= spec.range_m
-        if spec.noise_std_m > 0 or spec.dropoff > 0:
-            rng = np.random.default_rng([seed, zlib.crc32(sensor_id.encode())])
-            noise = rng.normal(0.0, spec.noise_std_m, len(t)) if spec.noise_std_m > 0 else 0.0
-            keep = rng.random(len(t)) >= spec.dropoff
-            t = t + noise
-            valid &= keep & (t > 0)
+        rng = np.random.default_rng([seed, zlib.crc32(sensor_id.encode())])
+        noise = rng.normal(0.0, spec.noise_std_m, len(t)) if spec.noise_std_m > 0 else 0.0
+        keep = rng.random(len(t)) >= spec.dropoff
+        t = t + noise
+        valid &= keep & (t > 0)
         idx = np.flatnonzero(valid)
         out = np.empty((len(idx), 4), dtype=np.float32)
         out[:, :3] = np.take(self._dirs_sensor32, idx, axis=0)
@@ -360,22 +358,18 @@ class World:
 _POOL = None
 
 
-def _cast_split(caster: Caster, origins: np.ndarray, directions: np.ndarray, far: np.ndarray):
-    """``caster.first_hits`` with the rays split in two halves, one on a worker thread (embreex
-    releases the GIL while it casts)."""
+def _run_on_two_threads(tasks: list) -> None:
+    """Run the callables, the first on the calling thread and the others on a worker thread;
+    exceptions propagate."""
     global _POOL
-    n = len(origins)
-    if n < 2048:
-        return caster.first_hits(origins, directions, far)
-    from concurrent.futures import ThreadPoolExecutor
-
     if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
         _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="asg-lidar")
-    h = n // 2
-    other = _POOL.submit(caster.first_hits, origins[h:], directions[h:], far[h:])
-    t0, p0 = caster.first_hits(origins[:h], directions[:h], far[:h])
-    t1, p1 = other.result()
-    return np.concatenate([t0, t1]), np.concatenate([p0, p1])
+    others = [_POOL.submit(t) for t in tasks[1:]]
+    tasks[0]()
+    for future in others:
+        future.result()
 
 
 def _pose_rt(a: Agent) -> tuple[np.ndarray, np.ndarray]:
@@ -392,29 +386,6 @@ def _pad_outlines(outlines: list[np.ndarray]) -> np.ndarray:
 
 
 def _spans(outlines: np.ndarray, pose: SensorPose, A: int, range_m: float):
-    """Azimuth column spans (sensor frame) of ground outlines (M, K, 2), vectorised.
-
-    Returns (lo, hi) column indices (hi >= lo, to be taken modulo A), the near and far distance
-    (m) of each outline, and a mask of the outlines within range. The sensor must stand outside
-    the outlines (its own body is excluded by the caller); an outline spanning more than half a
-    turn gets every column.
-    """
-    rel = outlines - np.array([pose.x_m, pose.y_m])
-    x, y = rel[..., 0], rel[..., 1]
-    ex = np.roll(x, -1, axis=1) - x
-    ey = np.roll(y, -1, axis=1) - y
-    tt = np.clip(-(x * ex + y * ey) / np.maximum(ex * ex + ey * ey, 1e-12), 0.0, 1.0)
-    px, py = x + tt * ex, y + tt * ey
-    r_min = np.sqrt(np.min(px * px + py * py, axis=1))
-    r_max = np.sqrt(np.max(x * x + y * y, axis=1))
-    ang = np.arctan2(y, x)
-    centre = np.arctan2(y.mean(axis=1), x.mean(axis=1))
-    delta = np.remainder(ang - centre[:, None] + math.pi, 2 * math.pi) - math.pi
-    base = centre - pose.yaw_rad + math.pi
-    step = 2 * math.pi / A
-    lo = np.floor((base + delta.min(axis=1)) / step).astype(np.int64) - 1
-    hi = np.ceil((base + delta.max(axis=1)) / step).astype(np.int64) + 1
-    full = (hi - lo >= A - 1) | (delta.max(axis=1) - delta.min(axis=1) > math.pi * 0.999)
-    lo = np.where(full, 0, lo)
-    hi = np.where(full, A - 1, hi)
-    return lo, hi, r_min, r_max, r_min <= range_m
+    """Azimuth column spans of ground outlines (M, K, 2) seen from ``pose``; see
+    :func:`kernels.outline_spans`."""
+    return outline_spans(np.ascontiguousarray(outlines, dtype=np.float64), pose.x_m, pose.y_m, pose.yaw_rad, A, range_m)
