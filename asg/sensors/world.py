@@ -360,16 +360,18 @@ _POOL = None
 
 def _run_on_two_threads(tasks: list) -> None:
     """Run the callables, the first on the calling thread and the others on a worker thread;
-    exceptions propagate."""
+    the first exception propagates, after every task has stopped."""
     global _POOL
     if _POOL is None:
         from concurrent.futures import ThreadPoolExecutor
 
         _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="asg-lidar")
     others = [_POOL.submit(t) for t in tasks[1:]]
-    tasks[0]()
-    for future in others:
-        future.result()
+    try:
+        tasks[0]()
+    finally:
+        for future in others:
+            future.result()
 
 
 def _pose_rt(a: Agent) -> tuple[np.ndarray, np.ndarray]:
