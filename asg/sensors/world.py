@@ -122,8 +122,8 @@ class _SensorRays:
         t_ground[t_ground < t_start] = np.inf  # the ground under the own body is not visible
         starts = pose.origin + dirs_w * t_start[:, None]
         t_limit = np.minimum(t_ground, spec.range_m)
-        cos_el = np.repeat(np.cos(spec.elevations_rad()), spec.azimuth_steps)
-        reach_m = (t_limit * cos_el).reshape(spec.channels, spec.azimuth_steps).max(axis=1)
+        cos_el = np.cos(spec.elevations_rad())[:, None]  # (C, 1)
+        reach_m = (t_limit.reshape(spec.channels, spec.azimuth_steps) * cos_el).max(axis=1)
         return _SensorRays(pose, dirs_w, dirs_w.astype(np.float32), starts.astype(np.float32), t_start,
                            t_ground, t_limit, np.minimum(t_limit - t_start, 1e30).astype(np.float32), reach_m,
                            t_start < t_limit)
