@@ -99,7 +99,9 @@ def test_culled_render_equals_casting_every_ray(cross_map):
     ring = [car(f"n{k}", 9 * math.cos(k * 0.7), 9 * math.sin(k * 0.7), k * 0.7, ["car", "van", "truck"][k % 3])
             for k in range(9)]
     bld = [Building("b0", np.array([[10.0, 12.0], [30.0, 12.0], [30.0, 25.0], [10.0, 25.0]]), 12.0),
-           Building("b1", np.array([[-30.0, -25.0], [-12.0, -25.0], [-12.0, -10.0]]), 5.0)]
+           Building("b1", np.array([[-30.0, -25.0], [-12.0, -25.0], [-12.0, -10.0]]), 5.0),
+           # an L, clockwise: extruded by trimesh rather than fanned
+           Building("b2", np.array([[12.0, -12.0], [12.0, -30.0], [30.0, -30.0], [30.0, -26.0], [16.0, -26.0], [16.0, -12.0]]), 9.0)]
     scene = make_scene(cross_map, [car("ego", 0.0, 0.0, 0.2), rsu("r", -14.0, 14.0), *ring], bld, collaborators=["r"])
     world = World(scene, SMALL)
     world.render_many(scene.sensing_ids)
@@ -115,6 +117,35 @@ def test_culled_render_equals_casting_every_ray(cross_map):
             same = (np.isinf(brute) & np.isinf(ours)) | (np.abs(brute - ours) < 2e-3)
         assert np.isfinite(ours).sum() > 0.5 * len(ours)
         assert same.mean() > 0.998, (sid, same.mean())
+
+
+@pytest.mark.parametrize("footprint", [
+    [[0, 0], [10, 0], [10, 8], [0, 8]],                                  # convex, counter-clockwise
+    [[0, 8], [10, 8], [10, 0], [0, 0]],                                  # convex, clockwise
+    [[0, 0], [20, 0], [20, 5], [5, 5], [5, 15], [0, 15]],                # an L, counter-clockwise
+    [[0, 15], [5, 15], [5, 5], [20, 5], [20, 0], [0, 0]],                # an L, clockwise
+])
+def test_building_meshes_are_closed_and_face_outward(footprint):
+    """Each sensor casts only against the static faces turned towards it, which is exact only if
+    every mesh is closed with its normals outward (a positive signed volume)."""
+    from asg.sensors.meshes import building_mesh
+
+    from shapely.geometry import Polygon
+
+    m = building_mesh(Building("b", np.array(footprint, dtype=float), 7.0))
+    assert m.is_watertight and m.volume == pytest.approx(Polygon(footprint).area * 7.0)
+
+
+@pytest.mark.parametrize("type_id", ["car", "suv", "van", "truck", "bus", "rsu"])
+def test_agent_meshes_are_closed_and_face_outward(type_id):
+    from asg.sensors.meshes import agent_template, vehicle_parts
+
+    if type_id == "rsu":
+        parts = [agent_template("rsu", "rsu", 0.4, 0.4, 5.0)]
+    else:
+        parts = vehicle_parts(type_id, 4.6, 1.9, 1.7)
+    for part in parts:
+        assert part.is_watertight and part.volume > 0
 
 
 def test_rerender_after_move_equals_full_render(cross_map):

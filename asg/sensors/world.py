@@ -2,7 +2,8 @@
 
 A :class:`World` holds, in the network frame (x east, y north, z up, metres):
 - the ground: the plane z = 0, intersected analytically (no triangles needed);
-- a *static* Embree scene: buildings and every agent that will not move;
+- the *static* triangles: buildings and every agent that will not move; each sensor casts against
+  its own Embree scene of the static triangles it can hit first (:class:`_StaticView`);
 - *movable* agents (the ones a search may perturb): each is cast in its own local frame against a
   shared per-class template mesh (instancing by hand), so moving one never rebuilds anything.
 
@@ -129,6 +130,24 @@ class _SensorRays:
                            t_start < t_limit)
 
 
+@dataclass
+class _StaticView:
+    """The static triangles one sensor can hit first, with their own caster: the ones facing it
+    (every static mesh is closed and the sensor outside it, so a face turned away is never a
+    first hit: its mesh's near side is in front of it) and within range horizontally, the
+    sensor's own body left out. About a quarter of the world's triangles on a town frame, which
+    makes each cast about a quarter cheaper; built once per sensor, as its rays are.
+
+    ``v0`` (F', 3) a vertex and ``normals`` (F', 3) the unit normal of each kept triangle (float64,
+    network frame), ``surface`` (F',) its surface class.
+    """
+
+    caster: Caster
+    v0: np.ndarray
+    normals: np.ndarray
+    surface: np.ndarray
+
+
 class _Template:
     """A template mesh with its caster, unit normals and surface class."""
 
@@ -163,6 +182,7 @@ class World:
         self._build_static()
         self._base_cache: dict[str, _Hits] = {}
         self._ray_cache: dict[str, _SensorRays] = {}
+        self._view_cache: dict[str, _StaticView] = {}
 
     # ---- construction ----------------------------------------------------------------------
     def _template(self, a: Agent) -> _Template:
@@ -172,10 +192,11 @@ class World:
         return self._templates[key]
 
     def _build_static(self) -> None:
-        tris, normals, surfaces, outlines, tops = [], [], [], [], []
+        tris, normals, surfaces, outlines, tops, owners = [], [], [], [], [], []
         self._static_index: dict[str, int] = {}
         for b in self.scene.buildings:
             m = building_mesh(b)
+            owners.append(np.full(len(m.faces), len(outlines)))
             tris.append(m.vertices[m.faces])
             normals.append(m.face_normals)
             surfaces.append(np.full(len(m.faces), SURFACES["building"], dtype=np.int8))
@@ -186,6 +207,7 @@ class World:
                 continue
             mesh = agent_template(a.type_id, a.kind, a.length_m, a.width_m, a.height_m)
             rot, off = _pose_rt(a)
+            owners.append(np.full(len(mesh.faces), len(outlines)))
             tris.append(mesh.vertices[mesh.faces] @ rot.T + off)
             normals.append(mesh.face_normals @ rot.T)
             surfaces.append(np.full(len(mesh.faces), mesh.metadata["surface"], dtype=np.int8))
@@ -196,7 +218,8 @@ class World:
         self._static_v0 = np.ascontiguousarray(self._static_tris[:, 0], dtype=np.float64)
         self._static_normals = np.ascontiguousarray(np.concatenate(normals) if normals else np.zeros((0, 3)), dtype=np.float64)
         self._static_surface = np.concatenate(surfaces) if surfaces else np.zeros(0, dtype=np.int8)
-        self._static = make_caster(self.spec.backend, self._static_tris)
+        #: (F,) the outline index (building or agent) each static triangle belongs to
+        self._static_owner = np.concatenate(owners) if owners else np.zeros(0, dtype=np.int64)
         self._static_outlines = np.ascontiguousarray(_pad_outlines(outlines), dtype=np.float64)
         self._static_tops = np.asarray(tops, dtype=float)
 
@@ -241,10 +264,24 @@ class World:
             self._ray_cache[sensor_id] = _SensorRays.make(self.scene.agent(sensor_id), self.spec, self._dirs_sensor)
         return self._ray_cache[sensor_id]
 
+    def _static_view(self, sensor_id: str) -> _StaticView:
+        if sensor_id not in self._view_cache:
+            origin = self._rays(sensor_id).pose.origin
+            tris = self._static_tris
+            facing = np.einsum("ij,ij->i", self._static_v0 - origin, self._static_normals) < 0.0
+            near = _xy_distance_to_triangles(tris, origin[:2]) <= self.spec.range_m + 1.0
+            own = self._static_index.get(sensor_id, -1)
+            keep = np.flatnonzero(facing & near & (self._static_owner != own))
+            self._view_cache[sensor_id] = _StaticView(
+                make_caster(self.spec.backend, tris[keep]), np.ascontiguousarray(self._static_v0[keep]),
+                np.ascontiguousarray(self._static_normals[keep]), np.ascontiguousarray(self._static_surface[keep]))
+        return self._view_cache[sensor_id]
+
     def prepare(self, sensor_ids: Iterable[str]) -> None:
-        """Generate the rays of these sensors now (their poses are fixed for the World's life)."""
+        """Generate the rays and static views of these sensors now (their poses are fixed for the
+        World's life)."""
         for sid in sensor_ids:
-            self._rays(sid)
+            self._static_view(sid)
 
     def _fill_base(self, sensor_ids: list[str]) -> None:
         """Cache ground + static hits for the sensors that have none yet. The work (candidates,
@@ -255,6 +292,8 @@ class World:
         if not todo:
             return
         hits = {sid: self._rays(sid).ground_hits() for sid in todo}
+        for sid in todo:
+            self._static_view(sid)
 
         def channels_from(first: int) -> None:
             for sid in todo:
@@ -270,10 +309,11 @@ class World:
         cand = self._candidates(rays, self._static_index.get(sensor_id), first_channel, channel_step)
         if not len(cand):
             return
+        view = self._view_cache[sensor_id]
         starts, dirs, far = gather_rays(cand, rays.starts32, rays.dirs32, rays.far32)
-        prim = self._static.first_prims(starts, dirs, far)
-        take_hits(cand, prim, rays.pose.origin, rays.dirs_w, self._static_v0, self._static_normals,
-                  self._static_surface, hits.t, hits.surface, hits.cos_inc)
+        prim = view.caster.first_prims(starts, dirs, far)
+        take_hits(cand, prim, rays.pose.origin, rays.dirs_w, view.v0, view.normals, view.surface,
+                  hits.t, hits.surface, hits.cos_inc)
 
     def _candidates(self, rays: "_SensorRays", own: int | None, first_channel: int = 0,
                     channel_step: int = 1) -> np.ndarray:
@@ -372,6 +412,22 @@ def _run_on_two_threads(tasks: list) -> None:
     finally:
         for future in others:
             future.result()
+
+
+def _xy_distance_to_triangles(tris: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(F,) horizontal distance (m) from the point ``xy`` (2,) to each triangle (F, 3, 3) seen from
+    above: 0 inside its outline, else the distance to its nearest edge (walls seen from above
+    are segments, which the edge distance covers)."""
+    a = tris[:, :, :2] - xy  # (F, 3, 2) the vertices relative to the point
+    b = np.roll(a, -1, axis=1)
+    edge = b - a
+    length2 = np.maximum(np.einsum("fkd,fkd->fk", edge, edge), 1e-18)
+    u = np.clip(-np.einsum("fkd,fkd->fk", a, edge) / length2, 0.0, 1.0)
+    closest = a + u[..., None] * edge
+    dist = np.sqrt(np.einsum("fkd,fkd->fk", closest, closest).min(axis=1))
+    cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]  # (F, 3): the point's side of each edge
+    inside = (cross > 0).all(axis=1) | (cross < 0).all(axis=1)
+    return np.where(inside, 0.0, dist)
 
 
 def _pose_rt(a: Agent) -> tuple[np.ndarray, np.ndarray]:
