@@ -119,6 +119,19 @@ def test_culled_render_equals_casting_every_ray(cross_map):
         assert same.mean() > 0.998, (sid, same.mean())
 
 
+def test_xy_distance_to_triangles():
+    """The range cull of each sensor's static view: distance seen from above, 0 inside."""
+    from asg.sensors.world import _xy_distance_to_triangles
+
+    tris = np.array([
+        [[0, 0, 0], [10, 0, 0], [0, 10, 5]],      # the point (2, 2) lies inside it
+        [[20, -5, 0], [20, 5, 0], [20, 5, 8]],    # a wall: a segment x = 20 seen from above
+        [[5, 30, 3], [8, 34, 3], [5, 34, 3]],     # a corner nearest: (5, 30)
+    ], dtype=float)
+    d = _xy_distance_to_triangles(tris, np.array([2.0, 2.0]))
+    assert d == pytest.approx([0.0, 18.0, math.hypot(3.0, 28.0)])
+
+
 @pytest.mark.parametrize("footprint", [
     [[0, 0], [10, 0], [10, 8], [0, 8]],                                  # convex, counter-clockwise
     [[0, 8], [10, 8], [10, 0], [0, 0]],                                  # convex, clockwise

@@ -104,11 +104,13 @@ class _SensorRays:
     reach_m: np.ndarray
     #: (N,) bool: rays that leave the own body before t_limit
     reachable: np.ndarray
+    #: (N,) |cos| of each ray's incidence on the ground: |z| of its direction
+    cos_ground: np.ndarray
 
     def ground_hits(self) -> "_Hits":
         """Hits of the ground alone: the start of every render."""
         return _Hits(self.t_ground.copy(), np.full(len(self.t_ground), SURFACES["ground"], dtype=np.int8),
-                     np.abs(self.dirs_w[:, 2]))
+                     self.cos_ground.copy())
 
     @staticmethod
     def make(agent: Agent, spec: LidarSpec, dirs_sensor: np.ndarray) -> "_SensorRays":
@@ -127,7 +129,7 @@ class _SensorRays:
         reach_m = (t_limit.reshape(spec.channels, spec.azimuth_steps) * cos_el).max(axis=1)
         return _SensorRays(pose, dirs_w, dirs_w.astype(np.float32), starts.astype(np.float32), t_start,
                            t_ground, t_limit, np.minimum(t_limit - t_start, 1e30).astype(np.float32), reach_m,
-                           t_start < t_limit)
+                           t_start < t_limit, np.abs(dirs_w[:, 2]))
 
 
 @dataclass
