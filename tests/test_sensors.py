@@ -141,9 +141,9 @@ def test_xy_distance_to_triangles():
 def test_building_meshes_are_closed_and_face_outward(footprint):
     """Each sensor casts only against the static faces turned towards it, which is exact only if
     every mesh is closed with its normals outward (a positive signed volume)."""
-    from asg.sensors.meshes import building_mesh
-
     from shapely.geometry import Polygon
+
+    from asg.sensors.meshes import building_mesh
 
     m = building_mesh(Building("b", np.array(footprint, dtype=float), 7.0))
     assert m.is_watertight and m.volume == pytest.approx(Polygon(footprint).area * 7.0)
