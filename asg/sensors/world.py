@@ -153,9 +153,9 @@ class _StaticView:
 class _Template:
     """A template mesh with its caster, unit normals and surface class."""
 
-    def __init__(self, mesh, backend: str):
+    def __init__(self, mesh, spec: LidarSpec):
         tri = mesh.vertices[mesh.faces]
-        self.caster: Caster = make_caster(backend, tri)
+        self.caster: Caster = make_caster(spec.backend, tri, spec.embree_robust)
         self.normals = np.asarray(mesh.face_normals, dtype=np.float64)
         self.surface = int(mesh.metadata.get("surface", SURFACES["vehicle"]))
 
@@ -190,7 +190,7 @@ class World:
     def _template(self, a: Agent) -> _Template:
         key = (a.kind, a.type_id, round(a.length_m, 3), round(a.width_m, 3), round(a.height_m, 3))
         if key not in self._templates:
-            self._templates[key] = _Template(agent_template(a.type_id, a.kind, a.length_m, a.width_m, a.height_m), self.spec.backend)
+            self._templates[key] = _Template(agent_template(a.type_id, a.kind, a.length_m, a.width_m, a.height_m), self.spec)
         return self._templates[key]
 
     def _build_static(self) -> None:
@@ -275,7 +275,7 @@ class World:
             own = self._static_index.get(sensor_id, -1)
             keep = np.flatnonzero(facing & near & (self._static_owner != own))
             self._view_cache[sensor_id] = _StaticView(
-                make_caster(self.spec.backend, tris[keep]), np.ascontiguousarray(self._static_v0[keep]),
+                make_caster(self.spec.backend, tris[keep], self.spec.embree_robust), np.ascontiguousarray(self._static_v0[keep]),
                 np.ascontiguousarray(self._static_normals[keep]), np.ascontiguousarray(self._static_surface[keep]))
         return self._view_cache[sensor_id]
 
