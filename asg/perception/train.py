@@ -204,7 +204,8 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
             "batch_size": tcfg.batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
             "chunks": chunks, "threads": threads,
             **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
-            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp"}
+            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp",
+            **({"attfuse_fusion": cfg.attfuse_fusion} if name == "attfuse" else {})}
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
     ckpt.unlink(missing_ok=True)  # the chunk is complete: the next run starts a new one from these weights
     log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training")
