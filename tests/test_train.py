@@ -158,6 +158,9 @@ def test_train_init_from_starts_a_new_sequence(sumo_log, tmp_path):
     # the next plain run continues this sequence and keeps its origin
     again = json.loads(train("early", out_dir=tmp_path / "run", **kw).with_suffix(".json").read_text())
     assert again["steps"] == 4 and again["init_from"]["weights"] == "single.pt"
+    # an AttFuse card names where its weights fuse (weights of one placement do not load in another)
+    att = json.loads(train("attfuse", out_dir=tmp_path / "run-att", init_from="single", **kw).with_suffix(".json").read_text())
+    assert att["attfuse_fusion"] == TINY.attfuse_fusion and "attfuse_fusion" not in again
     with pytest.raises(InputError, match="choose one of"):
         train("early", out_dir=tmp_path / "run", init_from="nope", **kw)
     (tmp_path / "run" / "last.pt").write_bytes((tmp_path / "weights" / "early.pt").read_bytes())
