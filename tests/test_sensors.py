@@ -238,6 +238,8 @@ def test_bad_lidar_specs():
         LidarSpec(channels=0).validate()
     with pytest.raises(InputError, match="range_m"):
         LidarSpec(range_m=-1.0).validate()
+    with pytest.raises(InputError, match="embree_robust"):
+        LidarSpec(embree_robust="no").validate()
     with pytest.raises(InputError, match="unknown lidar preset"):
         load_lidar_spec("nope")
     assert load_lidar_spec("v2xp").rays_per_sweep == 32 * 390

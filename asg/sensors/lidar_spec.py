@@ -56,6 +56,8 @@ class LidarSpec:
             raise InputError(f"lidar '{self.name}': noise_std_m must be >= 0 and dropoff in [0, 1)")
         if self.backend not in ("embree", "trimesh"):
             raise InputError(f"lidar '{self.name}': backend must be embree or trimesh, got {self.backend!r}")
+        if not isinstance(self.embree_robust, bool):
+            raise InputError(f"lidar '{self.name}': embree_robust must be true or false, got {self.embree_robust!r}")
         return self
 
     @property
