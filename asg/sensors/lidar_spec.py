@@ -37,8 +37,8 @@ class LidarSpec:
     #: vehicle LiDAR height above the roof (m); RSU LiDARs sit on top of their pole
     vehicle_mount_above_roof_m: float = 0.4
     backend: Backend = "embree"
-    #: Embree's robust (watertight) traversal: about 20% slower casts; off, a ray can slip through
-    #: a shared triangle edge (4 of 11.7 million points over the normal set, measured)
+    #: Embree's robust (watertight) traversal; off, casts are faster and a ray can slip through a
+    #: shared triangle edge (the measured trade-off: docs/lidar.md)
     embree_robust: bool = False
 
     def validate(self) -> "LidarSpec":

@@ -26,9 +26,8 @@ class EmbreeCaster:
     """First hits through Intel Embree (embreex); triangles: (F, 3, 3) float, any frame.
 
     ``robust``: Embree's robust traversal (RTC_SCENE_FLAG_ROBUST, embreex's default), which keeps
-    rays from slipping through the shared edge of two triangles. Without it a cast is about 20%
-    faster; on the 331 frames of the normal set 4 of 11.7 million points differ by more than 1 cm
-    (measured: docs/lidar.md)."""
+    rays from slipping through the shared edge of two triangles; without it casts are faster (the
+    measured trade-off: docs/lidar.md)."""
 
     def __init__(self, triangles: np.ndarray, robust: bool = True):
         from embreex import rtcore_scene
