@@ -32,9 +32,12 @@ def test_every_fusion_entry_builds_untrained(cross_map):
 def test_every_search_entry_asks_inside_the_box():
     assert names("search") == ["bo", "ga", "rs"]
     for name in names("search"):
-        params = {"n_initial": 2, "n_points": 50} if name == "bo" else {}
+        params = {"n_initial": 2} if name == "bo" else {}
         opt = lookup("search", name)(6, 5, np.random.default_rng(0), **params)
+        candidates = np.random.default_rng(1).uniform(-1, 1, (20, 6))
         for i in range(4):
-            x = opt.ask()
+            x = opt.ask(candidates)
             assert x.shape == (6,) and np.all(np.abs(x) <= 1.0)
+            if name != "ga":  # RS and BO pick among the candidates
+                assert np.any(np.all(candidates == x, axis=1))
             opt.tell(x, float(i))

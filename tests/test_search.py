@@ -5,7 +5,7 @@ import pytest
 
 from asg.collaborators import attention_combinations, combination_weakness, random_combinations
 from asg.search import build_optimizer, run_search
-from asg.search.loop import best_of
+from asg.search.loop import Evaluation, best_of
 from sumo_scenarios.errors import InputError
 
 
@@ -31,13 +31,33 @@ def test_bo_beats_random_search_on_a_planted_objective():
         target = rng.uniform(-0.6, 0.6, 9)
         res = {}
         for name in ("rs", "bo"):
-            opt = build_optimizer(name, 9, 50, np.random.default_rng(100 + seed), n_initial=20, n_points=500)
+            opt = build_optimizer(name, 9, 50, np.random.default_rng(100 + seed), n_initial=20)
             hist = run_search(opt, q, planted(target), 50)
             res[name] = best_of(hist).loss
         bo_best.append(res["bo"])
         rs_best.append(res["rs"])
         wins += res["bo"] < res["rs"]
     assert wins >= 2 and np.mean(bo_best) < np.mean(rs_best)
+
+
+def test_no_member_of_q_is_evaluated_twice_until_q_runs_out():
+    for name in ("rs", "ga", "bo"):
+        q = PlantedQ(np.random.default_rng(0), n=40)
+        params = {"n_initial": 10} if name == "bo" else {}
+        opt = build_optimizer(name, 9, 50, np.random.default_rng(2), **params)
+        hist = run_search(opt, q, planted(np.zeros(9)), 50)
+        rows = [int(np.flatnonzero(np.all(q.members == e.x, axis=1))[0]) for e in hist]
+        assert sorted(rows[:40]) == list(range(40)), name  # every member once, then repeats
+        assert len(rows) == 50
+
+
+def test_start_member_is_not_evaluated_again():
+    q = PlantedQ(np.random.default_rng(0), n=30)
+    q.members[0] = 0.0  # Q's row 0 is "no move", the start
+    opt = build_optimizer("rs", 9, 29, np.random.default_rng(0))
+    start = Evaluation(0, np.zeros(9), 5.0, {}, 0.0)
+    hist = run_search(opt, q, planted(np.ones(9)), 29, start)
+    assert not any(np.all(e.x == 0.0) for e in hist)
 
 
 def test_ga_improves_over_its_first_generation():
@@ -50,12 +70,27 @@ def test_ga_improves_over_its_first_generation():
     assert best_of(hist).loss < first
 
 
+def test_ga_carries_its_elites_without_asking_them_again():
+    rng = np.random.default_rng(0)
+    opt = build_optimizer("ga", 4, 40, np.random.default_rng(3), population=6, elites=2)
+    cands = rng.uniform(-1, 1, (5, 4))
+    first = [opt.ask(cands) for _ in range(6)]
+    for i, x in enumerate(first):
+        opt.tell(x, float(i))  # the first two are the elites
+    second = [opt.ask(cands) for _ in range(4)]  # population - elites children
+    assert not any(np.array_equal(c, e) for c in second for e in first[:2])
+    for x in second:
+        opt.tell(x, 10.0)
+    opt.ask(cands)  # the third generation is bred from the elites and the children
+    assert [l for _, l in opt.elites] == [0.0, 1.0]
+
+
 def test_optimizers_are_seeded():
     for name in ("rs", "ga", "bo"):
         runs = []
         for _ in range(2):
             q = PlantedQ(np.random.default_rng(0))
-            params = {"n_initial": 10, "n_points": 200} if name == "bo" else {}
+            params = {"n_initial": 10} if name == "bo" else {}
             opt = build_optimizer(name, 9, 25, np.random.default_rng(5), **params)
             runs.append([e.loss for e in run_search(opt, q, planted(np.zeros(9)), 25)])
         assert runs[0] == runs[1], name

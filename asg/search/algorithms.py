@@ -1,7 +1,8 @@
 """Black-box optimisers behind one ask/tell interface, registered by name: rs, ga, bo.
 
-All work in normalised units x in [-1, 1]^D and minimise the loss. ``tell`` receives the point
-actually evaluated (its projection onto the feasible set).
+All work in normalised units x in [-1, 1]^D and minimise the loss. ``ask`` gets the candidates, the
+members of the feasible set Q not evaluated yet (K, D), and returns a point; the search loop
+evaluates the candidate nearest to it, and ``tell`` receives that point.
 """
 from __future__ import annotations
 
@@ -23,7 +24,8 @@ class Optimizer(ABC):
         self.rng = rng
 
     @abstractmethod
-    def ask(self) -> np.ndarray: ...
+    def ask(self, candidates: np.ndarray) -> np.ndarray:
+        """A point (D,) in [-1, 1]^D; ``candidates`` (K, D), K >= 1, are Q's fresh members."""
 
     @abstractmethod
     def tell(self, x: np.ndarray, loss: float) -> None: ...
@@ -31,10 +33,10 @@ class Optimizer(ABC):
 
 @register("search", "rs")
 class RandomSearch(Optimizer):
-    """Uniform draws in the box (the projection makes them uniform over Q's neighbourhoods)."""
+    """Uniform over Q's members not evaluated yet (drawing without replacement from Q)."""
 
-    def ask(self) -> np.ndarray:
-        return self.rng.uniform(-1.0, 1.0, self.dim)
+    def ask(self, candidates: np.ndarray) -> np.ndarray:
+        return candidates[int(self.rng.integers(len(candidates)))]
 
     def tell(self, x: np.ndarray, loss: float) -> None:
         pass
@@ -56,7 +58,11 @@ class GAParams:
 @register("search", "ga")
 class GeneticAlgorithm(Optimizer):
     """Elitism, softmax parent selection on negated loss (temperature 0.8), uniform crossover,
-    adaptive mutation: probability and range shrink by x0.9 when a generation does not improve."""
+    adaptive mutation: probability and range shrink by x0.9 when a generation does not improve.
+
+    The first generation is ``population`` random points; each later one ``population - elites``
+    children, bred from the best ``population`` of the last generation plus the elites carried over
+    with their known loss (an elite is not evaluated again)."""
 
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, **params):
         super().__init__(dim, budget, rng)
@@ -64,11 +70,12 @@ class GeneticAlgorithm(Optimizer):
         self.queue: list[np.ndarray] = [rng.uniform(-1, 1, dim) for _ in range(self.p.population)]
         self.evaluated: list[tuple[np.ndarray, float]] = []
         self.generation: list[tuple[np.ndarray, float]] = []
+        self.elites: list[tuple[np.ndarray, float]] = []
         self.best = math.inf
         self.mut_p = self.p.mutation_p
         self.mut_r = self.p.mutation_range
 
-    def ask(self) -> np.ndarray:
+    def ask(self, candidates: np.ndarray) -> np.ndarray:
         if not self.queue:
             self._breed()
         return self.queue.pop(0)
@@ -77,7 +84,7 @@ class GeneticAlgorithm(Optimizer):
         self.generation.append((np.asarray(x, dtype=float), float(loss)))
 
     def _breed(self) -> None:
-        pop = sorted(self.generation, key=lambda t: t[1])[: self.p.population] or [(np.zeros(self.dim), 0.0)]
+        pop = sorted(self.elites + self.generation, key=lambda t: t[1])[: self.p.population] or [(np.zeros(self.dim), 0.0)]
         gen_best = pop[0][1]
         if gen_best < self.best - 1e-9:
             self.best = gen_best
@@ -87,8 +94,9 @@ class GeneticAlgorithm(Optimizer):
         fitness = -np.array([l for _, l in pop]) / self.p.temperature
         prob = np.exp(fitness - fitness.max())
         prob /= prob.sum()
-        children = [pop[i][0].copy() for i in range(min(self.p.elites, len(pop)))]
-        while len(children) < self.p.population:
+        self.elites = pop[: self.p.elites]
+        children: list[np.ndarray] = []
+        while len(children) < max(1, self.p.population - len(self.elites)):
             a, b = self.rng.choice(len(pop), size=2, p=prob)
             mask = self.rng.random(self.dim) < self.p.crossover
             child = np.where(mask, pop[a][0], pop[b][0])
@@ -101,18 +109,24 @@ class GeneticAlgorithm(Optimizer):
 
 @register("search", "bo")
 class BayesianOptimization(Optimizer):
-    """scikit-optimize's Optimizer: a GP (Matern 2.5) surrogate, ``n_initial`` random points, then
-    lower confidence bound (kappa 2.5) minimised over ``n_points`` random candidates. The loss is
-    told as is: skopt minimises it (the reference code's sign defect is not repeated).
+    """scikit-optimize's Optimizer: a GP (Matern 2.5) surrogate fitted on every point told; the first
+    ``n_initial`` points uniform over the candidates, then the candidate with the lowest lower
+    confidence bound (kappa 2.5; LCB is UCB for minimisation) under the latest GP. The loss is told
+    as is: skopt minimises it (the reference code's sign defect is not repeated).
+
+    The acquisition is minimised over the candidates (Q's members not evaluated yet) rather than
+    over skopt's random points in the box: Q is finite, so its best member is the point the search
+    can actually evaluate (a random point's nearest member can be far from it in 9-D).
 
     Cost: skopt refits the GP's kernel hyperparameters (L-BFGS) at every tell, which dominates its
     overhead; here they are refitted every ``refit_every`` tells and held fixed in between (the GP
     itself is still updated with every observation)."""
 
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, n_initial: int = 20, kappa: float = 2.5,
-                 n_points: int = 500, refit_every: int = 5, **params):
+                 refit_every: int = 5, **params):
         super().__init__(dim, budget, rng)
         self.n_initial = n_initial
+        self.kappa = kappa
         self.refit_every = max(1, refit_every)
         self.told = 0
         from skopt import Optimizer as SkOptimizer
@@ -123,13 +137,20 @@ class BayesianOptimization(Optimizer):
         kernel = ConstantKernel(1.0, (0.01, 1000.0)) * Matern(length_scale=np.ones(dim), length_scale_bounds=(0.01, 100.0), nu=2.5) \
             + WhiteKernel(1e-4, (1e-6, 1e-1))
         gp = GaussianProcessRegressor(kernel=kernel, normalize_y=True, noise=None, n_restarts_optimizer=0, random_state=seed)
+        # skopt's own next-point sampling after each fit is not used (ask picks among the
+        # candidates): one sample keeps it cheap
         self.opt = SkOptimizer([(-1.0, 1.0)] * dim, base_estimator=gp, n_initial_points=n_initial,
                                initial_point_generator="random", acq_func="LCB", acq_optimizer="sampling",
-                               acq_func_kwargs={"kappa": kappa}, acq_optimizer_kwargs={"n_points": n_points},
+                               acq_func_kwargs={"kappa": kappa}, acq_optimizer_kwargs={"n_points": 1},
                                random_state=seed)
 
-    def ask(self) -> np.ndarray:
-        return np.asarray(self.opt.ask(), dtype=float)
+    def ask(self, candidates: np.ndarray) -> np.ndarray:
+        if not self.opt.models:
+            return candidates[int(self.rng.integers(len(candidates)))]
+        from skopt.acquisition import gaussian_lcb
+
+        lcb = gaussian_lcb(self.opt.space.transform(candidates.tolist()), self.opt.models[-1], kappa=self.kappa)
+        return candidates[int(np.argmin(lcb))]
 
     def tell(self, x: np.ndarray, loss: float) -> None:
         self.told += 1

@@ -29,6 +29,11 @@ class SpaceConfig:
     max_draw_factor: int = 20
 
 
+def nearest_index(points: np.ndarray, x: np.ndarray) -> int:
+    """Row of ``points`` (K, D) nearest to ``x`` (D,) in L2 (the first of ties)."""
+    return int(np.argmin(np.sum((points - np.asarray(x)[None]) ** 2, axis=1)))
+
+
 class EmptyFeasibleSet(InputError):
     """No sampled perturbation is plausible (e.g. vehicles boxed in): the scene cannot be perturbed."""
 
@@ -150,8 +155,7 @@ class FeasibleSet:
 
     def project(self, x: np.ndarray) -> np.ndarray:
         """The member of Q nearest to ``x`` in normalised units."""
-        d = np.sum((self.members - np.asarray(x)[None]) ** 2, axis=1)
-        return self.members[int(np.argmin(d))]
+        return self.members[nearest_index(self.members, x)]
 
     def sample(self, rng: np.random.Generator) -> np.ndarray:
         return self.members[int(rng.integers(1, len(self.members)))]
