@@ -21,7 +21,7 @@ from .scene import Scene
 from .perception.data import in_range
 from .scene.feasibility import Plausibility, check_scene, in_eval_range
 from .scene.neighbours import vehicles_within
-from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, run_search
+from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, check_settings, run_search
 from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
 from .sensors.frame import CooperativeFrame, render_frame
 
@@ -105,6 +105,7 @@ class Generator:
         self.acs_model = acs_model
         self.spec = spec or load_lidar_spec(cfg.lidar)
         self.params = search_params(cfg.search)
+        check_settings(cfg.search, self.params)
 
     # ---- evaluation ------------------------------------------------------------------------
     def _detections(self, frame: CooperativeFrame) -> Detections:

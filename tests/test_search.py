@@ -31,7 +31,7 @@ def test_bo_beats_random_search_on_a_planted_objective():
         target = rng.uniform(-0.6, 0.6, 9)
         res = {}
         for name in ("rs", "bo"):
-            opt = build_optimizer(name, 9, 50, np.random.default_rng(100 + seed), n_initial=20)
+            opt = build_optimizer(name, 9, 50, np.random.default_rng(100 + seed), **({"n_initial": 20} if name == "bo" else {}))
             hist = run_search(opt, q, planted(target), 50)
             res[name] = best_of(hist).loss
         bo_best.append(res["bo"])
@@ -94,6 +94,15 @@ def test_optimizers_are_seeded():
             opt = build_optimizer(name, 9, 25, np.random.default_rng(5), **params)
             runs.append([e.loss for e in run_search(opt, q, planted(np.zeros(9)), 25)])
         assert runs[0] == runs[1], name
+
+
+def test_unknown_setting_is_named():
+    with pytest.raises(InputError, match="configs/search/bo.yaml: unknown setting 'n_points' for bo; known: kappa, n_initial, refit_every"):
+        build_optimizer("bo", 9, 10, np.random.default_rng(0), n_points=500)
+    with pytest.raises(InputError, match="unknown setting 'kappa' for ga"):
+        build_optimizer("ga", 9, 10, np.random.default_rng(0), kappa=1.0)
+    with pytest.raises(InputError, match="unknown setting 'x' for rs; known: none"):
+        build_optimizer("rs", 9, 10, np.random.default_rng(0), x=1)
 
 
 def test_unknown_algorithm():

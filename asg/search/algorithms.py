@@ -6,11 +6,14 @@ evaluates the candidate nearest to it, and ``tell`` receives that point.
 """
 from __future__ import annotations
 
+import inspect
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
+
+from sumo_scenarios.errors import InputError
 
 from ..registry import lookup, register
 
@@ -22,6 +25,13 @@ class Optimizer(ABC):
         self.dim = dim
         self.budget = budget
         self.rng = rng
+
+    @classmethod
+    def settings(cls) -> tuple[str, ...]:
+        """The keyword settings the constructor takes (configs/search/NAME.yaml)."""
+        skip = {"self", "dim", "budget", "rng"}
+        return tuple(n for n, p in inspect.signature(cls.__init__).parameters.items()
+                     if n not in skip and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY))
 
     @abstractmethod
     def ask(self, candidates: np.ndarray) -> np.ndarray:
@@ -64,11 +74,14 @@ class GeneticAlgorithm(Optimizer):
     children, bred from the best ``population`` of the last generation plus the elites carried over
     with their known loss (an elite is not evaluated again)."""
 
+    @classmethod
+    def settings(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(GAParams))
+
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, **params):
         super().__init__(dim, budget, rng)
         self.p = GAParams(**params)
         self.queue: list[np.ndarray] = [rng.uniform(-1, 1, dim) for _ in range(self.p.population)]
-        self.evaluated: list[tuple[np.ndarray, float]] = []
         self.generation: list[tuple[np.ndarray, float]] = []
         self.elites: list[tuple[np.ndarray, float]] = []
         self.best = math.inf
@@ -162,5 +175,15 @@ class BayesianOptimization(Optimizer):
             self.opt.base_estimator_.set_params(kernel=self.opt.models[-1].kernel_)
 
 
+def check_settings(name: str, params: dict) -> None:
+    """InputError naming the first setting the optimiser ``name`` does not take."""
+    known = lookup("search", name).settings()
+    unknown = sorted(set(params) - set(known))
+    if unknown:
+        raise InputError(f"configs/search/{name}.yaml: unknown setting '{unknown[0]}' for {name}; "
+                         f"known: {', '.join(sorted(known)) or 'none'}")
+
+
 def build_optimizer(name: str, dim: int, budget: int, rng: np.random.Generator, **params) -> Optimizer:
+    check_settings(name, params)
     return lookup("search", name)(dim, budget, rng, **params)
