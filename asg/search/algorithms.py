@@ -21,7 +21,7 @@ from ..registry import lookup, register
 class Optimizer(ABC):
     registry_name: str = ""
 
-    def __init__(self, dim: int, budget: int, rng: np.random.Generator, **params):
+    def __init__(self, dim: int, budget: int, rng: np.random.Generator):
         self.dim = dim
         self.budget = budget
         self.rng = rng
@@ -40,13 +40,17 @@ class Optimizer(ABC):
     @abstractmethod
     def tell(self, x: np.ndarray, loss: float) -> None: ...
 
+    def _uniform_pick(self, candidates: np.ndarray) -> np.ndarray:
+        """One of the candidates (K, D), uniformly."""
+        return candidates[int(self.rng.integers(len(candidates)))]
+
 
 @register("search", "rs")
 class RandomSearch(Optimizer):
     """Uniform over Q's members not evaluated yet (drawing without replacement from Q)."""
 
     def ask(self, candidates: np.ndarray) -> np.ndarray:
-        return candidates[int(self.rng.integers(len(candidates)))]
+        return self._uniform_pick(candidates)
 
     def tell(self, x: np.ndarray, loss: float) -> None:
         pass
@@ -136,7 +140,7 @@ class BayesianOptimization(Optimizer):
     itself is still updated with every observation)."""
 
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, n_initial: int = 20, kappa: float = 2.5,
-                 refit_every: int = 5, **params):
+                 refit_every: int = 5):
         super().__init__(dim, budget, rng)
         self.n_initial = n_initial
         self.kappa = kappa
@@ -159,7 +163,7 @@ class BayesianOptimization(Optimizer):
 
     def ask(self, candidates: np.ndarray) -> np.ndarray:
         if not self.opt.models:
-            return candidates[int(self.rng.integers(len(candidates)))]
+            return self._uniform_pick(candidates)
         from skopt.acquisition import gaussian_lcb
 
         lcb = gaussian_lcb(self.opt.space.transform(candidates.tolist()), self.opt.models[-1], kappa=self.kappa)
