@@ -221,10 +221,7 @@ class Generator:
         def objective(x: np.ndarray) -> tuple[float, dict[str, float]]:
             return self._score(render_frame(world, moved=space.moved_agents(x)))
 
-        params = dict(self.params)
-        if self.cfg.search == "bo":
-            params["n_initial"] = min(int(params.get("n_initial", 20)), max(1, self.cfg.budget - 1))
-        optimizer = build_optimizer(self.cfg.search, space.dim, self.cfg.budget, rng, **params)
+        optimizer = build_optimizer(self.cfg.search, space.dim, self.cfg.budget, rng, **self.params)
         start = Evaluation(0, np.zeros(space.dim), loss0, ap0, 0.0)
         history = run_search(optimizer, feasible, objective, self.cfg.budget, start, on_step)
         best = best_of(history, start)

@@ -127,8 +127,8 @@ class GeneticAlgorithm(Optimizer):
 @register("search", "bo")
 class BayesianOptimization(Optimizer):
     """scikit-optimize's Optimizer: a GP (Matern 2.5) surrogate fitted on every point told; the first
-    ``n_initial`` points uniform over the candidates, then the candidate with the lowest lower
-    confidence bound (kappa 2.5; LCB is UCB for minimisation) under the latest GP. The loss is told
+    ``n_initial`` points (at most budget - 1) uniform over the candidates, then the candidate with
+    the lowest lower confidence bound (kappa 2.5; LCB is UCB for minimisation) under the latest GP. The loss is told
     as is: skopt minimises it (the reference code's sign defect is not repeated).
 
     The acquisition is minimised over the candidates (Q's members not evaluated yet) rather than
@@ -142,6 +142,7 @@ class BayesianOptimization(Optimizer):
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, n_initial: int = 20, kappa: float = 2.5,
                  refit_every: int = 5):
         super().__init__(dim, budget, rng)
+        n_initial = min(int(n_initial), max(1, budget - 1))  # a small budget still gets a guided step
         self.n_initial = n_initial
         self.kappa = kappa
         self.refit_every = max(1, refit_every)
