@@ -1,0 +1,14 @@
+"""Ablation (not shipped): ACS-A + BO on the benchmark scenes with the paper's Q (no drivable-area test:
+no overlap and in range only). The on-road test is switched off everywhere, including the final check.
+usage: .venv/bin/python docs/experiments/paper_q.py SCENE_DIR OUT [acs search]
+(SCENE_DIR: the benchmark's scene pick, e.g. runs/bench/attfuse/scenes-30 after `asg bench paper`)
+"""
+import sys
+from pathlib import Path
+import numpy as np
+from asg.scene import feasibility
+from asg.benchmarks.paper import _run_config
+
+feasibility.FeasibilityChecker.on_road = lambda self, agents: np.ones(len(agents), dtype=bool)
+acs, search = (sys.argv[3], sys.argv[4]) if len(sys.argv) > 4 else ("attention", "bo")
+_run_config(Path(sys.argv[2]), Path(sys.argv[1]), acs, search, 30, 50, "attfuse", 1, threads=2)
