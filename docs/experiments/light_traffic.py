@@ -7,7 +7,7 @@ ASG_DATA=runs/experiments/light7/data asg evaluate --fusion attfuse --set normal
 asg generate --scenes runs/experiments/light7/scenes-30 --fusion attfuse --search bo --acs attention
     --count 30 --budget 50 --seed 1 --out runs/experiments/light7/attention-bo
 """
-import functools, gzip, json, math, os, statistics, sys
+import functools, os, statistics, sys
 from pathlib import Path
 
 per_km = float(sys.argv[1])
@@ -18,21 +18,12 @@ import sumo_scenarios.simulate as sim
 from sumo_scenarios.routes import TrafficParams
 sim.TrafficParams = functools.partial(TrafficParams, normal_per_lane_km=per_km)
 
-from asg.datasets import build_dataset
 from asg.benchmarks.paper import pick_scenes
+from asg.datasets import build_dataset, iter_frames
+from asg.scene.feasibility import in_eval_range
 
 out = build_dataset("normal")
-counts = []
-for line in gzip.open(out / "frames.jsonl.gz", "rt"):
-    f = json.loads(line); a = {x["id"]: x for x in f["agents"]}; e = a[f["ego"]]
-    c, s = math.cos(-e["yaw_rad"]), math.sin(-e["yaw_rad"])
-    n = 0
-    for x in f["agents"]:
-        if x["kind"] != "vehicle" or x["id"] == f["ego"]:
-            continue
-        dx, dy = x["x_m"] - e["x_m"], x["y_m"] - e["y_m"]
-        n += abs(c * dx - s * dy) <= 48 and abs(s * dx + c * dy) <= 48
-    counts.append(n)
+counts = [int(in_eval_range(s.ego, [v for v in s.vehicles if v.agent_id != s.ego_id]).sum()) for s in iter_frames(out)]
 print("frames", len(counts), "vehicles in range mean %.1f median %g min %d max %d"
       % (statistics.mean(counts), statistics.median(counts), min(counts), max(counts)))
 pick_scenes(root / "scenes-30", 30)

@@ -1,7 +1,7 @@
 """How the drivable-area constraint shapes Q on the benchmark scenes (after ACS, perturbed ids from summary).
 
-For each scene: per-vehicle acceptance rate of the on-road test, and |dyaw| (deg) and |dxy| (m) of Q members,
-with and without the on-road test (the paper's Q: no overlap, in range only).
+Over the scenes: Q's size and draws, and |dyaw| (deg) and |dxy| (m) of Q's members, with and
+without the on-road test (the paper's Q: no overlap, in range only).
 usage: .venv/bin/python docs/experiments/q_shape.py RUN_DIR   (an ACS-A + BO run folder, e.g.
 runs/bench/attfuse/attention-bo after `asg bench paper`)
 """
