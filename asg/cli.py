@@ -94,6 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init-from", default=None, metavar="WEIGHTS",
                    help="start a new sequence of chunks from other shipped weights (e.g. single) instead of "
                         "continuing this model's own")
+    p.add_argument("--iou-branch", action="store_true",
+                   help="train only the IoU branch (IoU-aware rescoring) on the frozen shipped weights "
+                        "(train.yaml's iou_branch block)")
 
     p = _add(sub, "evaluate", "AP of a detector on a scene set", commands.evaluate)
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse")

@@ -170,8 +170,8 @@ def dataset_build(args: argparse.Namespace) -> int:
 def train(args: argparse.Namespace) -> int:
     from .perception.train import card_validation, train as run, weights_for
 
-    if args.validate_only and args.init_from:
-        raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from")
+    if args.validate_only and (args.init_from or args.iou_branch):
+        raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from or --iou-branch")
     if args.validate_only:
         card = card_validation(weights_for(args.fusion), console.print)
         console.print(f"updated the model card of {card['weights']}")
@@ -185,7 +185,7 @@ def train(args: argparse.Namespace) -> int:
             bar.update(task, completed=step, total=total, description=f"training {args.fusion} loss {loss:.3f}")
 
         out = run(args.fusion, steps=args.steps, progress=report, threads=args.threads, log=console.print,
-                  init_from=args.init_from)
+                  init_from=args.init_from, iou_branch=args.iou_branch)
     console.print(f"weights: {out}")
     return 0
 

@@ -51,7 +51,7 @@ def test_tiny_model_overfits_tiny_set(cross_map):
     opt = torch.optim.Adam(model.parameters(), lr=0.01)
     losses = []
     for _ in range(120):
-        cls, box, d = model([c for c, _ in data])
+        cls, box, d, _ = model([c for c, _ in data])
         loss = detection_loss(cls, box, d, labels, res, dirs)["total"]
         opt.zero_grad()
         loss.backward()
@@ -68,7 +68,7 @@ def test_tiny_model_overfits_tiny_set(cross_map):
             model([c for c, _ in data])
     model.eval()
     with torch.no_grad():
-        dets = postprocess(*model([c for c, _ in data]), model.anchors, TINY)
+        dets = postprocess(model([c for c, _ in data]), model, TINY)
     frames = [(b, s, gt) for (b, s), (_, gt) in zip(dets, data)]
     assert average_precision(frames, 0.5) > 0.9
 
@@ -108,7 +108,7 @@ def test_box_voting_averages_overlapping_candidates_by_score():
     assert np.allclose(voted, out)
 
 
-@pytest.mark.parametrize("line", ["vote_iou: 1.5", "nms_iou: 0", "pillar_m: -0.5", "vote_power: -1"])
+@pytest.mark.parametrize("line", ["vote_iou: 1.5", "nms_iou: 0", "pillar_m: -0.5", "vote_power: -1", "iou_rescore: 2", "iou_patch: 2"])
 def test_out_of_range_detector_config_is_one_clear_error(tmp_path, line):
     from asg.perception.config import load_detector_config
 
@@ -243,3 +243,80 @@ def test_corrupt_and_mismatched_weights(tmp_path):
     good = tmp_path / "good.pt"
     save_state(PointPillars(TINY), good)
     load_state(PointPillars(TINY), good)
+
+
+def test_iou_targets_are_the_decoded_boxes_fit_to_the_ground_truth():
+    """An anchor whose residuals decode onto a vehicle gets target 1, a shifted one its BEV IoU, a
+    confident anchor on nothing 0; anchors below the score and not positive get no target."""
+    from asg.objective.iou import bev_iou_matrix
+    from asg.perception.boxes import encode, iou_targets
+
+    anchors = torch.from_numpy(make_anchors(TINY)).float()
+    gt = np.array([[2.0, 3.0, -1.0, 4.5, 1.9, 1.6, 0.2]])
+    labels, res, _ = assign_targets(anchors.numpy(), gt, TINY)
+    pos = np.flatnonzero(labels == 1)
+    box = torch.zeros(1, len(anchors), 7)
+    box[0, pos] = torch.from_numpy(res[pos])
+    shifted = encode(gt + [[1.0, 0, 0, 0, 0, 0, 0]], anchors.numpy()[pos[:1]])
+    cls = torch.full((1, len(anchors)), -10.0)
+    far = int(np.argmax(np.hypot(anchors[:, 0].numpy() + 14, anchors[:, 1].numpy() + 14) < 1))
+    cls[0, far] = 5.0  # a confident anchor on empty ground
+    box[0, pos[0]] = torch.from_numpy(shifted[0]).float()
+    [(idx, target)] = iou_targets(cls, box, anchors, torch.from_numpy(labels)[None], [gt])
+    assert set(idx.tolist()) == set(pos.tolist()) | {far}
+    got = dict(zip(idx.tolist(), target.tolist()))
+    assert got[far] == 0.0
+    assert got[int(pos[0])] == pytest.approx(bev_iou_matrix(gt + [[1.0, 0, 0, 0, 0, 0, 0]], gt)[0, 0], abs=1e-5)
+    assert all(got[int(k)] == pytest.approx(1.0, abs=1e-4) for k in pos[1:])
+
+
+def test_iou_branch_learns_without_touching_the_detector():
+    """The IoU loss reaches the IoU branch only (it reads the features detached), and rescoring
+    mixes its prediction into the score: power 0 is the class score, 1 the predicted IoU."""
+    from asg.perception.head import iou_loss, rescore
+
+    torch.manual_seed(0)
+    model = PointPillars(replace(TINY, iou_patch=3))
+    cls, box, d, features = model([torch.randn(400, 4) * 5])
+    iou_loss(model.head.iou_logits(features[0], torch.arange(0, 4000, 80)), torch.rand(50)).backward()
+    grads = {n: p.grad for n, p in model.named_parameters()}
+    assert all(g is not None and g.abs().sum() > 0 for n, g in grads.items() if n.startswith("head.iou."))
+    assert all(g is None for n, g in grads.items() if not n.startswith("head.iou."))
+    p, logit = torch.tensor([0.9, 0.5]), torch.tensor([0.0, 2.0])
+    assert torch.equal(rescore(p, logit, 0.0), p)
+    assert torch.allclose(rescore(p, logit, 1.0), torch.sigmoid(logit))
+    assert torch.allclose(rescore(p, logit, 0.5), torch.sqrt(p * torch.sigmoid(logit)))
+
+
+def test_iou_rescoring_reorders_detections():
+    """With power 1 the scores out of postprocess are the branch's predicted IoUs, and the branch
+    sees its anchor's cell (a patch of 1) or the cells around it too."""
+    torch.manual_seed(0)
+    model = PointPillars(TINY).eval()
+    with torch.no_grad():
+        model.head.cls.bias.fill_(2.0)  # every anchor passes the score threshold
+        out = model([torch.randn(400, 4) * 5])
+        cls, _, _, features = out
+        plain = postprocess(out, model, replace(TINY, vote_iou=0.0, max_detections=1))[0]
+        by_iou = postprocess(out, model, replace(TINY, vote_iou=0.0, max_detections=1, iou_rescore=1.0))[0]
+        top = torch.topk(torch.sigmoid(cls[0]), 300).indices
+        logits = model.head.iou_logits(features[0], top)
+        # the branch as a per-cell MLP: the anchor's own cell's feature vector only
+        cell = top[0] // model.head.a
+        f = features[0].flatten(1)[:, cell]
+        assert float(logits[0]) == pytest.approx(float(model.head.iou(f)[top[0] % model.head.a]), abs=1e-5)
+    assert by_iou[1][0] == pytest.approx(float(torch.sigmoid(logits).max()), abs=1e-6)
+    assert plain[1][0] == pytest.approx(float(torch.sigmoid(cls[0]).max()), abs=1e-6)
+
+
+def test_weights_without_the_iou_branch_load_only_where_allowed(tmp_path):
+    old = PointPillars(TINY)
+    state = {k: v for k, v in old.state_dict().items() if not k.startswith("head.iou.")}
+    torch.save(state, tmp_path / "old.pt")
+    with pytest.raises(InputError, match="missing head.iou"):
+        load_state(PointPillars(TINY), tmp_path / "old.pt")
+    model = PointPillars(TINY)
+    branch = model.head.iou[0].weight.clone()  # its first layer
+    load_state(model, tmp_path / "old.pt", allow_missing="head.iou.")
+    assert torch.equal(model.head.iou[0].weight, branch)  # its own start
+    assert torch.equal(model.head.cls.weight, old.head.cls.weight)

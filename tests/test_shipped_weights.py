@@ -41,4 +41,5 @@ def test_model_cards_describe_the_weights():
     for name in ("single", "early", "attfuse"):
         card = json.loads((WEIGHTS_DIR / f"{name}.json").read_text())
         assert card["steps"] > 0 and card["train_wall_s"] > 0 and card["dataset"] == "detector-train"
+        assert card["iou_branch_steps"] > 0  # the IoU branch the shipped config rescores with is trained
         assert (WEIGHTS_DIR / card["weights"]).is_file()

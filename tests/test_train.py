@@ -194,3 +194,45 @@ def test_resumed_onecycle_follows_the_configured_length():
     tail = lrs(resumed, 20)
     assert tail == pytest.approx(lrs(short, 20))  # ... resumed as a 30-step one
     assert lrs(long, 20)[-1] > 10 * tail[-1]  # the saved 40-step phases would still be annealing
+
+
+def test_iou_branch_chunk_trains_the_branch_alone(sumo_log, tmp_path):
+    """`asg train --iou-branch`: the frozen detector's tensors (batch-norm statistics included)
+    stay as they were, the branch learns, and the card lists the chunk apart from the detector's
+    steps. Weights made before the branch existed get one."""
+    from dataclasses import replace
+
+    from asg.perception.model import PointPillars
+    from asg.perception.weights_io import save_state
+    from sumo_scenarios.errors import InputError
+
+    data = tiny_dataset(sumo_log, tmp_path / "tiny")
+    weights_dir = tmp_path / "weights"
+    weights_dir.mkdir()
+    torch.manual_seed(0)
+    base = PointPillars(TINY)
+    torch.save({k: v for k, v in base.state_dict().items() if not k.startswith("head.iou.")}, weights_dir / "early.pt")
+    (weights_dir / "early.json").write_text(json.dumps({"steps": 40, "train_wall_s": 12.5, "dataset": "x"}))
+    tcfg = TrainConfig(dataset=str(data), steps=4, batch_size=2, lr=0.01, schedule="onecycle", seed=5,
+                       checkpoint_every=2, views="all", part="iou")
+    kw = dict(log=lambda *_: None, threads=1, detector_config=TINY, weights_dir=weights_dir, validate=False)
+    out = train("early", out_dir=tmp_path / "run", train_config=tcfg, **kw)
+    after = torch.load(out, weights_only=True)
+    fresh = PointPillars(TINY).state_dict()
+    for k, v in base.state_dict().items():
+        if k.startswith("head.iou."):
+            assert not torch.equal(after[k], fresh[k])
+        else:
+            assert torch.equal(after[k], v), k
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert card["steps"] == 40 and card["iou_branch_steps"] == 4 and card["chunks"][-1]["part"] == "iou"
+    with pytest.raises(InputError, match="no trained attfuse weights"):
+        train("attfuse", out_dir=tmp_path / "run-att", train_config=tcfg, **kw)
+    with pytest.raises(InputError, match="cannot be combined"):
+        train("early", out_dir=tmp_path / "run2", train_config=tcfg, init_from="single", **kw)
+    # a whole-network chunk trains the branch alongside
+    whole = train("early", out_dir=tmp_path / "run", train_config=replace(tcfg, part="all"), **kw)
+    again = torch.load(whole, weights_only=True)
+    assert not torch.equal(again["head.cls.weight"], after["head.cls.weight"])
+    assert not torch.equal(again["head.iou.2.weight"], after["head.iou.2.weight"])
+    assert json.loads(whole.with_suffix(".json").read_text())["steps"] == 44

@@ -174,3 +174,31 @@ def select_boxes(boxes: np.ndarray, scores: np.ndarray, cfg: DetectorConfig) -> 
     if cfg.vote_iou <= 0:
         return boxes[keep], scores[keep]
     return vote_boxes(boxes, scores, keep, cfg.vote_iou, cfg.vote_power, polys), scores[keep]
+
+
+def iou_targets(cls: torch.Tensor, box: torch.Tensor, anchors: torch.Tensor, labels: torch.Tensor,
+                gt_boxes: list[np.ndarray], min_score: float = 0.1,
+                top_k: int = 300) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """Training anchors of the IoU branch and their targets, per sample of a batch.
+
+    ``cls`` (B, A) logits, ``box`` (B, A, 7) residuals, ``anchors`` (A, 7), ``labels`` (B, A) from
+    :func:`assign_targets`, ``gt_boxes[b]`` (M_b, 7) the sample's boxes. Per sample the anchors are
+    those inference keeps (class score >= ``min_score``, at most ``top_k``) and the positives; each
+    target is the best BEV IoU of the anchor's decoded box with a ground-truth box (0 with none).
+    Returns per sample (anchor indices (K,), targets (K,) float32).
+    """
+    out = []
+    with torch.no_grad():
+        for b in range(cls.shape[0]):
+            scores = torch.sigmoid(cls[b])
+            cand = torch.nonzero(scores >= min_score).squeeze(1)
+            if len(cand) > top_k:
+                cand = cand[torch.topk(scores[cand], top_k).indices]
+            idx = torch.unique(torch.cat([cand, torch.nonzero(labels[b] == 1).squeeze(1)]))
+            gt = np.asarray(gt_boxes[b], dtype=float).reshape(-1, 7)
+            best = np.zeros(len(idx))
+            if len(idx) and len(gt):
+                decoded = decode(box[b, idx], anchors[idx]).numpy().astype(np.float64)
+                best = bev_iou_matrix(decoded, gt).max(axis=1)
+            out.append((idx, torch.from_numpy(best.astype(np.float32))))
+    return out

@@ -36,6 +36,12 @@ class DetectorConfig:
     #: weighted by score ** vote_power
     vote_iou: float = 0.3
     vote_power: float = 2.0
+    #: IoU-aware rescoring: score = class score ** (1 - iou_rescore) * predicted IoU ** iou_rescore
+    #: (0: the class score alone); the IoU branch is an MLP with iou_hidden units over the
+    #: iou_patch x iou_patch head cells around each candidate
+    iou_rescore: float = 0.0
+    iou_hidden: int = 256
+    iou_patch: int = 1
     #: where AttFuse fuses the agents: "output" (the concatenated, upsampled backbone output; the
     #: head's 1x1 convolutions follow, so the fused prediction is linear in the agents' features) or
     #: "stages" (each backbone stage's output before its upsampling block, as the reference
@@ -49,6 +55,8 @@ class DetectorConfig:
         checks = [("range_m", self.range_m > 0), ("pillar_m", self.pillar_m > 0),
                   ("score_threshold", 0 <= self.score_threshold < 1), ("nms_iou", 0 < self.nms_iou <= 1),
                   ("vote_iou", 0 <= self.vote_iou <= 1), ("vote_power", self.vote_power >= 0),
+                  ("iou_rescore", 0 <= self.iou_rescore <= 1), ("iou_hidden", self.iou_hidden >= 1),
+                  ("iou_patch", self.iou_patch >= 1 and self.iou_patch % 2 == 1),
                   ("max_detections", self.max_detections >= 1),
                   ("attfuse_fusion", self.attfuse_fusion in ATTFUSE_FUSIONS)]
         for name, ok in checks:

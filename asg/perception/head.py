@@ -1,5 +1,5 @@
 """Anchor head and its losses: focal classification, smooth-L1 residuals with the sine yaw
-difference, and a direction classifier."""
+difference, a direction classifier, and an IoU branch that predicts how well each box fits."""
 from __future__ import annotations
 
 import math
@@ -12,23 +12,62 @@ from .config import DetectorConfig
 
 
 class AnchorHead(nn.Module):
-    """(B, C, H, W) → cls (B, H*W*A), box (B, H*W*A, 7), dir (B, H*W*A, 2) in anchor order."""
+    """(B, C, H, W) → cls (B, H*W*A), box (B, H*W*A, 7), dir (B, H*W*A, 2) in anchor order, and
+    the features (B, C, H, W), detached, for the IoU branch.
+
+    The IoU branch (an MLP over the ``cfg.iou_patch`` x ``cfg.iou_patch`` cells around an anchor's
+    cell, ``cfg.iou_hidden`` units) predicts the BEV IoU of the anchor's decoded box with the
+    vehicle it covers. It runs only on the anchors asked for (:meth:`iou_logits`: the few hundred
+    candidates inference keeps), and reads the features detached, so its loss never changes the
+    detector: it learns to tell well-fitted boxes from loose ones, and ``cfg.iou_rescore`` mixes it
+    into the score (IoU-aware rescoring, see :func:`rescore`).
+    """
 
     def __init__(self, cfg: DetectorConfig, channels: int):
         super().__init__()
         a = cfg.anchors_per_cell
         self.a = a
+        self.patch = cfg.iou_patch
         self.cls = nn.Conv2d(channels, a, 1)
         self.box = nn.Conv2d(channels, a * 7, 1)
         self.dir = nn.Conv2d(channels, a * 2, 1)
+        self.iou = nn.Sequential(nn.Linear(channels * self.patch ** 2, cfg.iou_hidden), nn.ReLU(),
+                                 nn.Linear(cfg.iou_hidden, a))
         nn.init.constant_(self.cls.bias, -math.log((1 - 0.01) / 0.01))
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         b = x.shape[0]
         cls = self.cls(x).permute(0, 2, 3, 1).reshape(b, -1)
         box = self.box(x).permute(0, 2, 3, 1).reshape(b, -1, 7)
         d = self.dir(x).permute(0, 2, 3, 1).reshape(b, -1, 2)
-        return cls, box, d
+        return cls, box, d, x.detach()
+
+    def iou_logits(self, features: torch.Tensor, anchor_idx: torch.Tensor) -> torch.Tensor:
+        """IoU logits (K,) of anchors ``anchor_idx`` (K,) (indices in anchor order) of one sample
+        whose head features are ``features`` (C, H, W); cells beyond the grid's edge repeat it."""
+        c, h, w = features.shape
+        cell = anchor_idx // self.a
+        cy, cx = cell // w, cell % w
+        r = self.patch // 2
+        parts = [features[:, (cy + dy).clamp(0, h - 1), (cx + dx).clamp(0, w - 1)].t()
+                 for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
+        logits = self.iou(torch.cat(parts, dim=1))  # (K, A)
+        return logits.gather(1, (anchor_idx % self.a)[:, None])[:, 0]
+
+
+def rescore(cls_prob: torch.Tensor, iou_logit: torch.Tensor, power: float) -> torch.Tensor:
+    """IoU-aware score: cls_prob ** (1 - power) * predicted_iou ** power (power 0: the class score)."""
+    if power <= 0:
+        return cls_prob
+    return cls_prob ** (1 - power) * torch.sigmoid(iou_logit) ** power
+
+
+def iou_loss(iou_logit: torch.Tensor, target_iou: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy of the IoU branch against soft targets in [0, 1], mean over the anchors
+    given (K,) → scalar; 0 when there are none."""
+    if not len(target_iou):
+        return iou_logit.sum() * 0.0
+    return F.binary_cross_entropy_with_logits(iou_logit, target_iou)
 
 
 def focal_loss(logits: torch.Tensor, labels: torch.Tensor, alpha: float = 0.25, gamma: float = 2.0) -> torch.Tensor:

@@ -1,7 +1,8 @@
 """Detectors: a single-pass PointPillars (No / Late / Early fusion use it) and AttFuse.
 
-Inputs are clouds (N, 4) float32 in the frame the boxes come out in. ``predict`` returns numpy
-boxes (K, 7) and scores (K,) after score threshold and rotated NMS.
+Inputs are clouds (N, 4) float32 in the frame the boxes come out in. Both networks return the
+head's (cls, box, dir, features) tensors; ``postprocess`` turns them into numpy boxes (K, 7) and scores
+(K,) after the score threshold, IoU-aware rescoring, rotated NMS and box voting.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from torch import nn
 from .backbone import Backbone
 from .boxes import DIR_OFFSET, decode, limit_period, make_anchors, select_boxes
 from .config import DetectorConfig
-from .head import AnchorHead
+from .head import AnchorHead, rescore
 from .pillars import PillarEncoder
 
 
@@ -131,10 +132,13 @@ class AttFuse(nn.Module):
 
 
 @torch.no_grad()
-def postprocess(cls: torch.Tensor, box: torch.Tensor, d: torch.Tensor, anchors: torch.Tensor,
-                cfg: DetectorConfig, top_k: int = 300) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per sample: (boxes (K, 7), scores (K,)) above the score threshold, after rotated NMS and box
-    voting."""
+def postprocess(outputs: tuple[torch.Tensor, ...], model: PointPillars | AttFuse, cfg: DetectorConfig,
+                top_k: int = 300) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``outputs``: what ``model`` returned (cls, box, dir, features). Per sample: (boxes (K, 7),
+    scores (K,)) of the anchors whose class score passes the score threshold (at most ``top_k``),
+    rescored with the predicted IoU (``cfg.iou_rescore``), after rotated NMS and box voting (both
+    in the order of the rescored scores)."""
+    cls, box, d, features = outputs
     out = []
     for b in range(cls.shape[0]):
         scores = torch.sigmoid(cls[b])
@@ -144,12 +148,14 @@ def postprocess(cls: torch.Tensor, box: torch.Tensor, d: torch.Tensor, anchors: 
         if not len(keep):
             out.append((np.zeros((0, 7)), np.zeros(0)))
             continue
-        boxes = decode(box[b, keep], anchors[keep])
+        boxes = decode(box[b, keep], model.anchors[keep])
         dir_label = torch.argmax(d[b, keep], dim=-1).float()
         rot = limit_period(boxes[:, 6] - DIR_OFFSET, 0.0, math.pi)
         boxes[:, 6] = rot + DIR_OFFSET + math.pi * dir_label
         bx = boxes.numpy().astype(np.float64)
         bx[:, 6] = np.angle(np.exp(1j * bx[:, 6]))
-        sc = scores[keep].numpy().astype(np.float64)
-        out.append(select_boxes(bx, sc, cfg))
+        sc = scores[keep]
+        if cfg.iou_rescore > 0:
+            sc = rescore(sc, model.head.iou_logits(features[b], keep), cfg.iou_rescore)
+        out.append(select_boxes(bx, sc.numpy().astype(np.float64), cfg))
     return out

@@ -28,10 +28,10 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 
 from ..datasets import iter_frames
 from ..sensors import load_lidar_spec
-from .boxes import assign_targets
+from .boxes import assign_targets, iou_targets
 from .config import load_detector_config
 from .data import Sample, augment, make_sample
-from .head import detection_loss
+from .head import detection_loss, iou_loss
 from .model import AttFuse, PointPillars
 from .weights_io import WEIGHTS_DIR
 
@@ -63,13 +63,26 @@ class TrainConfig:
     #: fusion models: "ego" trains on each frame as its ego sees it; "all" on each sensing agent's
     #: view in turn (3 times the distinct examples from the same frames)
     views: Literal["ego", "all"] = "ego"
+    #: "all": the whole detector (the IoU branch learns alongside, on detached features); "iou":
+    #: only the IoU branch, on the frozen detector (eval mode)
+    part: Literal["all", "iou"] = "all"
 
 
-def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
+#: the train.yaml block of an IoU-branch chunk (any weights): ``asg train --fusion F --iou-branch``
+IOU_BLOCK = "iou_branch"
+
+
+def load_train_config(weights: str, path: Path | None = None, iou_branch: bool = False) -> TrainConfig:
+    """The training settings of ``weights`` (its train.yaml block), or with ``iou_branch`` the
+    shared ``iou_branch`` block (part: iou)."""
     data = read_yaml(path or configs_dir() / "detectors" / "train.yaml")
-    if weights not in data:
-        raise InputError(f"no training block '{weights}' in train.yaml")
-    return from_mapping(TrainConfig, data[weights], f"train.yaml:{weights}")
+    block = IOU_BLOCK if iou_branch else weights
+    if block not in data:
+        raise InputError(f"no training block '{block}' in train.yaml")
+    tcfg = from_mapping(TrainConfig, data[block], f"train.yaml:{block}")
+    if iou_branch and tcfg.part != "iou":
+        raise InputError(f"train.yaml:{block}: part must be 'iou'")
+    return tcfg
 
 
 def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None) -> list[Sample]:
@@ -95,8 +108,10 @@ class _Batches:
                 self.items = [([np.vstack(clouds)], b) for clouds, b in self.items]
 
     def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg):
+        """A batch: clouds (per sample, a list of (N, 4) tensors), labels (B, A), residual targets
+        (B, A, 7), direction bins (B, A) and the augmented boxes (per sample, (M, 7))."""
         picks = rng.integers(len(self.items), size=batch)
-        clouds, labels, targets, dirs = [], [], [], []
+        clouds, labels, targets, dirs, gt = [], [], [], [], []
         for k in picks:
             cl, boxes = self.items[int(k)]
             cl, boxes = augment(cl, boxes, rng)
@@ -105,22 +120,28 @@ class _Batches:
             labels.append(lab)
             targets.append(res)
             dirs.append(d)
-        return clouds, torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)), torch.from_numpy(np.stack(dirs))
+            gt.append(boxes)
+        return (clouds, torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
+                torch.from_numpy(np.stack(dirs)), gt)
 
 
 def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, log: Callable[[str], None] = print,
           progress: Callable[[int, int, float], None] | None = None, threads: int = 2, *,
           train_config: TrainConfig | None = None, detector_config=None, weights_dir: Path = WEIGHTS_DIR,
-          validate: bool = True, init_from: str | None = None) -> Path:
+          validate: bool = True, init_from: str | None = None, iou_branch: bool = False) -> Path:
     """Train (or resume) the weights behind ``fusion``; returns the written weights file.
 
     Configs default to configs/detectors/{train,pointpillars}.yaml and the weights to the shipped
     ones (asg/perception/weights/); ``validate`` records normal-val AP in the model card.
     ``init_from`` (a weights name, e.g. "single"): start a new sequence of chunks from those
     weights instead of continuing this model's own (see :func:`init_from_weights`).
+    ``iou_branch``: one chunk of the IoU branch alone on the frozen detector (train.yaml's
+    ``iou_branch`` block; also what a ``train_config`` with part "iou" does).
     """
     name = weights_for(fusion)
-    tcfg = train_config or load_train_config(name)
+    tcfg = train_config or load_train_config(name, iou_branch=iou_branch)
+    if init_from and tcfg.part == "iou":
+        raise InputError("--iou-branch trains the branch of this model's own weights; it cannot be combined with --init-from")
     total = steps or tcfg.steps
     cfg = detector_config or load_detector_config()
     torch.set_num_threads(threads)
@@ -140,7 +161,10 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     torch.manual_seed(tcfg.seed + 1000 * chunk)
     rng = np.random.default_rng([tcfg.seed, chunk])
     model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
-    opt = torch.optim.Adam(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
+    if tcfg.part == "iou" and not previous.get("chunks"):
+        raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit an IoU branch to; train them first")
+    params = _trainable(model, tcfg.part)
+    opt = torch.optim.Adam(params, lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     sched = _scheduler(opt, tcfg, total)
     step, wall = 0, 0.0
     if init_from:
@@ -150,7 +174,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     elif previous.get("chunks") and state is None:
         from .weights_io import load_state
 
-        load_state(model, weights_dir / f"{name}.pt")
+        load_state(model, weights_dir / f"{name}.pt", allow_missing=IOU_BRANCH_KEYS)
         model.train()
         log(f"continuing from the shipped {name} weights ({previous['steps_total']} steps so far)")
     if state is not None:
@@ -168,19 +192,25 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     batches = _Batches(name, samples, tcfg.views)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     anchors = model.anchors.numpy()
-    model.train()
+    model.train(tcfg.part == "all")  # a frozen detector keeps its batch-norm statistics
     started = time.perf_counter()
     losses: list[float] = []
     while step < total:
-        clouds, labels, targets, dirs = batches.draw(rng, tcfg.batch_size, anchors, cfg)
-        if name == "attfuse":
-            cls, box, d = model(clouds)
+        clouds, labels, targets, dirs, gt = batches.draw(rng, tcfg.batch_size, anchors, cfg)
+        with torch.set_grad_enabled(tcfg.part == "all"):  # a frozen detector needs no graph
+            cls, box, d, features = model(clouds if name == "attfuse" else [c[0] for c in clouds])
+        per_sample = iou_targets(cls.detach(), box.detach(), model.anchors, labels, gt)
+        l_iou = iou_loss(torch.cat([model.head.iou_logits(features[b], idx) for b, (idx, _) in enumerate(per_sample)]),
+                         torch.cat([t for _, t in per_sample]))
+        if tcfg.part == "iou":
+            loss = {"total": l_iou, "iou": l_iou}
         else:
-            cls, box, d = model([c[0] for c in clouds])
-        loss = detection_loss(cls, box, d, labels, targets, dirs)
+            loss = detection_loss(cls, box, d, labels, targets, dirs)
+            loss["iou"] = l_iou
+            loss["total"] = loss["total"] + l_iou
         opt.zero_grad()
         loss["total"].backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+        torch.nn.utils.clip_grad_norm_(params, 10.0)
         opt.step()
         sched.step()
         step += 1
@@ -188,7 +218,8 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         if progress:
             progress(step, total, losses[-1])
         if step % 50 == 0:
-            log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} (cls {float(loss['cls'].detach()):.3f} box {float(loss['box'].detach()):.3f})")
+            parts = " ".join(f"{k} {float(v.detach()):.3f}" for k, v in loss.items() if k != "total")
+            log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} ({parts})")
         if step % tcfg.checkpoint_every == 0 or step == total:
             _checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng, previous)
     wall += time.perf_counter() - started
@@ -198,9 +229,12 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         torch.save(model.state_dict(), tmp)
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
-                                            "wall_s": round(wall, 1)}]
+                                            "wall_s": round(wall, 1), "part": tcfg.part}]
     card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
-            "dataset": tcfg.dataset, "examples": len(batches.items), "steps": sum(c["steps"] for c in chunks),
+            "dataset": tcfg.dataset, "examples": len(batches.items),
+            # detector steps: the chunks that trained the whole network (IoU-branch chunks are listed apart)
+            "steps": sum(c["steps"] for c in chunks if c.get("part", "all") == "all"),
+            "iou_branch_steps": sum(c["steps"] for c in chunks if c.get("part") == "iou"),
             "batch_size": tcfg.batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
             "chunks": chunks, "threads": threads,
             **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
@@ -271,7 +305,7 @@ def init_from_weights(model: torch.nn.Module, path: Path) -> None:
     from .weights_io import load_state
 
     base = PointPillars(model.cfg)
-    load_state(base, path)  # one clear error for a missing, corrupt or mismatched file
+    load_state(base, path, allow_missing=IOU_BRANCH_KEYS)  # one clear error for a missing, corrupt or mismatched file
     missing = model.load_state_dict(base.state_dict(), strict=False).missing_keys
     if any(not k.startswith("fusion.") for k in missing):
         raise InputError(f"{path}: weights do not match this model (missing {missing[0]})")
@@ -281,6 +315,22 @@ def init_from_weights(model: torch.nn.Module, path: Path) -> None:
                 att.v.weight.copy_(torch.eye(att.v.weight.shape[0]))
                 att.v.bias.zero_()
                 att.k.weight.mul_(0.1)
+
+
+#: the IoU branch's parameters: weights trained before it existed load without them
+IOU_BRANCH_KEYS = "head.iou."
+
+
+def _trainable(model: torch.nn.Module, part: str) -> list[torch.nn.Parameter]:
+    """The parameters a chunk trains: all, or (part "iou") the IoU branch only, the rest frozen."""
+    if part == "all":
+        return list(model.parameters())
+    for p in model.parameters():
+        p.requires_grad_(False)
+    branch = list(model.head.iou.parameters())
+    for p in branch:
+        p.requires_grad_(True)
+    return branch
 
 
 def _scheduler(opt: torch.optim.Optimizer, tcfg: TrainConfig, total: int):

@@ -21,8 +21,12 @@ def weights_path(name: str) -> Path:
     return WEIGHTS_DIR / f"{name}.pt"
 
 
-def load_state(model: nn.Module, path: str | Path) -> nn.Module:
-    """Load a state_dict into ``model``; a missing, corrupt or mismatched file is one InputError."""
+def load_state(model: nn.Module, path: str | Path, allow_missing: str | None = None) -> nn.Module:
+    """Load a state_dict into ``model``; a missing, corrupt or mismatched file is one InputError.
+
+    ``allow_missing``: a key prefix (e.g. "head.iou.") whose tensors the file may lack; those keep
+    the model's own initial values (training a part added after the weights were made).
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: weights not found; train them with 'asg train' or reinstall the package")
@@ -35,6 +39,10 @@ def load_state(model: nn.Module, path: str | Path) -> nn.Module:
     if not isinstance(state, dict):
         raise InputError(f"{p}: not a state_dict; retrain or reinstall")
     missing, unexpected = _diff(model.state_dict(), state)
+    if allow_missing:
+        kept = [k for k in missing if k.startswith(allow_missing)]
+        missing = [k for k in missing if not k.startswith(allow_missing)]
+        state = {**{k: model.state_dict()[k] for k in kept}, **state}
     if missing or unexpected:
         what = f"missing {missing[0]}" if missing else f"unexpected {unexpected[0]}"
         raise InputError(f"{p}: weights do not match this model ({what}){_MISMATCH_HINT}")

@@ -23,8 +23,7 @@ class AttFuseDetector(V2XDetector):
 
     @torch.no_grad()
     def detect(self, frame: CooperativeFrame) -> Detections:
-        cls, box, d = self.model([self._clouds(frame)])
-        boxes, scores = postprocess(cls, box, d, self.model.anchors, self.cfg)[0]
+        boxes, scores = postprocess(self.model([self._clouds(frame)]), self.model, self.cfg)[0]
         return self._clip(boxes, scores)
 
     @torch.no_grad()

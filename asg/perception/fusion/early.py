@@ -23,6 +23,5 @@ class EarlyFusion(V2XDetector):
 
     @torch.no_grad()
     def detect(self, frame: CooperativeFrame) -> Detections:
-        cls, box, d = self.model([torch.from_numpy(fused_cloud(frame))])
-        boxes, scores = postprocess(cls, box, d, self.model.anchors, self.cfg)[0]
+        boxes, scores = postprocess(self.model([torch.from_numpy(fused_cloud(frame))]), self.model, self.cfg)[0]
         return self._clip(boxes, scores)

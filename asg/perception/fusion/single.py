@@ -20,8 +20,7 @@ class _Single(V2XDetector):
     @torch.no_grad()
     def detect_own(self, clouds: list[np.ndarray]) -> list[Detections]:
         """Detections of each cloud in its own frame."""
-        cls, box, d = self.model([torch.from_numpy(c) for c in clouds])
-        return postprocess(cls, box, d, self.model.anchors, self.cfg)
+        return postprocess(self.model([torch.from_numpy(c) for c in clouds]), self.model, self.cfg)
 
 
 @register("fusion", "none")
