@@ -56,6 +56,27 @@ def decode(res: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
     ], dim=-1)
 
 
+def top_candidates(scores: torch.Tensor, min_score: float, top_k: int) -> torch.Tensor:
+    """Indices of the anchors whose score (A,) is at least ``min_score``, at most ``top_k`` of them
+    (the highest): the candidates inference decodes."""
+    keep = torch.nonzero(scores >= min_score).squeeze(1)
+    if len(keep) > top_k:
+        keep = keep[torch.topk(scores[keep], top_k).indices]
+    return keep
+
+
+def decode_with_direction(res: torch.Tensor, dir_logits: torch.Tensor, anchors: torch.Tensor) -> np.ndarray:
+    """Boxes (K, 7) float64 from residuals (K, 7), direction logits (K, 2) and anchors (K, 7): yaw
+    from the residual folded to [0, pi) past DIR_OFFSET, turned by pi where the direction bin says
+    so, wrapped to (-pi, pi]."""
+    boxes = decode(res, anchors)
+    rot = limit_period(boxes[:, 6] - DIR_OFFSET, 0.0, math.pi)
+    boxes[:, 6] = rot + DIR_OFFSET + math.pi * torch.argmax(dir_logits, dim=-1).float()
+    bx = boxes.numpy().astype(np.float64)
+    bx[:, 6] = np.angle(np.exp(1j * bx[:, 6]))
+    return bx
+
+
 def _aligned_iou(anchors: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """Axis-aligned BEV IoU (A, M): each ground-truth box turned to the nearer of 0 / 90 degrees."""
     yaw = np.abs(limit_period(gt[:, 6], 0.5, math.pi))
@@ -190,10 +211,7 @@ def iou_targets(cls: torch.Tensor, box: torch.Tensor, anchors: torch.Tensor, lab
     out = []
     with torch.no_grad():
         for b in range(cls.shape[0]):
-            scores = torch.sigmoid(cls[b])
-            cand = torch.nonzero(scores >= min_score).squeeze(1)
-            if len(cand) > top_k:
-                cand = cand[torch.topk(scores[cand], top_k).indices]
+            cand = top_candidates(torch.sigmoid(cls[b]), min_score, top_k)
             idx = torch.unique(torch.cat([cand, torch.nonzero(labels[b] == 1).squeeze(1)]))
             gt = np.asarray(gt_boxes[b], dtype=float).reshape(-1, 7)
             best = np.zeros(len(idx))

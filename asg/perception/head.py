@@ -45,14 +45,19 @@ class AnchorHead(nn.Module):
     def iou_logits(self, features: torch.Tensor, anchor_idx: torch.Tensor) -> torch.Tensor:
         """IoU logits (K,) of anchors ``anchor_idx`` (K,) (indices in anchor order) of one sample
         whose head features are ``features`` (C, H, W); cells beyond the grid's edge repeat it."""
-        c, h, w = features.shape
-        cell = anchor_idx // self.a
-        cy, cx = cell // w, cell % w
-        r = self.patch // 2
-        parts = [features[:, (cy + dy).clamp(0, h - 1), (cx + dx).clamp(0, w - 1)].t()
-                 for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
-        logits = self.iou(torch.cat(parts, dim=1))  # (K, A)
+        logits = self.iou(patch_features(features, anchor_idx // self.a, self.patch))  # (K, A)
         return logits.gather(1, (anchor_idx % self.a)[:, None])[:, 0]
+
+
+def patch_features(features: torch.Tensor, cell_idx: torch.Tensor, patch: int) -> torch.Tensor:
+    """The feature vectors of the ``patch`` x ``patch`` cells around each cell ``cell_idx`` (K,)
+    (row-major in the (H, W) grid of ``features`` (C, H, W)), concatenated row by row: (K, C *
+    patch^2); cells beyond the grid's edge repeat it."""
+    c, h, w = features.shape
+    cy, cx = cell_idx // w, cell_idx % w
+    r = patch // 2
+    return torch.cat([features[:, (cy + dy).clamp(0, h - 1), (cx + dx).clamp(0, w - 1)].t()
+                      for dy in range(-r, r + 1) for dx in range(-r, r + 1)], dim=1)
 
 
 def rescore(cls_prob: torch.Tensor, iou_logit: torch.Tensor, power: float) -> torch.Tensor:

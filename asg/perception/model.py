@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from .backbone import Backbone
-from .boxes import DIR_OFFSET, decode, limit_period, make_anchors, select_boxes
+from .boxes import decode_with_direction, make_anchors, select_boxes, top_candidates
 from .config import DetectorConfig
 from .head import AnchorHead, rescore
 from .pillars import PillarEncoder
@@ -142,18 +142,11 @@ def postprocess(outputs: tuple[torch.Tensor, ...], model: PointPillars | AttFuse
     out = []
     for b in range(cls.shape[0]):
         scores = torch.sigmoid(cls[b])
-        keep = torch.nonzero(scores >= cfg.score_threshold).squeeze(1)
-        if len(keep) > top_k:
-            keep = keep[torch.topk(scores[keep], top_k).indices]
+        keep = top_candidates(scores, cfg.score_threshold, top_k)
         if not len(keep):
             out.append((np.zeros((0, 7)), np.zeros(0)))
             continue
-        boxes = decode(box[b, keep], model.anchors[keep])
-        dir_label = torch.argmax(d[b, keep], dim=-1).float()
-        rot = limit_period(boxes[:, 6] - DIR_OFFSET, 0.0, math.pi)
-        boxes[:, 6] = rot + DIR_OFFSET + math.pi * dir_label
-        bx = boxes.numpy().astype(np.float64)
-        bx[:, 6] = np.angle(np.exp(1j * bx[:, 6]))
+        bx = decode_with_direction(box[b, keep], d[b, keep], model.anchors[keep])
         sc = scores[keep]
         if cfg.iou_rescore > 0:
             sc = rescore(sc, model.head.iou_logits(features[b], keep), cfg.iou_rescore)

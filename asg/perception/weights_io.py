@@ -38,11 +38,12 @@ def load_state(model: nn.Module, path: str | Path, allow_missing: str | None = N
         state = state["model"]
     if not isinstance(state, dict):
         raise InputError(f"{p}: not a state_dict; retrain or reinstall")
-    missing, unexpected = _diff(model.state_dict(), state)
+    own = model.state_dict()
+    missing, unexpected = _diff(own, state)
     if allow_missing:
         kept = [k for k in missing if k.startswith(allow_missing)]
         missing = [k for k in missing if not k.startswith(allow_missing)]
-        state = {**{k: model.state_dict()[k] for k in kept}, **state}
+        state = {**{k: own[k] for k in kept}, **state}
     if missing or unexpected:
         what = f"missing {missing[0]}" if missing else f"unexpected {unexpected[0]}"
         raise InputError(f"{p}: weights do not match this model ({what}){_MISMATCH_HINT}")

@@ -13,7 +13,6 @@ Fits in minutes what `asg train --iou-branch` does in about 20 (the same functio
 """
 from __future__ import annotations
 
-import math
 import pickle
 import sys
 from pathlib import Path
@@ -25,9 +24,10 @@ from torch import nn
 from asg.datasets import iter_frames
 from asg.objective.ap import ap_at
 from asg.objective.iou import bev_iou_matrix
-from asg.perception.boxes import DIR_OFFSET, decode, limit_period, select_boxes
+from asg.perception.boxes import decode_with_direction, select_boxes, top_candidates
 from asg.perception.config import load_detector_config
 from asg.perception.data import Sample, augment, in_range
+from asg.perception.head import patch_features
 from asg.perception.inference import fold_batch_norms
 from asg.perception.model import AttFuse, PointPillars
 from asg.perception.train import _Batches, render_samples
@@ -53,21 +53,9 @@ def candidates(model, name: str, clouds: list[np.ndarray], patch: int, min_score
         else:
             cls, box, d, x = model([torch.from_numpy(np.vstack(clouds))])
     s = torch.sigmoid(cls[0])
-    keep = torch.nonzero(s >= min_score).squeeze(1)
-    if len(keep) > 300:
-        keep = keep[torch.topk(s[keep], 300).indices]
-    boxes = decode(box[0, keep], model.anchors[keep])
-    rot = limit_period(boxes[:, 6] - DIR_OFFSET, 0.0, math.pi)
-    boxes[:, 6] = rot + DIR_OFFSET + math.pi * torch.argmax(d[0, keep], -1).float()
-    bx = boxes.numpy().astype(np.float64)
-    bx[:, 6] = np.angle(np.exp(1j * bx[:, 6]))
-    feats = x[0]
-    c, h, w = feats.shape
-    cell = keep // model.head.a
-    cy, cx = cell // w, cell % w
-    r = patch // 2
-    f = torch.cat([feats[:, (cy + dy).clamp(0, h - 1), (cx + dx).clamp(0, w - 1)].t()
-                   for dy in range(-r, r + 1) for dx in range(-r, r + 1)], 1)
+    keep = top_candidates(s, min_score, 300)
+    bx = decode_with_direction(box[0, keep], d[0, keep], model.anchors[keep])
+    f = patch_features(x[0], keep // model.head.a, patch)
     return {"f": f.numpy().astype(np.float16), "a": (keep % model.head.a).numpy(), "s": s[keep].numpy().astype(np.float64),
             "bx": bx}
 
