@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start a new sequence of chunks from other shipped weights (e.g. single) instead of "
                         "continuing this model's own")
     p.add_argument("--iou-branch", action="store_true",
-                   help="train only the IoU branch (IoU-aware rescoring) on the frozen shipped weights "
+                   help="train only the IoU and box-refinement branches on the frozen shipped weights "
                         "(train.yaml's iou_branch block)")
 
     p = _add(sub, "evaluate", "AP of a detector on a scene set", commands.evaluate)

@@ -245,11 +245,12 @@ def test_corrupt_and_mismatched_weights(tmp_path):
     load_state(PointPillars(TINY), good)
 
 
-def test_iou_targets_are_the_decoded_boxes_fit_to_the_ground_truth():
-    """An anchor whose residuals decode onto a vehicle gets target 1, a shifted one its BEV IoU, a
-    confident anchor on nothing 0; anchors below the score and not positive get no target."""
+def test_branch_targets_are_the_decoded_boxes_fit_to_the_ground_truth():
+    """An anchor whose residuals decode onto a vehicle gets IoU target 1, a shifted one its BEV IoU
+    and the refinement residuals that move it back, a confident anchor on nothing 0 and no
+    refinement; anchors below the score and not positive get no target."""
     from asg.objective.iou import bev_iou_matrix
-    from asg.perception.boxes import encode, iou_targets
+    from asg.perception.boxes import branch_targets, encode, refine_boxes
 
     anchors = torch.from_numpy(make_anchors(TINY)).float()
     gt = np.array([[2.0, 3.0, -1.0, 4.5, 1.9, 1.6, 0.2]])
@@ -262,26 +263,49 @@ def test_iou_targets_are_the_decoded_boxes_fit_to_the_ground_truth():
     far = int(np.argmax(np.hypot(anchors[:, 0].numpy() + 14, anchors[:, 1].numpy() + 14) < 1))
     cls[0, far] = 5.0  # a confident anchor on empty ground
     box[0, pos[0]] = torch.from_numpy(shifted[0]).float()
-    [(idx, target)] = iou_targets(cls, box, anchors, torch.from_numpy(labels)[None], [gt])
+    [(idx, target, mask, res)] = branch_targets(cls, box, anchors, torch.from_numpy(labels)[None], [gt])
     assert set(idx.tolist()) == set(pos.tolist()) | {far}
     got = dict(zip(idx.tolist(), target.tolist()))
     assert got[far] == 0.0
     assert got[int(pos[0])] == pytest.approx(bev_iou_matrix(gt + [[1.0, 0, 0, 0, 0, 0, 0]], gt)[0, 0], abs=1e-5)
     assert all(got[int(k)] == pytest.approx(1.0, abs=1e-4) for k in pos[1:])
+    assert mask.tolist() == [i != far for i in idx.tolist()] and len(res) == len(pos)
+    shifted_row = int(np.flatnonzero(idx[mask].numpy() == pos[0])[0])
+    moved_back = refine_boxes(gt + [[1.0, 0, 0, 0, 0, 0, 0]], res[shifted_row:shifted_row + 1])
+    assert np.allclose(moved_back, gt, atol=1e-4)
 
 
-def test_iou_branch_learns_without_touching_the_detector():
-    """The IoU loss reaches the IoU branch only (it reads the features detached), and rescoring
-    mixes its prediction into the score: power 0 is the class score, 1 the predicted IoU."""
-    from asg.perception.head import iou_loss, rescore
+def test_refinement_residuals_move_boxes_onto_their_vehicles_either_way_round():
+    """refine_boxes(boxes, refinement_residuals(gt, boxes)) is gt, up to a half turn of the yaw
+    (the residual yaw is folded into [-pi/2, pi/2): a box facing backwards keeps its direction)."""
+    from asg.perception.boxes import refine_boxes, refinement_residuals
+
+    gt = np.array([[2.0, 3.0, -1.0, 4.5, 1.9, 1.6, 0.2], [-10.0, 5.0, -0.8, 10.0, 2.5, 3.3, -2.9]])
+    boxes = gt + [[0.4, -0.3, 0.1, 0.3, -0.1, 0.0, 0.3], [-0.5, 0.2, 0.0, -0.8, 0.2, 0.1, np.pi - 0.2]]
+    res = refinement_residuals(gt, boxes)
+    assert np.all(np.abs(res[:, 6]) <= np.pi / 2)
+    out = refine_boxes(boxes, torch.from_numpy(res))
+    assert np.allclose(out[:, :6], gt[:, :6], atol=1e-4)
+    assert np.allclose(np.cos(2 * (out[:, 6] - gt[:, 6])), 1.0, atol=1e-5)
+    assert np.cos(out[1, 6] - boxes[1, 6]) > 0  # the second kept facing its own way
+
+
+def test_branches_learn_without_touching_the_detector():
+    """The IoU and refinement losses reach their branches only (they read the features detached),
+    and rescoring mixes the IoU prediction into the score: power 0 is the class score, 1 the
+    predicted IoU."""
+    from asg.perception.head import iou_loss, refine_loss, rescore
 
     torch.manual_seed(0)
     model = PointPillars(replace(TINY, iou_patch=3))
     cls, box, d, features = model([torch.randn(400, 4) * 5])
-    iou_loss(model.head.iou_logits(features[0], torch.arange(0, 4000, 80)), torch.rand(50)).backward()
+    logits, res = model.head.branches(features[0], torch.arange(0, 4000, 80))
+    assert logits.shape == (50,) and res.shape == (50, 7)
+    (iou_loss(logits, torch.rand(50)) + refine_loss(res, torch.rand(50, 7) * 0.1)).backward()
     grads = {n: p.grad for n, p in model.named_parameters()}
-    assert all(g is not None and g.abs().sum() > 0 for n, g in grads.items() if n.startswith("head.iou."))
-    assert all(g is None for n, g in grads.items() if not n.startswith("head.iou."))
+    branch = ("head.iou.", "head.refine.")
+    assert all(g is not None and g.abs().sum() > 0 for n, g in grads.items() if n.startswith(branch))
+    assert all(g is None for n, g in grads.items() if not n.startswith(branch))
     p, logit = torch.tensor([0.9, 0.5]), torch.tensor([0.0, 2.0])
     assert torch.equal(rescore(p, logit, 0.0), p)
     assert torch.allclose(rescore(p, logit, 1.0), torch.sigmoid(logit))
@@ -309,6 +333,35 @@ def test_iou_rescoring_reorders_detections():
     assert plain[1][0] == pytest.approx(float(torch.sigmoid(cls[0]).max()), abs=1e-6)
 
 
+def test_box_refinement_moves_the_decoded_boxes_by_the_branch():
+    """With box_refine the boxes out of postprocess are the decoded ones moved by the refinement
+    branch's residuals; a branch predicting zeros changes nothing."""
+    from asg.perception.boxes import decode_with_direction, refine_boxes, top_candidates
+
+    torch.manual_seed(0)
+    model = PointPillars(TINY).eval()
+    cfg = replace(TINY, vote_iou=0.0, nms_iou=1.0, max_detections=300)
+    with torch.no_grad():
+        model.head.cls.bias.fill_(2.0)
+        out = model([torch.randn(400, 4) * 5])
+        cls, box, d, features = out
+        keep = top_candidates(torch.sigmoid(cls[0]), cfg.score_threshold, 300)
+        decoded = decode_with_direction(box[0, keep], d[0, keep], model.anchors[keep])
+        _, res = model.head.branches(features[0], keep)
+        assert res.abs().max() > 0
+        refined = postprocess(out, model, replace(cfg, box_refine=True))[0][0]
+        plain = postprocess(out, model, cfg)[0][0]
+        model.head.refine[2].weight.zero_()
+        model.head.refine[2].bias.zero_()
+        zero = postprocess(out, model, replace(cfg, box_refine=True))[0][0]
+
+    def rows(boxes):
+        return sorted(map(tuple, np.round(boxes, 4)))
+    assert rows(plain) == rows(decoded) == rows(zero)
+    assert rows(refined) == rows(refine_boxes(decoded, res))
+    assert rows(refined) != rows(plain)
+
+
 def test_weights_without_the_iou_branch_load_only_where_allowed(tmp_path):
     old = PointPillars(TINY)
     state = {k: v for k, v in old.state_dict().items() if not k.startswith("head.iou.")}
@@ -317,6 +370,6 @@ def test_weights_without_the_iou_branch_load_only_where_allowed(tmp_path):
         load_state(PointPillars(TINY), tmp_path / "old.pt")
     model = PointPillars(TINY)
     branch = model.head.iou[0].weight.clone()  # its first layer
-    load_state(model, tmp_path / "old.pt", allow_missing="head.iou.")
+    load_state(model, tmp_path / "old.pt", allow_missing=("head.iou.", "head.refine."))
     assert torch.equal(model.head.iou[0].weight, branch)  # its own start
     assert torch.equal(model.head.cls.weight, old.head.cls.weight)

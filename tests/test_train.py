@@ -211,7 +211,8 @@ def test_iou_branch_chunk_trains_the_branch_alone(sumo_log, tmp_path):
     weights_dir.mkdir()
     torch.manual_seed(0)
     base = PointPillars(TINY)
-    torch.save({k: v for k, v in base.state_dict().items() if not k.startswith("head.iou.")}, weights_dir / "early.pt")
+    branches = ("head.iou.", "head.refine.")
+    torch.save({k: v for k, v in base.state_dict().items() if not k.startswith(branches)}, weights_dir / "early.pt")
     (weights_dir / "early.json").write_text(json.dumps({"steps": 40, "train_wall_s": 12.5, "dataset": "x"}))
     tcfg = TrainConfig(dataset=str(data), steps=4, batch_size=2, lr=0.01, schedule="onecycle", seed=5,
                        checkpoint_every=2, views="all", part="iou")
@@ -220,12 +221,13 @@ def test_iou_branch_chunk_trains_the_branch_alone(sumo_log, tmp_path):
     after = torch.load(out, weights_only=True)
     fresh = PointPillars(TINY).state_dict()
     for k, v in base.state_dict().items():
-        if k.startswith("head.iou."):
+        if k.startswith(branches):
             assert not torch.equal(after[k], fresh[k])
         else:
             assert torch.equal(after[k], v), k
     card = json.loads(out.with_suffix(".json").read_text())
     assert card["steps"] == 40 and card["iou_branch_steps"] == 4 and card["chunks"][-1]["part"] == "iou"
+    assert card["refine_branch_steps"] == 4
     with pytest.raises(InputError, match="no trained attfuse weights"):
         train("attfuse", out_dir=tmp_path / "run-att", train_config=tcfg, **kw)
     with pytest.raises(InputError, match="cannot be combined"):
@@ -235,4 +237,5 @@ def test_iou_branch_chunk_trains_the_branch_alone(sumo_log, tmp_path):
     again = torch.load(whole, weights_only=True)
     assert not torch.equal(again["head.cls.weight"], after["head.cls.weight"])
     assert not torch.equal(again["head.iou.2.weight"], after["head.iou.2.weight"])
+    assert not torch.equal(again["head.refine.2.weight"], after["head.refine.2.weight"])
     assert json.loads(whole.with_suffix(".json").read_text())["steps"] == 44

@@ -197,16 +197,39 @@ def select_boxes(boxes: np.ndarray, scores: np.ndarray, cfg: DetectorConfig) -> 
     return vote_boxes(boxes, scores, keep, cfg.vote_iou, cfg.vote_power, polys), scores[keep]
 
 
-def iou_targets(cls: torch.Tensor, box: torch.Tensor, anchors: torch.Tensor, labels: torch.Tensor,
-                gt_boxes: list[np.ndarray], min_score: float = 0.1,
-                top_k: int = 300) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """Training anchors of the IoU branch and their targets, per sample of a batch.
+def refinement_residuals(gt: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Residuals (K, 7) from decoded boxes (K, 7) to their vehicles' boxes gt (K, 7): the SECOND
+    encoding with the boxes as anchors, the yaw difference folded into [-pi/2, pi/2) (BEV IoU and
+    the kept direction do not depend on which way a box faces)."""
+    res = encode(gt, boxes)
+    res[:, 6] = limit_period(res[:, 6], 0.5, math.pi)
+    return res
+
+
+def refine_boxes(boxes: np.ndarray, residuals: torch.Tensor) -> np.ndarray:
+    """Boxes (K, 7) float64 moved by the refinement branch's residuals (K, 7), yaw wrapped to
+    (-pi, pi]."""
+    out = decode(residuals.float(), torch.from_numpy(boxes).float()).numpy().astype(np.float64)
+    out[:, 6] = np.angle(np.exp(1j * out[:, 6]))
+    return out
+
+
+#: the refinement branch learns from candidates whose decoded box overlaps a vehicle at least this
+REFINE_MIN_IOU = 0.3
+
+
+def branch_targets(cls: torch.Tensor, box: torch.Tensor, anchors: torch.Tensor, labels: torch.Tensor,
+                   gt_boxes: list[np.ndarray], min_score: float = 0.1,
+                   top_k: int = 300) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """Training anchors of the IoU and refinement branches and their targets, per sample of a batch.
 
     ``cls`` (B, A) logits, ``box`` (B, A, 7) residuals, ``anchors`` (A, 7), ``labels`` (B, A) from
     :func:`assign_targets`, ``gt_boxes[b]`` (M_b, 7) the sample's boxes. Per sample the anchors are
     those inference keeps (class score >= ``min_score``, at most ``top_k``) and the positives; each
-    target is the best BEV IoU of the anchor's decoded box with a ground-truth box (0 with none).
-    Returns per sample (anchor indices (K,), targets (K,) float32).
+    IoU target is the best BEV IoU of the anchor's decoded box with a ground-truth box (0 with
+    none); where that IoU is at least REFINE_MIN_IOU the anchor also gets the refinement residuals
+    to that box. Returns per sample (anchor indices (K,), IoU targets (K,) float32, refinement
+    mask (K,) bool, residuals (R, 7) float32 of the R masked anchors).
     """
     out = []
     with torch.no_grad():
@@ -215,8 +238,13 @@ def iou_targets(cls: torch.Tensor, box: torch.Tensor, anchors: torch.Tensor, lab
             idx = torch.unique(torch.cat([cand, torch.nonzero(labels[b] == 1).squeeze(1)]))
             gt = np.asarray(gt_boxes[b], dtype=float).reshape(-1, 7)
             best = np.zeros(len(idx))
+            res = np.zeros((0, 7))
             if len(idx) and len(gt):
                 decoded = decode(box[b, idx], anchors[idx]).numpy().astype(np.float64)
-                best = bev_iou_matrix(decoded, gt).max(axis=1)
-            out.append((idx, torch.from_numpy(best.astype(np.float32))))
+                iou = bev_iou_matrix(decoded, gt)
+                best = iou.max(axis=1)
+                near = best >= REFINE_MIN_IOU
+                res = refinement_residuals(gt[iou.argmax(axis=1)[near]], decoded[near])
+            mask = torch.from_numpy(best >= REFINE_MIN_IOU)
+            out.append((idx, torch.from_numpy(best.astype(np.float32)), mask, torch.from_numpy(res.astype(np.float32))))
     return out

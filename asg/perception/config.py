@@ -42,6 +42,9 @@ class DetectorConfig:
     iou_rescore: float = 0.0
     iou_hidden: int = 256
     iou_patch: int = 1
+    #: box refinement: each candidate's decoded box corrected by the refinement branch (an MLP of
+    #: iou_hidden units over the same iou_patch x iou_patch cells) before rescoring, NMS and voting
+    box_refine: bool = False
     #: where AttFuse fuses the agents: "output" (the concatenated, upsampled backbone output; the
     #: head's 1x1 convolutions follow, so the fused prediction is linear in the agents' features) or
     #: "stages" (each backbone stage's output before its upsampling block, as the reference

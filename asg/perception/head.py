@@ -1,5 +1,6 @@
 """Anchor head and its losses: focal classification, smooth-L1 residuals with the sine yaw
-difference, a direction classifier, and an IoU branch that predicts how well each box fits."""
+difference, a direction classifier, an IoU branch that predicts how well each box fits and a
+refinement branch that corrects each box."""
 from __future__ import annotations
 
 import math
@@ -20,7 +21,9 @@ class AnchorHead(nn.Module):
     vehicle it covers. It runs only on the anchors asked for (:meth:`iou_logits`: the few hundred
     candidates inference keeps), and reads the features detached, so its loss never changes the
     detector: it learns to tell well-fitted boxes from loose ones, and ``cfg.iou_rescore`` mixes it
-    into the score (IoU-aware rescoring, see :func:`rescore`).
+    into the score (IoU-aware rescoring, see :func:`rescore`). The refinement branch (the same
+    input and shape) predicts the residuals (SECOND encoding, :func:`..boxes.refinement_residuals`)
+    from the anchor's decoded box to that vehicle's box: ``cfg.box_refine`` applies them.
     """
 
     def __init__(self, cfg: DetectorConfig, channels: int):
@@ -33,6 +36,8 @@ class AnchorHead(nn.Module):
         self.dir = nn.Conv2d(channels, a * 2, 1)
         self.iou = nn.Sequential(nn.Linear(channels * self.patch ** 2, cfg.iou_hidden), nn.ReLU(),
                                  nn.Linear(cfg.iou_hidden, a))
+        self.refine = nn.Sequential(nn.Linear(channels * self.patch ** 2, cfg.iou_hidden), nn.ReLU(),
+                                    nn.Linear(cfg.iou_hidden, a * 7))
         nn.init.constant_(self.cls.bias, -math.log((1 - 0.01) / 0.01))
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -42,11 +47,22 @@ class AnchorHead(nn.Module):
         d = self.dir(x).permute(0, 2, 3, 1).reshape(b, -1, 2)
         return cls, box, d, x.detach()
 
+    def branches(self, features: torch.Tensor, anchor_idx: torch.Tensor,
+                 refine: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """IoU logits (K,) and refinement residuals (K, 7) (None unless ``refine``) of anchors
+        ``anchor_idx`` (K,) (indices in anchor order) of one sample whose head features are
+        ``features`` (C, H, W); cells beyond the grid's edge repeat it."""
+        patch = patch_features(features, anchor_idx // self.a, self.patch)
+        slot = anchor_idx % self.a
+        logits = self.iou(patch).gather(1, slot[:, None])[:, 0]
+        if not refine:
+            return logits, None
+        res = self.refine(patch).view(len(anchor_idx), self.a, 7)[torch.arange(len(anchor_idx)), slot]
+        return logits, res * REFINE_SCALE
+
     def iou_logits(self, features: torch.Tensor, anchor_idx: torch.Tensor) -> torch.Tensor:
-        """IoU logits (K,) of anchors ``anchor_idx`` (K,) (indices in anchor order) of one sample
-        whose head features are ``features`` (C, H, W); cells beyond the grid's edge repeat it."""
-        logits = self.iou(patch_features(features, anchor_idx // self.a, self.patch))  # (K, A)
-        return logits.gather(1, (anchor_idx % self.a)[:, None])[:, 0]
+        """IoU logits (K,) alone (see :meth:`branches`)."""
+        return self.branches(features, anchor_idx, refine=False)[0]
 
 
 def patch_features(features: torch.Tensor, cell_idx: torch.Tensor, patch: int) -> torch.Tensor:
@@ -73,6 +89,20 @@ def iou_loss(iou_logit: torch.Tensor, target_iou: torch.Tensor) -> torch.Tensor:
     if not len(target_iou):
         return iou_logit.sum() * 0.0
     return F.binary_cross_entropy_with_logits(iou_logit, target_iou)
+
+
+#: typical size of each refinement residual (x, y, z, l, w, h, yaw; the std over detector-train's
+#: candidates with IoU >= 0.3 under the AttFuse weights): the branch predicts residuals in these
+#: units, and its loss weighs the seven alike
+REFINE_SCALE = torch.tensor([0.11, 0.10, 0.10, 0.2, 0.075, 0.16, 0.13])
+
+
+def refine_loss(residuals: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Smooth-L1 (beta 0.5, in units of REFINE_SCALE) of predicted residuals (K, 7) against their
+    targets (K, 7), mean over anchors and the seven → scalar; 0 when there are none."""
+    if not len(target):
+        return residuals.sum() * 0.0
+    return F.smooth_l1_loss(residuals / REFINE_SCALE, target / REFINE_SCALE, beta=0.5)
 
 
 def focal_loss(logits: torch.Tensor, labels: torch.Tensor, alpha: float = 0.25, gamma: float = 2.0) -> torch.Tensor:

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from .backbone import Backbone
-from .boxes import decode_with_direction, make_anchors, select_boxes, top_candidates
+from .boxes import decode_with_direction, make_anchors, refine_boxes, select_boxes, top_candidates
 from .config import DetectorConfig
 from .head import AnchorHead, rescore
 from .pillars import PillarEncoder
@@ -136,8 +136,9 @@ def postprocess(outputs: tuple[torch.Tensor, ...], model: PointPillars | AttFuse
                 top_k: int = 300) -> list[tuple[np.ndarray, np.ndarray]]:
     """``outputs``: what ``model`` returned (cls, box, dir, features). Per sample: (boxes (K, 7),
     scores (K,)) of the anchors whose class score passes the score threshold (at most ``top_k``),
-    rescored with the predicted IoU (``cfg.iou_rescore``), after rotated NMS and box voting (both
-    in the order of the rescored scores)."""
+    their boxes corrected by the refinement branch (``cfg.box_refine``), rescored with the
+    predicted IoU (``cfg.iou_rescore``), after rotated NMS and box voting (both in the order of the
+    rescored scores)."""
     cls, box, d, features = outputs
     out = []
     for b in range(cls.shape[0]):
@@ -148,7 +149,11 @@ def postprocess(outputs: tuple[torch.Tensor, ...], model: PointPillars | AttFuse
             continue
         bx = decode_with_direction(box[b, keep], d[b, keep], model.anchors[keep])
         sc = scores[keep]
-        if cfg.iou_rescore > 0:
-            sc = rescore(sc, model.head.iou_logits(features[b], keep), cfg.iou_rescore)
+        if cfg.iou_rescore > 0 or cfg.box_refine:
+            iou_logit, residuals = model.head.branches(features[b], keep, refine=cfg.box_refine)
+            if cfg.box_refine:
+                bx = refine_boxes(bx, residuals)
+            if cfg.iou_rescore > 0:
+                sc = rescore(sc, iou_logit, cfg.iou_rescore)
         out.append(select_boxes(bx, sc.numpy().astype(np.float64), cfg))
     return out

@@ -28,10 +28,10 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 
 from ..datasets import iter_frames
 from ..sensors import load_lidar_spec
-from .boxes import assign_targets, iou_targets
+from .boxes import assign_targets, branch_targets
 from .config import load_detector_config
 from .data import Sample, augment, make_sample
-from .head import detection_loss, iou_loss
+from .head import detection_loss, iou_loss, refine_loss
 from .model import AttFuse, PointPillars
 from .weights_io import WEIGHTS_DIR
 
@@ -63,8 +63,8 @@ class TrainConfig:
     #: fusion models: "ego" trains on each frame as its ego sees it; "all" on each sensing agent's
     #: view in turn (3 times the distinct examples from the same frames)
     views: Literal["ego", "all"] = "ego"
-    #: "all": the whole detector (the IoU branch learns alongside, on detached features); "iou":
-    #: only the IoU branch, on the frozen detector (eval mode)
+    #: "all": the whole detector (the IoU and refinement branches learn alongside, on detached
+    #: features); "iou": only those two branches, on the frozen detector (eval mode)
     part: Literal["all", "iou"] = "all"
 
 
@@ -135,8 +135,8 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     ones (asg/perception/weights/); ``validate`` records normal-val AP in the model card.
     ``init_from`` (a weights name, e.g. "single"): start a new sequence of chunks from those
     weights instead of continuing this model's own (see :func:`init_from_weights`).
-    ``iou_branch``: one chunk of the IoU branch alone on the frozen detector (train.yaml's
-    ``iou_branch`` block; also what a ``train_config`` with part "iou" does).
+    ``iou_branch``: one chunk of the IoU and refinement branches alone on the frozen detector
+    (train.yaml's ``iou_branch`` block; also what a ``train_config`` with part "iou" does).
     """
     name = weights_for(fusion)
     tcfg = train_config or load_train_config(name, iou_branch=iou_branch)
@@ -174,7 +174,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     elif previous.get("chunks") and state is None:
         from .weights_io import load_state
 
-        load_state(model, weights_dir / f"{name}.pt", allow_missing=IOU_BRANCH_KEYS)
+        load_state(model, weights_dir / f"{name}.pt", allow_missing=BRANCH_KEYS)
         model.train()
         log(f"continuing from the shipped {name} weights ({previous['steps_total']} steps so far)")
     if state is not None:
@@ -199,15 +199,9 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         clouds, labels, targets, dirs, gt = batches.draw(rng, tcfg.batch_size, anchors, cfg)
         with torch.set_grad_enabled(tcfg.part == "all"):  # a frozen detector needs no graph
             cls, box, d, features = model(clouds if name == "attfuse" else [c[0] for c in clouds])
-        per_sample = iou_targets(cls.detach(), box.detach(), model.anchors, labels, gt)
-        l_iou = iou_loss(torch.cat([model.head.iou_logits(features[b], idx) for b, (idx, _) in enumerate(per_sample)]),
-                         torch.cat([t for _, t in per_sample]))
-        if tcfg.part == "iou":
-            loss = {"total": l_iou, "iou": l_iou}
-        else:
-            loss = detection_loss(cls, box, d, labels, targets, dirs)
-            loss["iou"] = l_iou
-            loss["total"] = loss["total"] + l_iou
+        loss = {} if tcfg.part == "iou" else detection_loss(cls, box, d, labels, targets, dirs)
+        loss.update(_branch_losses(model, cls, box, features, labels, gt))
+        loss["total"] = loss.get("total", 0.0) + loss["iou"] + loss["refine"]
         opt.zero_grad()
         loss["total"].backward()
         torch.nn.utils.clip_grad_norm_(params, 10.0)
@@ -229,12 +223,14 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         torch.save(model.state_dict(), tmp)
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
-                                            "wall_s": round(wall, 1), "part": tcfg.part}]
+                                            "wall_s": round(wall, 1), "part": tcfg.part, "refine": True}]
     card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
             "dataset": tcfg.dataset, "examples": len(batches.items),
             # detector steps: the chunks that trained the whole network (IoU-branch chunks are listed apart)
             "steps": sum(c["steps"] for c in chunks if c.get("part", "all") == "all"),
             "iou_branch_steps": sum(c["steps"] for c in chunks if c.get("part") == "iou"),
+            # steps that trained the refinement branch (chunks since it exists, of either part)
+            "refine_branch_steps": sum(c["steps"] for c in chunks if c.get("refine")),
             "batch_size": tcfg.batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
             "chunks": chunks, "threads": threads,
             **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
@@ -305,7 +301,7 @@ def init_from_weights(model: torch.nn.Module, path: Path) -> None:
     from .weights_io import load_state
 
     base = PointPillars(model.cfg)
-    load_state(base, path, allow_missing=IOU_BRANCH_KEYS)  # one clear error for a missing, corrupt or mismatched file
+    load_state(base, path, allow_missing=BRANCH_KEYS)  # one clear error for a missing, corrupt or mismatched file
     missing = model.load_state_dict(base.state_dict(), strict=False).missing_keys
     if any(not k.startswith("fusion.") for k in missing):
         raise InputError(f"{path}: weights do not match this model (missing {missing[0]})")
@@ -317,17 +313,28 @@ def init_from_weights(model: torch.nn.Module, path: Path) -> None:
                 att.k.weight.mul_(0.1)
 
 
-#: the IoU branch's parameters: weights trained before it existed load without them
-IOU_BRANCH_KEYS = "head.iou."
+def _branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.Tensor, labels: torch.Tensor,
+                   gt: list[np.ndarray]) -> dict[str, torch.Tensor]:
+    """The IoU and refinement branches' losses on a batch (outputs of ``model``, (B, ...))."""
+    per_sample = branch_targets(cls.detach(), box.detach(), model.anchors, labels, gt)
+    outs = [model.head.branches(features[b], idx) for b, (idx, *_) in enumerate(per_sample)]
+    return {"iou": iou_loss(torch.cat([logit for logit, _ in outs]), torch.cat([t for _, t, _, _ in per_sample])),
+            "refine": refine_loss(torch.cat([res[mask] for (_, res), (_, _, mask, _) in zip(outs, per_sample)]),
+                                  torch.cat([r for *_, r in per_sample]))}
+
+
+#: the branches' parameters (IoU, refinement): weights trained before a branch existed load without it
+BRANCH_KEYS = ("head.iou.", "head.refine.")
 
 
 def _trainable(model: torch.nn.Module, part: str) -> list[torch.nn.Parameter]:
-    """The parameters a chunk trains: all, or (part "iou") the IoU branch only, the rest frozen."""
+    """The parameters a chunk trains: all, or (part "iou") the IoU and refinement branches only,
+    the rest frozen."""
     if part == "all":
         return list(model.parameters())
     for p in model.parameters():
         p.requires_grad_(False)
-    branch = list(model.head.iou.parameters())
+    branch = list(model.head.iou.parameters()) + list(model.head.refine.parameters())
     for p in branch:
         p.requires_grad_(True)
     return branch

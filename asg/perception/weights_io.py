@@ -21,11 +21,12 @@ def weights_path(name: str) -> Path:
     return WEIGHTS_DIR / f"{name}.pt"
 
 
-def load_state(model: nn.Module, path: str | Path, allow_missing: str | None = None) -> nn.Module:
+def load_state(model: nn.Module, path: str | Path, allow_missing: str | tuple[str, ...] | None = None) -> nn.Module:
     """Load a state_dict into ``model``; a missing, corrupt or mismatched file is one InputError.
 
-    ``allow_missing``: a key prefix (e.g. "head.iou.") whose tensors the file may lack; those keep
-    the model's own initial values (training a part added after the weights were made).
+    ``allow_missing``: a key prefix (e.g. "head.iou.") or a tuple of them whose tensors the file may
+    lack; those keep the model's own initial values (training a part added after the weights were
+    made).
     """
     p = Path(path)
     if not p.is_file():

@@ -30,7 +30,7 @@ from asg.perception.data import Sample, augment, in_range
 from asg.perception.head import patch_features
 from asg.perception.inference import fold_batch_norms
 from asg.perception.model import AttFuse, PointPillars
-from asg.perception.train import _Batches, render_samples
+from asg.perception.train import BRANCH_KEYS, _Batches, render_samples
 from asg.perception.weights_io import load_state, weights_path
 from asg.sensors import load_lidar_spec, simulate_frame
 
@@ -40,7 +40,7 @@ OUT = Path("runs/exp-iou")
 def load_frozen(name: str):
     cfg = load_detector_config()
     model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
-    load_state(model, weights_path(name), allow_missing="head.iou.")  # the branch is not used here
+    load_state(model, weights_path(name), allow_missing=BRANCH_KEYS)  # the branches are not used here
     return fold_batch_norms(model.eval()), cfg
 
 
