@@ -23,7 +23,7 @@ import torch
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
-from iou_branch import OUT, best_iou, cache_eval, candidates, load_frozen  # noqa: E402
+from iou_branch import OUT, best_iou, cache_eval, candidates, fit_loop, load_frozen  # noqa: E402
 
 from asg.objective.ap import ap_at  # noqa: E402
 from asg.objective.iou import bev_iou_matrix  # noqa: E402
@@ -70,19 +70,8 @@ def fit(data: dict, hidden: int, epochs: int, slots: int, min_iou: float = 0.3) 
     r = torch.from_numpy(data["r"][k])
     print(f"{len(r)} training candidates; residual std {np.round(r.std(0).numpy(), 3)}")
     net = nn.Sequential(nn.Linear(f.shape[1], hidden), nn.ReLU(), nn.Linear(hidden, slots * 7))
-    opt = torch.optim.Adam(net.parameters(), lr=1e-3, weight_decay=1e-4)
-    steps = epochs * len(r) // 256
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=3e-3, total_steps=steps)
-    g = torch.Generator().manual_seed(0)
-    for _ in range(steps):
-        idx = torch.randint(len(r), (256,), generator=g)
-        out = net(f[idx]).view(len(idx), slots, 7)[torch.arange(len(idx)), a[idx]]
-        loss = nn.functional.smooth_l1_loss(out, r[idx] / REFINE_SCALE, beta=0.5)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-    return net
+    return fit_loop(net, len(r), epochs, lambda idx: nn.functional.smooth_l1_loss(
+        net(f[idx]).view(len(idx), slots, 7)[torch.arange(len(idx)), a[idx]], r[idx] / REFINE_SCALE, beta=0.5))
 
 
 def refined_boxes(net: nn.Module, frames: list[dict], slots: int) -> list[np.ndarray]:

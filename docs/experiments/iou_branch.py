@@ -105,14 +105,19 @@ def fit(data: dict, hidden: int, epochs: int, slots: int) -> nn.Module:
     a = torch.from_numpy(data["a"]).long()
     t = torch.from_numpy(data["t"])
     net = nn.Sequential(nn.Linear(f.shape[1], hidden), nn.ReLU(), nn.Linear(hidden, slots))
+    return fit_loop(net, len(t), epochs, lambda idx: nn.functional.binary_cross_entropy_with_logits(
+        net(f[idx]).gather(1, a[idx][:, None])[:, 0], t[idx]))
+
+
+def fit_loop(net: nn.Module, n: int, epochs: int, loss_of) -> nn.Module:
+    """Adam + one-cycle (peak 3e-3) over EPOCHS passes of N examples, batches of 256 drawn with a
+    seeded generator; ``loss_of(idx)`` is the loss of the examples ``idx`` (256,)."""
     opt = torch.optim.Adam(net.parameters(), lr=1e-3, weight_decay=1e-4)
-    steps = epochs * len(t) // 256
+    steps = epochs * n // 256
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=3e-3, total_steps=steps)
     g = torch.Generator().manual_seed(0)
     for _ in range(steps):
-        idx = torch.randint(len(t), (256,), generator=g)
-        logit = net(f[idx]).gather(1, a[idx][:, None])[:, 0]
-        loss = nn.functional.binary_cross_entropy_with_logits(logit, t[idx])
+        loss = loss_of(torch.randint(n, (256,), generator=g))
         opt.zero_grad()
         loss.backward()
         opt.step()
