@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 
@@ -182,7 +183,8 @@ def train(args: argparse.Namespace) -> int:
         task = bar.add_task(f"training {args.fusion}", total=None)
 
         def report(step: int, total: int, loss: float) -> None:
-            bar.update(task, completed=step, total=total, description=f"training {args.fusion} loss {loss:.3f}")
+            what = f"training {args.fusion} loss {loss:.3f}" if math.isfinite(loss) else f"collecting {args.fusion}'s candidates"
+            bar.update(task, completed=step, total=total, description=what)
 
         out = run(args.fusion, steps=args.steps, progress=report, threads=args.threads, log=console.print,
                   init_from=args.init_from, iou_branch=args.iou_branch)

@@ -42,5 +42,6 @@ def test_model_cards_describe_the_weights():
     for name in ("single", "early", "attfuse"):
         card = json.loads((WEIGHTS_DIR / f"{name}.json").read_text())
         assert card["steps"] > 0 and card["train_wall_s"] > 0 and card["dataset"] == "detector-train"
-        assert card["iou_branch_steps"] > 0  # the IoU branch the shipped config rescores with is trained
+        # the IoU and refinement branches the shipped config uses were fitted on these weights
+        assert card["branch_fit"]["candidates"] > 0 and card["chunks"][-1]["part"] == "branches"
         assert (WEIGHTS_DIR / card["weights"]).is_file()

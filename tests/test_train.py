@@ -196,46 +196,103 @@ def test_resumed_onecycle_follows_the_configured_length():
     assert lrs(long, 20)[-1] > 10 * tail[-1]  # the saved 40-step phases would still be annealing
 
 
-def test_iou_branch_chunk_trains_the_branch_alone(sumo_log, tmp_path):
+def test_branch_fit_changes_the_branches_alone_and_resumes(sumo_log, tmp_path, monkeypatch):
     """`asg train --iou-branch`: the frozen detector's tensors (batch-norm statistics included)
-    stay as they were, the branch learns, and the card lists the chunk apart from the detector's
-    steps. Weights made before the branch existed get one."""
-    from dataclasses import replace
+    stay as they were, both branches are fitted, the card records the fit apart from the
+    detector's steps, an interruption after the collection resumes from the cached candidates to
+    the same weights, and the same seed gives the same weights. Weights made before the branches
+    existed get them."""
+    from asg.perception import branch_fit
+    from asg.perception.branch_fit import CACHE_NAME, BranchFitConfig
+    from asg.perception.model import PointPillars
+    from sumo_scenarios.errors import InputError
 
+    data = tiny_dataset(sumo_log, tmp_path / "tiny")
+    torch.manual_seed(0)
+    base = PointPillars(TINY)
+    branches = ("head.iou.", "head.refine.")
+
+    def weights_dir(tag):
+        folder = tmp_path / f"weights-{tag}"
+        folder.mkdir()
+        torch.save({k: v for k, v in base.state_dict().items() if not k.startswith(branches)}, folder / "early.pt")
+        (folder / "early.json").write_text(json.dumps({"steps": 40, "train_wall_s": 12.5, "dataset": "x"}))
+        return folder
+
+    # every anchor a candidate: the untrained tiny detector scores them all alike
+    fcfg = BranchFitConfig(dataset=str(data), passes=2, min_score=0.0, top_k=100000, epochs=2, batch_size=64, seed=3)
+    kw = dict(log=lambda *_: None, threads=1, detector_config=TINY, validate=False, iou_branch=True, branch_config=fcfg)
+    out = train("early", out_dir=tmp_path / "run", weights_dir=weights_dir("a"), **kw)
+    after = torch.load(out, weights_only=True)
+    fresh = PointPillars(TINY).state_dict()
+    for k, v in base.state_dict().items():
+        if k.startswith(branches):
+            assert not torch.equal(after[k], fresh[k]), k
+        else:
+            assert torch.equal(after[k], v), k
+    card = json.loads(out.with_suffix(".json").read_text())
+    fit = card["branch_fit"]
+    assert card["steps"] == 40 and card["chunks"][-1] == fit and fit["part"] == "branches"
+    assert fit["candidates"] > fit["refine_examples"] > 0
+    assert fit["mean_iou_after"] > fit["mean_iou_before"]  # the refinement moved boxes onto their vehicles
+    assert not (tmp_path / "run" / CACHE_NAME).exists()
+
+    # interrupted after the collection: the rerun fits from the cache, to the same weights
+    real_fit = branch_fit.fit_branches
+
+    def crash(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("asg.perception.train.fit_branches", crash)
+    with pytest.raises(KeyboardInterrupt):
+        train("early", out_dir=tmp_path / "run-b", weights_dir=weights_dir("b"), **kw)
+    assert (tmp_path / "run-b" / CACHE_NAME).is_file()
+    monkeypatch.setattr("asg.perception.train.fit_branches", real_fit)
+    collected = []
+    monkeypatch.setattr("asg.perception.branch_fit.collect", lambda *a, **k: collected.append(1))
+    resumed = torch.load(train("early", out_dir=tmp_path / "run-b", weights_dir=tmp_path / "weights-b", **kw),
+                         weights_only=True)
+    assert not collected and all(torch.equal(after[k], resumed[k]) for k in after)
+
+    with pytest.raises(InputError, match="no trained attfuse weights"):
+        train("attfuse", out_dir=tmp_path / "run-att", weights_dir=tmp_path / "weights-a", **kw)
+    with pytest.raises(InputError, match="cannot be combined"):
+        train("early", out_dir=tmp_path / "run2", weights_dir=tmp_path / "weights-a", init_from="single", **kw)
+
+
+def test_whole_network_chunk_trains_the_branches_alongside(sumo_log, tmp_path):
+    """A detector chunk trains the branches with the rest (on detached features) and counts its
+    steps as detector steps."""
     from asg.perception.model import PointPillars
     from asg.perception.weights_io import save_state
-    from sumo_scenarios.errors import InputError
 
     data = tiny_dataset(sumo_log, tmp_path / "tiny")
     weights_dir = tmp_path / "weights"
     weights_dir.mkdir()
     torch.manual_seed(0)
-    base = PointPillars(TINY)
-    branches = ("head.iou.", "head.refine.")
-    torch.save({k: v for k, v in base.state_dict().items() if not k.startswith(branches)}, weights_dir / "early.pt")
+    save_state(PointPillars(TINY), weights_dir / "early.pt")
+    before = torch.load(weights_dir / "early.pt", weights_only=True)
     (weights_dir / "early.json").write_text(json.dumps({"steps": 40, "train_wall_s": 12.5, "dataset": "x"}))
     tcfg = TrainConfig(dataset=str(data), steps=4, batch_size=2, lr=0.01, schedule="onecycle", seed=5,
-                       checkpoint_every=2, views="all", part="iou")
-    kw = dict(log=lambda *_: None, threads=1, detector_config=TINY, weights_dir=weights_dir, validate=False)
-    out = train("early", out_dir=tmp_path / "run", train_config=tcfg, **kw)
-    after = torch.load(out, weights_only=True)
-    fresh = PointPillars(TINY).state_dict()
-    for k, v in base.state_dict().items():
-        if k.startswith(branches):
-            assert not torch.equal(after[k], fresh[k])
-        else:
-            assert torch.equal(after[k], v), k
-    card = json.loads(out.with_suffix(".json").read_text())
-    assert card["steps"] == 40 and card["iou_branch_steps"] == 4 and card["chunks"][-1]["part"] == "iou"
-    assert card["refine_branch_steps"] == 4
-    with pytest.raises(InputError, match="no trained attfuse weights"):
-        train("attfuse", out_dir=tmp_path / "run-att", train_config=tcfg, **kw)
-    with pytest.raises(InputError, match="cannot be combined"):
-        train("early", out_dir=tmp_path / "run2", train_config=tcfg, init_from="single", **kw)
-    # a whole-network chunk trains the branch alongside
-    whole = train("early", out_dir=tmp_path / "run", train_config=replace(tcfg, part="all"), **kw)
+                       checkpoint_every=2, views="all")
+    whole = train("early", out_dir=tmp_path / "run", train_config=tcfg, log=lambda *_: None, threads=1,
+                  detector_config=TINY, weights_dir=weights_dir, validate=False)
     again = torch.load(whole, weights_only=True)
-    assert not torch.equal(again["head.cls.weight"], after["head.cls.weight"])
-    assert not torch.equal(again["head.iou.2.weight"], after["head.iou.2.weight"])
-    assert not torch.equal(again["head.refine.2.weight"], after["head.refine.2.weight"])
-    assert json.loads(whole.with_suffix(".json").read_text())["steps"] == 44
+    for key in ("head.cls.weight", "head.iou.2.weight", "head.refine.2.weight"):
+        assert not torch.equal(again[key], before[key]), key
+    card = json.loads(whole.with_suffix(".json").read_text())
+    assert card["steps"] == 44 and "branch_fit" not in card
+
+
+def test_candidates_are_matched_with_their_own_views_ground_truth():
+    from asg.perception.branch_fit import Candidates
+
+    box = np.array([[0.0, 0, 0, 4, 2, 1.5, 0]])
+    far = box + [[10, 0, 0, 0, 0, 0, 0]]  # view 0's only vehicle
+    near = box + [[0.5, 0, 0, 0, 0, 0, 0]]  # view 1's only vehicle
+    cands = Candidates(features=np.zeros((2, 3), np.float16), slot=np.zeros(2, np.int16), boxes=np.vstack([box, box]),
+                       view=np.array([1, 0], np.int32), gt=np.vstack([far, near]), gt_start=np.array([0, 1, 2]))
+    best, match = cands.best_iou(cands.boxes)
+    # a 4 x 2 box shifted 0.5 m along its length: IoU 7 / 9
+    assert best[0] == pytest.approx(7 / 9) and np.allclose(match[0], near[0])
+    assert best[1] == 0  # not view 1's vehicle

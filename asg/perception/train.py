@@ -29,6 +29,7 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 from ..datasets import iter_frames
 from ..sensors import load_lidar_spec
 from .boxes import assign_targets, branch_targets
+from .branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
 from .config import load_detector_config
 from .data import Sample, augment, make_sample
 from .head import detection_loss, iou_loss, refine_loss
@@ -63,26 +64,27 @@ class TrainConfig:
     #: fusion models: "ego" trains on each frame as its ego sees it; "all" on each sensing agent's
     #: view in turn (3 times the distinct examples from the same frames)
     views: Literal["ego", "all"] = "ego"
-    #: "all": the whole detector (the IoU and refinement branches learn alongside, on detached
-    #: features); "iou": only those two branches, on the frozen detector (eval mode)
-    part: Literal["all", "iou"] = "all"
 
 
-#: the train.yaml block of an IoU-branch chunk (any weights): ``asg train --fusion F --iou-branch``
+#: the train.yaml block of the branch fit (any weights): ``asg train --fusion F --iou-branch``
 IOU_BLOCK = "iou_branch"
 
 
-def load_train_config(weights: str, path: Path | None = None, iou_branch: bool = False) -> TrainConfig:
-    """The training settings of ``weights`` (its train.yaml block), or with ``iou_branch`` the
-    shared ``iou_branch`` block (part: iou)."""
+def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
+    """The training settings of ``weights`` (its train.yaml block)."""
+    return from_mapping(TrainConfig, _block(weights, path), f"train.yaml:{weights}")
+
+
+def load_branch_config(path: Path | None = None) -> BranchFitConfig:
+    """The settings of the IoU and refinement branches' fit (train.yaml's ``iou_branch`` block)."""
+    return from_mapping(BranchFitConfig, _block(IOU_BLOCK, path), f"train.yaml:{IOU_BLOCK}")
+
+
+def _block(name: str, path: Path | None) -> dict:
     data = read_yaml(path or configs_dir() / "detectors" / "train.yaml")
-    block = IOU_BLOCK if iou_branch else weights
-    if block not in data:
-        raise InputError(f"no training block '{block}' in train.yaml")
-    tcfg = from_mapping(TrainConfig, data[block], f"train.yaml:{block}")
-    if iou_branch and tcfg.part != "iou":
-        raise InputError(f"train.yaml:{block}: part must be 'iou'")
-    return tcfg
+    if name not in data:
+        raise InputError(f"no training block '{name}' in train.yaml")
+    return data[name]
 
 
 def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None) -> list[Sample]:
@@ -128,20 +130,24 @@ class _Batches:
 def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, log: Callable[[str], None] = print,
           progress: Callable[[int, int, float], None] | None = None, threads: int = 2, *,
           train_config: TrainConfig | None = None, detector_config=None, weights_dir: Path = WEIGHTS_DIR,
-          validate: bool = True, init_from: str | None = None, iou_branch: bool = False) -> Path:
+          validate: bool = True, init_from: str | None = None, iou_branch: bool = False,
+          branch_config: BranchFitConfig | None = None) -> Path:
     """Train (or resume) the weights behind ``fusion``; returns the written weights file.
 
     Configs default to configs/detectors/{train,pointpillars}.yaml and the weights to the shipped
     ones (asg/perception/weights/); ``validate`` records normal-val AP in the model card.
     ``init_from`` (a weights name, e.g. "single"): start a new sequence of chunks from those
     weights instead of continuing this model's own (see :func:`init_from_weights`).
-    ``iou_branch``: one chunk of the IoU and refinement branches alone on the frozen detector
-    (train.yaml's ``iou_branch`` block; also what a ``train_config`` with part "iou" does).
+    ``iou_branch``: fit the IoU and refinement branches alone on the frozen detector
+    (:func:`fit_branch_weights`, train.yaml's ``iou_branch`` block or ``branch_config``).
     """
     name = weights_for(fusion)
-    tcfg = train_config or load_train_config(name, iou_branch=iou_branch)
-    if init_from and tcfg.part == "iou":
-        raise InputError("--iou-branch trains the branch of this model's own weights; it cannot be combined with --init-from")
+    if iou_branch:
+        if init_from:
+            raise InputError("--iou-branch fits the branches of this model's own weights; it cannot be combined with --init-from")
+        return fit_branch_weights(name, out_dir, log, progress, threads, branch_config=branch_config,
+                                  detector_config=detector_config, weights_dir=weights_dir, validate=validate)
+    tcfg = train_config or load_train_config(name)
     total = steps or tcfg.steps
     cfg = detector_config or load_detector_config()
     torch.set_num_threads(threads)
@@ -161,9 +167,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     torch.manual_seed(tcfg.seed + 1000 * chunk)
     rng = np.random.default_rng([tcfg.seed, chunk])
     model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
-    if tcfg.part == "iou" and not previous.get("chunks"):
-        raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit an IoU branch to; train them first")
-    params = _trainable(model, tcfg.part)
+    params = list(model.parameters())
     opt = torch.optim.Adam(params, lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     sched = _scheduler(opt, tcfg, total)
     step, wall = 0, 0.0
@@ -192,16 +196,15 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     batches = _Batches(name, samples, tcfg.views)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     anchors = model.anchors.numpy()
-    model.train(tcfg.part == "all")  # a frozen detector keeps its batch-norm statistics
+    model.train()
     started = time.perf_counter()
     losses: list[float] = []
     while step < total:
         clouds, labels, targets, dirs, gt = batches.draw(rng, tcfg.batch_size, anchors, cfg)
-        with torch.set_grad_enabled(tcfg.part == "all"):  # a frozen detector needs no graph
-            cls, box, d, features = model(clouds if name == "attfuse" else [c[0] for c in clouds])
-        loss = {} if tcfg.part == "iou" else detection_loss(cls, box, d, labels, targets, dirs)
+        cls, box, d, features = model(clouds if name == "attfuse" else [c[0] for c in clouds])
+        loss = detection_loss(cls, box, d, labels, targets, dirs)
         loss.update(_branch_losses(model, cls, box, features, labels, gt))
-        loss["total"] = loss.get("total", 0.0) + loss["iou"] + loss["refine"]
+        loss["total"] = loss["total"] + loss["iou"] + loss["refine"]
         opt.zero_grad()
         loss["total"].backward()
         torch.nn.utils.clip_grad_norm_(params, 10.0)
@@ -223,25 +226,80 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         torch.save(model.state_dict(), tmp)
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
-                                            "wall_s": round(wall, 1), "part": tcfg.part, "refine": True}]
-    card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
-            "dataset": tcfg.dataset, "examples": len(batches.items),
-            # detector steps: the chunks that trained the whole network (IoU-branch chunks are listed apart)
-            "steps": sum(c["steps"] for c in chunks if c.get("part", "all") == "all"),
-            "iou_branch_steps": sum(c["steps"] for c in chunks if c.get("part") == "iou"),
-            # steps that trained the refinement branch (chunks since it exists, of either part)
-            "refine_branch_steps": sum(c["steps"] for c in chunks if c.get("refine")),
-            "batch_size": tcfg.batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
-            "chunks": chunks, "threads": threads,
-            **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
-            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp",
-            **({"attfuse_fusion": cfg.attfuse_fusion} if name == "attfuse" else {})}
-    write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
+                                            "wall_s": round(wall, 1), "part": "all"}]
+    _write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
+                examples=len(batches.items), batch_size=tcfg.batch_size)
     ckpt.unlink(missing_ok=True)  # the chunk is complete: the next run starts a new one from these weights
+    (run_dir / CACHE_NAME).unlink(missing_ok=True)  # candidates of an unfinished branch fit belong to the old weights
     log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training")
     if validate:
         card_validation(name, log)
     return weights
+
+
+def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[str], None] = print,
+                       progress: Callable[[int, int, float], None] | None = None, threads: int = 2, *,
+                       branch_config: BranchFitConfig | None = None, detector_config=None,
+                       weights_dir: Path = WEIGHTS_DIR, validate: bool = True) -> Path:
+    """Fit the IoU and refinement branches of the trained ``name`` weights (frozen) and write them
+    back with the model card (see :mod:`.branch_fit`); ``progress(view, views, nan)`` during the
+    collection. The candidates' cache in ``out_dir`` (runs/train/NAME/) makes an interrupted
+    fit resume after the collection; it is removed once the weights are written."""
+    from .weights_io import load_state
+
+    fcfg = branch_config or load_branch_config()
+    cfg = detector_config or load_detector_config()
+    previous = _previous_training(name, weights_dir)
+    if not previous.get("chunks"):
+        raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit the branches to; train them first")
+    torch.set_num_threads(threads)
+    run_dir = out_dir or project_root() / "runs" / "train" / name
+    model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
+    load_state(model, weights_dir / f"{name}.pt", allow_missing=BRANCH_KEYS)
+    started = time.perf_counter()
+    log(f"rendering {fcfg.dataset} ...")
+    items = _Batches(name, render_samples(fcfg.dataset, "train"), fcfg.views).items
+    t_collect = time.perf_counter()
+    cands = collect_cached(model, name == "attfuse", items, fcfg, run_dir, log,
+                           (lambda i, n: progress(i, n, float("nan"))) if progress else None)
+    collect_or_load_s = time.perf_counter() - t_collect
+    figures = fit_branches(model.head, cands, fcfg, log)
+    weights = weights_dir / f"{name}.pt"
+    with atomic_path(weights) as tmp:
+        torch.save(model.state_dict(), tmp)
+    # the collection's own time, also when an interrupted run left it in the cache
+    wall = time.perf_counter() - started - collect_or_load_s + cands.collect_s
+    fit = {"part": "branches", "passes": fcfg.passes, "epochs": fcfg.epochs, "batch_size": fcfg.batch_size,
+           "lr": fcfg.lr, "seed": fcfg.seed, "views": fcfg.views, "iou_target": fcfg.iou_target,
+           "wall_s": round(wall, 1), **figures}
+    card = json.loads((weights_dir / f"{name}.json").read_text())
+    _write_card(name, weights_dir, cfg, previous["chunks"] + [fit], previous, threads, dataset=card.get("dataset", fcfg.dataset),
+                examples=card.get("examples", len(items)), batch_size=card.get("batch_size", 0), branch_fit=fit)
+    (run_dir / CACHE_NAME).unlink(missing_ok=True)
+    log(f"wrote {weights}: branches fitted on {figures['candidates']} candidates in {wall / 60:.1f} min "
+        f"(mean IoU of the candidates on a vehicle {figures['mean_iou_before']} -> {figures['mean_iou_after']} refined)")
+    if validate:
+        card_validation(name, log)
+    return weights
+
+
+def _write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: dict, threads: int, *,
+                dataset: str, examples: int, batch_size: int, branch_fit: dict | None = None) -> None:
+    """The model card of ``name``: the chunks that made it (whole-network ones count as detector
+    steps), their total wall time and, when the last step was a branch fit, that fit."""
+    card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
+            "dataset": dataset, "examples": examples,
+            # detector steps: the chunks that trained the whole network (branch chunks and fits are listed apart)
+            "steps": sum(c["steps"] for c in chunks if c.get("part", "all") == "all"),
+            "batch_size": batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
+            "chunks": chunks, "threads": threads,
+            # how the shipped IoU and refinement branches were made: a fit on the frozen detector,
+            # absent when the last chunk trained them alongside the whole network
+            **({"branch_fit": branch_fit} if branch_fit else {}),
+            **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
+            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp",
+            **({"attfuse_fusion": cfg.attfuse_fusion} if name == "attfuse" else {})}
+    write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
 
 
 def card_validation(name: str, log: Callable[[str], None] = print, set_name: str = "normal-val") -> dict:
@@ -272,7 +330,7 @@ def _previous_training(name: str, weights_dir: Path = WEIGHTS_DIR) -> dict:
     card = json.loads(card_path.read_text())
     chunks = card.get("chunks") or [{"steps": card.get("steps", 0), "lr": card.get("lr"), "seed": card.get("seed"),
                                      "wall_s": card.get("train_wall_s", 0.0)}]
-    out = {"chunks": chunks, "steps_total": sum(c["steps"] for c in chunks)}
+    out = {"chunks": chunks, "steps_total": sum(c.get("steps", 0) for c in chunks)}
     if card.get("init_from"):
         out["init_from"] = card["init_from"]
     return out
@@ -325,19 +383,6 @@ def _branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.
 
 #: the branches' parameters (IoU, refinement): weights trained before a branch existed load without it
 BRANCH_KEYS = ("head.iou.", "head.refine.")
-
-
-def _trainable(model: torch.nn.Module, part: str) -> list[torch.nn.Parameter]:
-    """The parameters a chunk trains: all, or (part "iou") the IoU and refinement branches only,
-    the rest frozen."""
-    if part == "all":
-        return list(model.parameters())
-    for p in model.parameters():
-        p.requires_grad_(False)
-    branch = list(model.head.iou.parameters()) + list(model.head.refine.parameters())
-    for p in branch:
-        p.requires_grad_(True)
-    return branch
 
 
 def _scheduler(opt: torch.optim.Optimizer, tcfg: TrainConfig, total: int):

@@ -9,7 +9,7 @@ the PATCH x PATCH cells around it, the class score, the decoded box and its best
 ground truth. Then it fits an MLP (HIDDEN units) to those IoUs on the training views, EPOCHS passes,
 and reports AP on normal-val and `normal` for rescoring powers 0 (the class score alone) to 1 (the
 predicted IoU alone), rescoring before NMS as the package does. Caches go to runs/exp-iou/.
-Fits in minutes what `asg train --iou-branch` does in about 20 (the same function, fit offline).
+`asg train --iou-branch` now fits the package's branches this way (asg/perception/branch_fit.py).
 """
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ from asg.datasets import iter_frames
 from asg.objective.ap import ap_at
 from asg.objective.iou import bev_iou_matrix
 from asg.perception.boxes import decode_with_direction, select_boxes, top_candidates
+from asg.perception.branch_fit import BranchFitConfig, fit_minibatches
 from asg.perception.config import load_detector_config
 from asg.perception.data import Sample, augment, in_range
 from asg.perception.head import patch_features
@@ -111,17 +112,9 @@ def fit(data: dict, hidden: int, epochs: int, slots: int) -> nn.Module:
 
 def fit_loop(net: nn.Module, n: int, epochs: int, loss_of) -> nn.Module:
     """Adam + one-cycle (peak 3e-3) over EPOCHS passes of N examples, batches of 256 drawn with a
-    seeded generator; ``loss_of(idx)`` is the loss of the examples ``idx`` (256,)."""
-    opt = torch.optim.Adam(net.parameters(), lr=1e-3, weight_decay=1e-4)
-    steps = epochs * n // 256
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=3e-3, total_steps=steps)
-    g = torch.Generator().manual_seed(0)
-    for _ in range(steps):
-        loss = loss_of(torch.randint(n, (256,), generator=g))
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
+    seeded generator; ``loss_of(idx)`` is the loss of the examples ``idx`` (256,): the package's
+    branch fit (asg.perception.branch_fit.fit_minibatches) with its default settings, seed 0."""
+    fit_minibatches(net, n, BranchFitConfig(epochs=epochs), loss_of, 0, lambda _: None, "")
     return net
 
 
