@@ -179,6 +179,9 @@ def train(args: argparse.Namespace) -> int:
         return 0
     if args.steps is not None and args.steps < 1:
         raise InputError("--steps must be at least 1")
+    if args.steps is not None and args.iou_branch:
+        raise InputError("--steps does not apply to --iou-branch (a fit of epochs over the collected candidates: "
+                         "set epochs in train.yaml's iou_branch block)")
     with progress_bar() as bar:
         task = bar.add_task(f"training {args.fusion}", total=None)
 

@@ -296,3 +296,16 @@ def test_candidates_are_matched_with_their_own_views_ground_truth():
     # a 4 x 2 box shifted 0.5 m along its length: IoU 7 / 9
     assert best[0] == pytest.approx(7 / 9) and np.allclose(match[0], near[0])
     assert best[1] == 0  # not view 1's vehicle
+
+
+def test_branch_fit_settings_are_checked(tmp_path):
+    from sumo_scenarios.errors import InputError
+
+    from asg.perception.train import load_branch_config
+
+    assert load_branch_config().epochs >= 1  # the shipped block loads
+    bad = tmp_path / "train.yaml"
+    for line, match in (("epochs: 0", "epochs"), ("views: some", "views"), ("passes: 2\n  extra: 1", "extra")):
+        bad.write_text("iou_branch:\n  " + line + "\n")
+        with pytest.raises(InputError, match=match):
+            load_branch_config(bad)

@@ -47,7 +47,8 @@ CACHE_NAME = "branch-candidates.npz"
 class BranchFitConfig:
     """train.yaml's ``iou_branch`` block."""
     dataset: str = "detector-train"
-    views: str = "all"
+    #: as TrainConfig.views: "ego" or "all" (each sensing agent's view of a frame in turn)
+    views: Literal["ego", "all"] = "all"
     #: collection passes over the training views: the first as is, the others augmented
     passes: int = 2
     min_score: float = 0.1
@@ -59,6 +60,12 @@ class BranchFitConfig:
     seed: int = 11
     #: what the IoU branch learns: the best IoU of each candidate's decoded or refined box
     iou_target: Literal["decoded", "refined"] = "decoded"
+
+    def __post_init__(self) -> None:
+        for name, ok in (("passes", self.passes >= 1), ("min_score", 0 <= self.min_score < 1), ("top_k", self.top_k >= 1),
+                         ("epochs", self.epochs >= 1), ("batch_size", self.batch_size >= 1), ("lr", self.lr > 0)):
+            if not ok:
+                raise InputError(f"train.yaml:iou_branch: {name} = {getattr(self, name)} is out of range")
 
 
 @dataclass
@@ -87,7 +94,7 @@ class Candidates:
 
     def best_iou(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per candidate, the best BEV IoU (N,) of ``boxes`` (N, 7) (the candidates' own or moved
-        ones) with its view's ground truth and that vehicle's box (N, 7) (zeros where none)."""
+        ones) with its view's ground truth and that vehicle's box (N, 7) (zeros in views without any)."""
         best = np.zeros(len(boxes))
         match = np.zeros((len(boxes), 7))
         order = np.argsort(self.view, kind="stable")
@@ -133,7 +140,7 @@ def collect(model: nn.Module, fused: bool, items: list, fcfg: BranchFitConfig,
 
 
 def fit_minibatches(module: nn.Module, n: int, fcfg: BranchFitConfig, loss_of: Callable[[torch.Tensor], torch.Tensor],
-         seed: int, log: Callable[[str], None], label: str) -> float:
+                    seed: int, log: Callable[[str], None], label: str) -> float:
     """Adam + one-cycle over ``fcfg.epochs`` passes of ``n`` examples in seeded random batches;
     ``loss_of(idx)`` is the loss of the examples ``idx`` (batch,). Returns the last 100 batches'
     mean loss."""
