@@ -218,6 +218,15 @@ def refine_boxes(boxes: np.ndarray, residuals: torch.Tensor) -> np.ndarray:
 REFINE_MIN_IOU = 0.3
 
 
+def best_match(boxes: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per box of ``boxes`` (N, 7), its best BEV IoU (N,) with the ground-truth boxes ``gt`` (M, 7)
+    and that vehicle's box (N, 7); IoU 0 and zero boxes when there is no ground truth."""
+    if not len(boxes) or not len(gt):
+        return np.zeros(len(boxes)), np.zeros((len(boxes), 7))
+    iou = bev_iou_matrix(boxes, gt)
+    return iou.max(axis=1), gt[iou.argmax(axis=1)]
+
+
 def branch_targets(cls: torch.Tensor, box: torch.Tensor, anchors: torch.Tensor, labels: torch.Tensor,
                    gt_boxes: list[np.ndarray], min_score: float = 0.1,
                    top_k: int = 300) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]]:
@@ -237,14 +246,10 @@ def branch_targets(cls: torch.Tensor, box: torch.Tensor, anchors: torch.Tensor, 
             cand = top_candidates(torch.sigmoid(cls[b]), min_score, top_k)
             idx = torch.unique(torch.cat([cand, torch.nonzero(labels[b] == 1).squeeze(1)]))
             gt = np.asarray(gt_boxes[b], dtype=float).reshape(-1, 7)
-            best = np.zeros(len(idx))
-            res = np.zeros((0, 7))
-            if len(idx) and len(gt):
-                decoded = decode(box[b, idx], anchors[idx]).numpy().astype(np.float64)
-                iou = bev_iou_matrix(decoded, gt)
-                best = iou.max(axis=1)
-                near = best >= REFINE_MIN_IOU
-                res = refinement_residuals(gt[iou.argmax(axis=1)[near]], decoded[near])
-            mask = torch.from_numpy(best >= REFINE_MIN_IOU)
+            decoded = decode(box[b, idx], anchors[idx]).numpy().astype(np.float64)
+            best, match = best_match(decoded, gt)
+            near = best >= REFINE_MIN_IOU
+            res = refinement_residuals(match[near], decoded[near])
+            mask = torch.from_numpy(near)
             out.append((idx, torch.from_numpy(best.astype(np.float32)), mask, torch.from_numpy(res.astype(np.float32))))
     return out

@@ -34,10 +34,9 @@ from torch import nn
 from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
 
-from ..objective.iou import bev_iou_matrix
-from .boxes import REFINE_MIN_IOU, decode_with_direction, refine_boxes, refinement_residuals, top_candidates
+from .boxes import REFINE_MIN_IOU, best_match, decode_with_direction, refine_boxes, refinement_residuals, top_candidates
 from .data import augment
-from .head import REFINE_SCALE, iou_loss, patch_features, refine_loss
+from .head import iou_loss, patch_features, refine_loss
 from .inference import fold_batch_norms
 
 CACHE_NAME = "branch-candidates.npz"
@@ -94,20 +93,31 @@ class Candidates:
 
     def best_iou(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per candidate, the best BEV IoU (N,) of ``boxes`` (N, 7) (the candidates' own or moved
-        ones) with its view's ground truth and that vehicle's box (N, 7) (zeros in views without any)."""
+        ones) with its view's ground truth and that vehicle's box (N, 7) (see boxes.best_match)."""
         best = np.zeros(len(boxes))
         match = np.zeros((len(boxes), 7))
         order = np.argsort(self.view, kind="stable")
         bounds = np.searchsorted(self.view[order], np.arange(len(self.gt_start)))
         for v in range(len(self.gt_start) - 1):
             rows = order[bounds[v]:bounds[v + 1]]
-            gt = self.gt[self.gt_start[v]:self.gt_start[v + 1]]
-            if not len(rows) or not len(gt):
-                continue
-            iou = bev_iou_matrix(boxes[rows], gt)
-            best[rows] = iou.max(axis=1)
-            match[rows] = gt[iou.argmax(axis=1)]
+            best[rows], match[rows] = best_match(boxes[rows], self.gt[self.gt_start[v]:self.gt_start[v + 1]])
         return best, match
+
+
+def view_candidates(model: nn.Module, sample: list | torch.Tensor, min_score: float, top_k: int,
+                    patch: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The candidates inference would decode in one view (class score >= ``min_score``, at most
+    ``top_k``): ``sample`` is what ``model`` takes for one sample (a cloud (N, 4) tensor, or AttFuse's
+    list of them). Returns the head features of the ``patch`` x ``patch`` cells around each (K, C *
+    patch^2) float16 (``patch``: the head's by default), anchor slots (K,), class scores (K,) and
+    decoded boxes (K, 7) in the sample's frame."""
+    with torch.no_grad():
+        cls, box, d, feats = model([sample])
+    scores = torch.sigmoid(cls[0])
+    keep = top_candidates(scores, min_score, top_k)
+    features = patch_features(feats[0], keep // model.head.a, patch or model.head.patch).numpy().astype(np.float16)
+    return (features, (keep % model.head.a).numpy(), scores[keep].numpy().astype(np.float64),
+            decode_with_direction(box[0, keep], d[0, keep], model.anchors[keep]))
 
 
 def collect(model: nn.Module, fused: bool, items: list, fcfg: BranchFitConfig,
@@ -124,13 +134,11 @@ def collect(model: nn.Module, fused: bool, items: list, fcfg: BranchFitConfig,
             if p:
                 clouds, gt = augment(clouds, gt, rng)
             tensors = [torch.from_numpy(c) for c in clouds]
-            with torch.no_grad():
-                cls, box, d, feats = model([tensors] if fused else [tensors[0]])
-            keep = top_candidates(torch.sigmoid(cls[0]), fcfg.min_score, fcfg.top_k)
-            parts["features"].append(patch_features(feats[0], keep // model.head.a, model.head.patch).numpy().astype(np.float16))
-            parts["slot"].append((keep % model.head.a).numpy().astype(np.int16))
-            parts["boxes"].append(decode_with_direction(box[0, keep], d[0, keep], model.anchors[keep]))
-            parts["view"].append(np.full(len(keep), view, dtype=np.int32))
+            features, slot, _, boxes = view_candidates(model, tensors if fused else tensors[0], fcfg.min_score, fcfg.top_k)
+            parts["features"].append(features)
+            parts["slot"].append(slot.astype(np.int16))
+            parts["boxes"].append(boxes)
+            parts["view"].append(np.full(len(slot), view, dtype=np.int32))
             gts.append(np.asarray(gt, dtype=np.float64).reshape(-1, 7))
             view += 1
             if progress:
@@ -177,7 +185,6 @@ def fit_branches(head: nn.Module, cands: Candidates, fcfg: BranchFitConfig,
     """Fit ``head.refine`` then ``head.iou`` (from a seeded initialisation) on ``cands``; returns
     figures for the model card: candidates, refinement examples, mean IoU before and after
     refinement (of candidates with IoU >= REFINE_MIN_IOU), the final losses."""
-    a = head.a
     best, match = cands.best_iou(cands.boxes)
     near = np.nonzero(best >= REFINE_MIN_IOU)[0]
     if not len(near):
@@ -188,8 +195,7 @@ def fit_branches(head: nn.Module, cands: Candidates, fcfg: BranchFitConfig,
 
     def refine_of(idx: torch.Tensor) -> torch.Tensor:
         rows = near_t[idx]
-        pred = head.refine(_rows(cands.features, rows)).view(len(idx), a, 7)[torch.arange(len(idx)), slot[rows]]
-        return refine_loss(pred * REFINE_SCALE, targets[idx])
+        return refine_loss(head.refine_of_patches(_rows(cands.features, rows), slot[rows]), targets[idx])
 
     _reset(head.refine, fcfg.seed)
     head.refine.train()
@@ -199,14 +205,13 @@ def fit_branches(head: nn.Module, cands: Candidates, fcfg: BranchFitConfig,
     with torch.no_grad():
         for start in range(0, len(refined), 65536):
             rows = torch.arange(start, min(start + 65536, len(refined)))
-            res = head.refine(_rows(cands.features, rows)).view(len(rows), a, 7)[torch.arange(len(rows)), slot[rows]]
-            refined[rows.numpy()] = refine_boxes(cands.boxes[rows.numpy()], res * REFINE_SCALE)
+            res = head.refine_of_patches(_rows(cands.features, rows), slot[rows])
+            refined[rows.numpy()] = refine_boxes(cands.boxes[rows.numpy()], res)
     iou_after, _ = cands.best_iou(refined)
     iou_t = torch.from_numpy((iou_after if fcfg.iou_target == "refined" else best).astype(np.float32))
 
     def iou_of(idx: torch.Tensor) -> torch.Tensor:
-        logits = head.iou(_rows(cands.features, idx)).gather(1, slot[idx][:, None])[:, 0]
-        return iou_loss(logits, iou_t[idx])
+        return iou_loss(head.iou_of_patches(_rows(cands.features, idx), slot[idx]), iou_t[idx])
 
     _reset(head.iou, fcfg.seed + 1)
     head.iou.train()

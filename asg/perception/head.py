@@ -54,11 +54,16 @@ class AnchorHead(nn.Module):
         ``features`` (C, H, W); cells beyond the grid's edge repeat it."""
         patch = patch_features(features, anchor_idx // self.a, self.patch)
         slot = anchor_idx % self.a
-        logits = self.iou(patch).gather(1, slot[:, None])[:, 0]
-        if not refine:
-            return logits, None
-        res = self.refine(patch).view(len(anchor_idx), self.a, 7)[torch.arange(len(anchor_idx)), slot]
-        return logits, res * REFINE_SCALE
+        return self.iou_of_patches(patch, slot), (self.refine_of_patches(patch, slot) if refine else None)
+
+    def iou_of_patches(self, patch: torch.Tensor, slot: torch.Tensor) -> torch.Tensor:
+        """IoU logits (K,) from the candidates' patch features (K, C * patch^2) and anchor slots (K,)."""
+        return self.iou(patch).gather(1, slot[:, None])[:, 0]
+
+    def refine_of_patches(self, patch: torch.Tensor, slot: torch.Tensor) -> torch.Tensor:
+        """Refinement residuals (K, 7), in box units (REFINE_SCALE applied), from the candidates'
+        patch features (K, C * patch^2) and anchor slots (K,)."""
+        return self.refine(patch).view(len(slot), self.a, 7)[torch.arange(len(slot)), slot] * REFINE_SCALE
 
     def iou_logits(self, features: torch.Tensor, anchor_idx: torch.Tensor) -> torch.Tensor:
         """IoU logits (K,) alone (see :meth:`branches`)."""

@@ -24,11 +24,10 @@ from torch import nn
 from asg.datasets import iter_frames
 from asg.objective.ap import ap_at
 from asg.objective.iou import bev_iou_matrix
-from asg.perception.boxes import decode_with_direction, select_boxes, top_candidates
-from asg.perception.branch_fit import BranchFitConfig, fit_minibatches
+from asg.perception.boxes import select_boxes
+from asg.perception.branch_fit import BranchFitConfig, fit_minibatches, view_candidates
 from asg.perception.config import load_detector_config
 from asg.perception.data import Sample, augment, in_range
-from asg.perception.head import patch_features
 from asg.perception.inference import fold_batch_norms
 from asg.perception.model import AttFuse, PointPillars
 from asg.perception.train import BRANCH_KEYS, _Batches, render_samples
@@ -47,18 +46,11 @@ def load_frozen(name: str):
 
 def candidates(model, name: str, clouds: list[np.ndarray], patch: int, min_score: float) -> dict:
     """The anchors inference keeps for one view: features (K, C * patch^2), anchor slot (K,),
-    class score (K,), decoded boxes (K, 7)."""
-    with torch.no_grad():
-        if name == "attfuse":
-            cls, box, d, x = model([[torch.from_numpy(c) for c in clouds]])
-        else:
-            cls, box, d, x = model([torch.from_numpy(np.vstack(clouds))])
-    s = torch.sigmoid(cls[0])
-    keep = top_candidates(s, min_score, 300)
-    bx = decode_with_direction(box[0, keep], d[0, keep], model.anchors[keep])
-    f = patch_features(x[0], keep // model.head.a, patch)
-    return {"f": f.numpy().astype(np.float16), "a": (keep % model.head.a).numpy(), "s": s[keep].numpy().astype(np.float64),
-            "bx": bx}
+    class score (K,), decoded boxes (K, 7) (the package's branch_fit.view_candidates)."""
+    tensors = [torch.from_numpy(c) for c in clouds]
+    f, a, s, bx = view_candidates(model, tensors if name == "attfuse" else torch.from_numpy(np.vstack(clouds)),
+                                  min_score, 300, patch)
+    return {"f": f, "a": a, "s": s, "bx": bx}
 
 
 def best_iou(bx: np.ndarray, gt: np.ndarray) -> np.ndarray:
