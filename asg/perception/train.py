@@ -272,9 +272,9 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     fit = {"part": "branches", "passes": fcfg.passes, "epochs": fcfg.epochs, "batch_size": fcfg.batch_size,
            "lr": fcfg.lr, "seed": fcfg.seed, "views": fcfg.views, "iou_target": fcfg.iou_target,
            "wall_s": round(wall, 1), **figures}
-    card = json.loads((weights_dir / f"{name}.json").read_text())
-    _write_card(name, weights_dir, cfg, previous["chunks"] + [fit], previous, threads, dataset=card.get("dataset", fcfg.dataset),
-                examples=card.get("examples", len(items)), batch_size=card.get("batch_size", 0), branch_fit=fit)
+    _write_card(name, weights_dir, cfg, previous["chunks"] + [fit], previous, threads,
+                dataset=previous.get("dataset", fcfg.dataset), examples=previous.get("examples", len(items)),
+                batch_size=previous.get("batch_size", 0), branch_fit=fit)
     (run_dir / CACHE_NAME).unlink(missing_ok=True)
     log(f"wrote {weights}: branches fitted on {figures['candidates']} candidates in {wall / 60:.1f} min "
         f"(mean IoU of the candidates on a vehicle {figures['mean_iou_before']} -> {figures['mean_iou_after']} refined)")
@@ -330,7 +330,9 @@ def _previous_training(name: str, weights_dir: Path = WEIGHTS_DIR) -> dict:
     card = json.loads(card_path.read_text())
     chunks = card.get("chunks") or [{"steps": card.get("steps", 0), "lr": card.get("lr"), "seed": card.get("seed"),
                                      "wall_s": card.get("train_wall_s", 0.0)}]
-    out = {"chunks": chunks, "steps_total": sum(c.get("steps", 0) for c in chunks)}
+    out = {"chunks": chunks, "steps_total": sum(c.get("steps", 0) for c in chunks),
+           # what the detector chunks trained on, for a branch fit's card
+           **{k: card[k] for k in ("dataset", "examples", "batch_size") if k in card}}
     if card.get("init_from"):
         out["init_from"] = card["init_from"]
     return out
