@@ -128,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fusion", default="attfuse")
     p.add_argument("--out", type=Path, default=Path("runs/bench-paper"))
     p.add_argument("--jobs", type=int, default=1,
-                   help="run the four configurations in this many processes (2 on a 2-core machine: about half the time)")
+                   help="run the seven configurations in this many processes (2 on a 2-core machine: about half the time)")
     p.add_argument("--json", action="store_true", help="print JSON only")
     bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
 

@@ -11,4 +11,4 @@ def test_parallel_workers_give_the_sequential_table(tmp_path):
     two = bench_paper(tmp_path / "two", scenes=1, budget=3, jobs=2)
     strip = lambda r: {k: {m: v[m] for m in ("normal", "after_acs", "challenging", "scenes")} for k, v in r["table"].items()}
     assert strip(one) == strip(two)
-    assert set(one["table"]) == {"attention-bo", "attention-ga", "attention-rs", "random-bo"}
+    assert set(one["table"]) == {"attention-bo", "attention-ga", "attention-rs", "random-bo", "off-bo", "off-ga", "off-rs"}

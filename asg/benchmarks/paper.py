@@ -1,8 +1,11 @@
 """``asg bench paper``: the generator's targets on the normal scenes of the held-out towns.
 
-Runs AttFuse as the target with (ACS-A, BO), (ACS-A, GA), (ACS-A, RS) and (ACS-R, BO) on the
-same scenes and seed, and reports AP@0.3/0.5/0.7 pooled over the scenes (normal and challenging)
-for each, as the paper's Tables I-III. The scenes are spread evenly over the normal set, so that
+Runs AttFuse as the target with (ACS-A, BO), (ACS-A, GA), (ACS-A, RS), (ACS-R, BO) and, with no
+collaborator search, (BO), (GA), (RS) on the same scenes and seed, and reports AP@0.3/0.5/0.7
+pooled over the scenes (normal, after ACS and challenging) for each, as the paper's tables: fusion
+models and collaborator search (ACS-A and ACS-R with BO), search algorithms (the paper's black-box
+table is APS alone: the three no-ACS rows) and the ablation (ACS only: ACS-A's after-ACS column;
+APS only: no ACS with BO). The scenes are spread evenly over the normal set, so that
 both held-out towns, many logs and both ego kinds are in; they are written once to
 ``OUT/scenes-N``. Each configuration is an ``asg generate`` run folder under
 ``OUT/<acs>-<search>``, so an interrupted benchmark resumes where it stopped.
@@ -15,12 +18,13 @@ from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
-CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"))
+CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"),
+           ("off", "bo"), ("off", "ga"), ("off", "rs"))
 
 
 def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1,
                 jobs: int = 1) -> dict:
-    """Run (or resume) the four configurations and collect their pooled AP. ``jobs`` > 1 runs them
+    """Run (or resume) the seven configurations and collect their pooled AP. ``jobs`` > 1 runs them
     in that many worker processes, the machine's threads shared among them; each configuration's
     result does not depend on which worker ran it."""
     scene_dir = out / f"scenes-{scenes}"
