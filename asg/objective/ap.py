@@ -59,6 +59,13 @@ def average_precision(frames: Iterable[Frame], iou_threshold: float) -> float:
         s = np.asarray(pred_scores, dtype=float).reshape(-1)
         scores.append(s)
         tps.append(match_frame(pred_boxes, s, gt, iou_threshold))
+    return ap_from_matches(scores, tps, n_gt)
+
+
+def ap_from_matches(scores: Sequence[np.ndarray], tps: Sequence[np.ndarray], n_gt: int) -> float:
+    """AP in [0, 1] from frames already matched: per frame the detections' scores (N_i,) and
+    true-positive flags (N_i,) bool from `match_frame`, and the ground-truth count over all frames.
+    Detections are sorted globally across frames, then VOC all-point interpolation."""
     if n_gt == 0:
         return 0.0
     if not scores or not sum(len(s) for s in scores):

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from asg.objective.ap import match_frame, voc_ap
+from asg.objective.ap import ap_from_matches, match_frame
 from asg.perception.data import Sample
 from asg.perception.evaluate import scenes_of
 from asg.perception.fusion import build_detector
@@ -40,13 +40,7 @@ def per_frame_flags(set_name: str) -> dict:
 def ap_of(frames: list, idx: np.ndarray) -> float:
     """Global-sort VOC AP over the frames picked by idx (repeats allowed)."""
     picked = [frames[i] for i in idx]
-    n_gt = sum(f[2] for f in picked)
-    s = np.concatenate([f[0] for f in picked])
-    if n_gt == 0 or not len(s):
-        return 0.0
-    tp = np.concatenate([f[1] for f in picked])[np.argsort(-s, kind="stable")]
-    ctp = np.cumsum(tp)
-    return voc_ap(ctp / n_gt, ctp / np.arange(1, len(tp) + 1))
+    return ap_from_matches([f[0] for f in picked], [f[1] for f in picked], sum(f[2] for f in picked))
 
 
 def main(set_name: str, resamples: int) -> None:
