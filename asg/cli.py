@@ -6,6 +6,9 @@ with code 2; Ctrl-C exits with 130 and leaves no half-written file.
 from __future__ import annotations
 
 import argparse
+import errno
+import math
+import signal
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
@@ -21,6 +24,47 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         sys.stderr.write(f"asg: error: {message} (see '{self.prog} --help')\n")
         raise SystemExit(2)
+
+
+def _whole(lo: int, hi: int, what: str) -> Callable[[str], int]:
+    """An argparse type: a whole number in [lo, hi]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{value} is out of range: {what} must be between {lo} and {hi}")
+        return value
+
+    parse.__name__ = "whole number"
+    return parse
+
+
+def _real(lo: float, hi: float, what: str, lo_open: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number in [lo, hi] (or (lo, hi] with ``lo_open``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not math.isfinite(value) or value < lo or value > hi or (lo_open and value <= lo):
+            low = f"above {lo:g}" if lo_open else f"at least {lo:g}"
+            raise argparse.ArgumentTypeError(f"{text} is out of range: {what} must be {low} and at most {hi:g}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+#: seeds go to SUMO and numpy: a non-negative 31-bit number
+SEED = _whole(0, 2**31 - 1, "a seed")
+#: counts of scenes, frames, repeats
+COUNT = _whole(1, 1_000_000, "a count")
+#: seconds of simulated traffic (a day at most)
+SECONDS = _real(0.0, 86_400.0, "seconds", lo_open=True)
 
 
 def _add(sub, name: str, help_text: str, func: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:
@@ -51,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--net", type=Path, help="any SUMO .net.xml")
     p.add_argument("--source", choices=["sumo", "highway-env"], default="sumo", help="traffic source (default sumo)")
     p.add_argument("--env", default="highway-v0", help="highway-env scenario: highway-v0, merge-v0, roundabout-v0, intersection-v0")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=SEED, default=1)
     p.add_argument("--duration", type=float, default=60.0, help="recorded seconds (default 60)")
     p.add_argument("--warmup", type=float, default=None, help="seconds simulated before recording (default 90 for SUMO, 0 for highway-env)")
     p.add_argument("--density", choices=["normal", "dense"], default="normal")
@@ -63,10 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
     ssub = scenes.add_subparsers(dest="scenes_command", metavar="ACTION", parser_class=_Parser)
     p = _add(ssub, "extract", "write every N-th frame of a log as a scene yaml", commands.scenes_extract)
     p.add_argument("log", type=Path, help="log folder written by 'asg simulate'")
-    p.add_argument("--every", type=int, default=10, help="take every N-th recorded frame (default 10)")
+    p.add_argument("--every", type=COUNT, default=10, help="take every N-th recorded frame (default 10)")
     p.add_argument("--ego", choices=["rsu", "vehicle"], default="rsu", help="ego agent kind (default rsu: V2I)")
     p.add_argument("--radius", type=float, default=120.0, help="keep agents within this many metres of the ego")
-    p.add_argument("--min-vehicles", type=int, default=1, help="skip frames with fewer vehicles within 48 m of the ego")
+    p.add_argument("--min-vehicles", type=_whole(0, 10_000, "--min-vehicles"), default=1, help="skip frames with fewer vehicles within 48 m of the ego")
     p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
     scenes.set_defaults(func=lambda a: (scenes.print_help(), 2)[1])
 
@@ -74,9 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", type=Path, help="scene yaml (from 'asg scenes extract')")
     p.add_argument("--out", type=Path, required=True, help="PNG to write")
     p.add_argument("--lidar", default="v2xp", help="LiDAR preset in configs/lidar/ or a yaml path (default v2xp)")
-    p.add_argument("--collaborators", type=int, default=2, help="if the scene names none: this many nearest vehicles")
+    p.add_argument("--collaborators", type=_whole(0, 16, "--collaborators"), default=2, help="if the scene names none: this many nearest vehicles")
     p.add_argument("--pcd-dir", type=Path, default=None, help="also write each agent's cloud as PCD and .npy here")
-    p.add_argument("--seed", type=int, default=0, help="seed of the LiDAR noise (if the preset has any)")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the LiDAR noise (if the preset has any)")
 
     ds = sub.add_parser("dataset", help="build the detector data sets (detector-train, normal)", description="Data sets.")
     dsub = ds.add_subparsers(dest="dataset_command", metavar="ACTION", parser_class=_Parser)
@@ -86,8 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = _add(sub, "train", "train a detector on CPU (resumes from runs/train/NAME/last.pt)", commands.train)
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse (none and late share weights)")
-    p.add_argument("--steps", type=int, default=None, help="override the configured number of steps")
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--steps", type=COUNT, default=None, help="override the configured number of steps")
+    p.add_argument("--threads", type=_whole(1, 256, "--threads"), default=2)
     p.add_argument("--validate-only", action="store_true",
                    help="no training: re-measure the shipped weights on normal-val and update their model card "
                         "(after changing configs/detectors/pointpillars.yaml)")
@@ -101,33 +145,33 @@ def build_parser() -> argparse.ArgumentParser:
     p = _add(sub, "evaluate", "AP of a detector on a scene set", commands.evaluate)
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse")
     p.add_argument("--set", default="normal", help="normal (train split), normal-val, normal-all, or a folder of scenes")
-    p.add_argument("--limit", type=int, default=None, help="only the first N scenes")
+    p.add_argument("--limit", type=COUNT, default=None, help="only the first N scenes")
     p.add_argument("--json", action="store_true", help="print JSON only")
 
     bench = sub.add_parser("bench", help="benchmarks: simulate, lidar, detect, generate", description="Speed benchmarks.")
     bsub = bench.add_subparsers(dest="bench_command", metavar="WHAT", parser_class=_Parser)
     p = _add(bsub, "simulate", "10 simulated minutes of a dense town at 0.1 s steps", commands.bench_simulate)
     p.add_argument("--town", default="grid_small")
-    p.add_argument("--minutes", type=float, default=10.0)
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--minutes", type=_real(0.0, 1440.0, "--minutes", lo_open=True), default=10.0)
+    p.add_argument("--repeats", type=COUNT, default=3)
     p.add_argument("--json", action="store_true", help="print JSON only")
     p = _add(bsub, "lidar", "cooperative-frame ray casting vs Open3D, and re-render after moves", commands.bench_lidar)
-    p.add_argument("--repeats", type=int, default=15)
+    p.add_argument("--repeats", type=COUNT, default=15)
     p.add_argument("--json", action="store_true", help="print JSON only")
     p = _add(bsub, "detect", "median inference time of each shipped model with 3 agents", commands.bench_detect)
-    p.add_argument("--frames", type=int, default=10)
+    p.add_argument("--frames", type=COUNT, default=10)
     p.add_argument("--json", action="store_true", help="print JSON only")
     p = _add(bsub, "generate", "seconds per scene of AttFuse + ACS-A + BO, BO overhead per suggestion", commands.bench_generate)
-    p.add_argument("--scenes", type=int, default=5)
-    p.add_argument("--budget", type=int, default=50)
+    p.add_argument("--scenes", type=COUNT, default=5)
+    p.add_argument("--budget", type=COUNT, default=50)
     p.add_argument("--json", action="store_true", help="print JSON only")
     p = _add(bsub, "paper", "the generator's targets: AttFuse with ACS-A/BO, GA, RS and ACS-R/BO on normal scenes",
              commands.bench_paper)
-    p.add_argument("--scenes", type=int, default=30)
-    p.add_argument("--budget", type=int, default=50)
+    p.add_argument("--scenes", type=COUNT, default=30)
+    p.add_argument("--budget", type=COUNT, default=50)
     p.add_argument("--fusion", default="attfuse")
     p.add_argument("--out", type=Path, default=Path("runs/bench-paper"))
-    p.add_argument("--jobs", type=int, default=1,
+    p.add_argument("--jobs", type=_whole(1, 64, "--jobs"), default=1,
                    help="run the seven configurations in this many processes (2 on a 2-core machine: about half the time)")
     p.add_argument("--json", action="store_true", help="print JSON only")
     bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
@@ -142,12 +186,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search", default=None, help="rs, ga or bo (default bo)")
     p.add_argument("--acs", default=None, choices=["attention", "random", "off"])
     p.add_argument("--aps", default=None, choices=["on", "off"])
-    p.add_argument("--count", type=int, default=None, help="scenes to generate (default 10; demo 2)")
-    p.add_argument("--budget", type=int, default=None, help="evaluations per scene (default 50; demo 15)")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--count", type=COUNT, default=None, help="scenes to generate (default 10; demo 2)")
+    p.add_argument("--budget", type=COUNT, default=None, help="evaluations per scene (default 50; demo 15)")
+    p.add_argument("--seed", type=SEED, default=1)
     p.add_argument("--config", type=Path, default=None, help="generate yaml (default configs/generate.yaml)")
     p.add_argument("--out", type=Path, default=Path("runs/generate"), help="run folder (default runs/generate)")
+    p.add_argument("--force", action="store_true",
+                   help="start the run folder over when it holds a run made with other settings")
     return parser
+
+
+class Terminated(Exception):
+    """SIGTERM arrived: unwind like Ctrl-C, so that every temporary file is removed."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise Terminated()
+
+
+#: errno values of output problems a user can fix (disk full, read-only, no permission, quota)
+_OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.ENOTDIR, errno.EISDIR}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -156,14 +214,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return int(args.func(args) or 0)
     except InputError as exc:
         sys.stderr.write(f"asg: error: {exc}\n")
         return 2
+    except OSError as exc:
+        if exc.errno not in _OUTPUT_ERRNOS:
+            raise
+        where = f" ({exc.filename})" if exc.filename else ""
+        sys.stderr.write(f"asg: error: cannot write or read{where}: {exc.strerror}; free space or pick a writable folder\n")
+        return 2
     except KeyboardInterrupt:
-        sys.stderr.write("asg: interrupted; nothing half-written was left behind\n")
+        sys.stderr.write("asg: interrupted; nothing half-written was left behind (rerun the command to resume)\n")
         return 130
+    except Terminated:
+        sys.stderr.write("asg: terminated; nothing half-written was left behind (rerun the command to resume)\n")
+        return 143
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

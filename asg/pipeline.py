@@ -12,6 +12,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import from_mapping, read_yaml
@@ -24,6 +25,9 @@ from .scene.neighbours import vehicles_within
 from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, check_settings, run_search
 from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
 from .sensors.frame import CooperativeFrame, render_frame
+
+#: evaluations per scene at most (a scene at 50 takes seconds; this many is a day)
+MAX_BUDGET = 100_000
 
 Detections = tuple[np.ndarray, np.ndarray, np.ndarray]  # boxes (K, 7), scores (K,), ground truth (M, 7)
 
@@ -53,17 +57,27 @@ class GenerateConfig:
             raise InputError(f"unknown search algorithm '{self.search}'; known: {', '.join(names('search'))}")
         if self.acs not in ("attention", "random", "off"):
             raise InputError(f"--acs must be attention, random or off, got {self.acs!r}")
-        if self.budget < 1:
-            raise InputError(f"--budget must be at least 1, got {self.budget}")
-        if self.sensing_agents < 1 or self.perturbed < 0:
-            raise InputError("sensing_agents must be >= 1 and perturbed >= 0")
+        if not 1 <= self.budget <= MAX_BUDGET:
+            raise InputError(f"--budget must be between 1 and {MAX_BUDGET}, got {self.budget}")
+        checks.number(self.sensing_agents, "sensing_agents", 1, 16)
+        checks.number(self.acs_samples, "acs_samples", 1, 1000)
+        checks.number(self.acs_tau, "acs_tau", 0.0, 100.0, lo_open=True)
+        checks.number(self.perturbed, "perturbed", 0, 64)
+        checks.number(self.comm_range_m, "comm_range_m", 0.0, 1000.0, lo_open=True)
         return self
 
 
 def load_generate_config(path: Path | None = None, **overrides) -> GenerateConfig:
-    data = read_yaml(path or configs_dir() / "generate.yaml") or {}
+    """The generator's settings: ``path`` (default configs/generate.yaml), then the non-None
+    ``overrides`` (CLI flags); an error names the file it came from."""
+    path = Path(path) if path is not None else configs_dir() / "generate.yaml"
+    data = read_yaml(path)
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a mapping of settings (key: value), got a {type(data).__name__}")
     data.update({k: v for k, v in overrides.items() if v is not None})
-    return from_mapping(GenerateConfig, data, "generate.yaml").validate()
+    return from_mapping(GenerateConfig, data, str(path)).validate()
 
 
 def search_params(name: str) -> dict:
@@ -94,6 +108,13 @@ class SceneResult:
     bo_overhead_s: list[float] = field(default_factory=list)
     #: (boxes, scores, ground truth) of the target model on the initial and final scene (ego frame)
     detections: dict[str, "Detections"] = field(default_factory=dict)
+    #: one vehicle's move bounds (dx_m, dy_m, dyaw_deg): history's normalised x times these
+    move_bounds: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def moved(self) -> tuple[str, ...]:
+        """The perturbed vehicles that the final scene actually moved (none if APS kept the start)."""
+        return self.perturbed if self.delta else ()
 
 
 class Generator:
@@ -114,7 +135,7 @@ class Generator:
         return boxes, scores, gt[in_range(gt)]
 
     def _score(self, frame: CooperativeFrame) -> tuple[float, dict[str, float]]:
-        ap = ap_at([self._detections(frame)])
+        ap = ap_at([self._detections(frame)], self.cfg.objective.thresholds)
         return adversarial_loss(ap, self.cfg.objective), ap
 
     def evaluate_scene(self, scene: Scene) -> tuple[float, dict[str, float], CooperativeFrame]:
@@ -209,7 +230,8 @@ class Generator:
         return SceneResult(
             scene.scene_id, initial, after, final, ap_n, ap_a, ap_f, loss_n, loss_f, 1 + n_combos + len(history),
             time.perf_counter() - t0, tuple(perturbed), delta, plaus, history,
-            {"initial": frame_n, "after_acs": frame_a, "final": frame_f}, notes, probs, overhead, detections)
+            {"initial": frame_n, "after_acs": frame_a, "final": frame_f}, notes, probs, overhead, detections,
+            (self.cfg.space.dxy_m, self.cfg.space.dxy_m, self.cfg.space.dyaw_deg))
 
     def _perturb(self, scene: Scene, perturbed: list[str], loss0: float, ap0: dict, frame0: CooperativeFrame,
                  rng: np.random.Generator, on_step):

@@ -66,3 +66,20 @@ def atomic_dir(final_dir: str | os.PathLike) -> Iterator[Path]:
             os.replace(item, target)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def is_partial(name: str) -> bool:
+    """Is ``name`` one of the temporary names above (``.NAME.XXXX.tmp...``)?"""
+    return name.startswith(".") and ".tmp" in name
+
+
+def remove_stale_partials(folder: str | os.PathLike) -> int:
+    """Remove the temporary files and folders that an interrupted writer left in ``folder``
+    (not below it); returns how many. Call it only where no other writer is at work."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return 0
+    stale = [p for p in folder.iterdir() if is_partial(p.name)]
+    for p in stale:
+        shutil.rmtree(p, ignore_errors=True) if p.is_dir() and not p.is_symlink() else p.unlink(missing_ok=True)
+    return len(stale)

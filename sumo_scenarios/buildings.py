@@ -16,6 +16,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from . import checks
 from .atomic import write_text_atomic
 from .errors import InputError
 from .lanes import LaneMap
@@ -38,7 +39,12 @@ class Building:
 
     @staticmethod
     def from_dict(d: dict) -> "Building":
-        return Building(str(d["id"]), np.asarray(d["footprint"], dtype=float).reshape(-1, 2), float(d["height_m"]))
+        where = f"building {str(d['id'])[:40]!r}"
+        footprint = checks.points_xy(d["footprint"], f"{where} footprint", 3)
+        if Polygon(footprint).convex_hull.area < 1e-3:
+            raise InputError(f"{where}: its footprint encloses no area; give at least 3 corners that are not in a line")
+        return Building(str(d["id"]), footprint,
+                        checks.number(d["height_m"], f"{where} height_m", 0.0, 1000.0, lo_open=True))
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from shapely.geometry import LineString, box
 
+from . import checks
 from .atomic import atomic_dir
 from .buildings import generate_buildings, write_buildings
 from .errors import InputError
@@ -22,7 +23,7 @@ from .fcd import FcdFrame, FcdVehicle, front_from_center, sumo_angle_from_yaw_ra
 from .lanes import Junction, Lane, LaneMap
 from .log import BUILDINGS_NAME, LANES_NAME, LogMeta, density_stats, write_lanes, write_meta
 from .rsu import place_rsus
-from .simulate import validate_times
+from .simulate import MAX_SECONDS, remove_stale_partials_of, validate_times
 
 ENVS = ("highway-v0", "merge-v0", "roundabout-v0", "intersection-v0")
 #: highway-env's vehicles are all 5 m x 2 m; we record them as this type (height is ours)
@@ -52,6 +53,7 @@ class HighwayRequest:
         if self.env_id not in ENVS:
             raise InputError(f"unknown highway-env scenario '{self.env_id}'; choose one of {', '.join(ENVS)}")
         validate_times(self.duration_s, self.warmup_s)
+        checks.number(self.record_period_s, "--record-period (s)", 0.0, MAX_SECONDS, lo_open=True)
         if self.record_period_s * self.simulation_hz < 1 - 1e-9:
             raise InputError(f"--record-period must be at least one step ({1 / self.simulation_hz:g} s)")
 
@@ -136,6 +138,7 @@ def simulate_highway(req: HighwayRequest, progress=None) -> dict:
     rsus = place_rsus(lane_map, buildings)
     stats = density_stats(frames, rsus, {"car": HWENV_TYPE["length_m"]})
     stats["wall_s"] = round(wall, 3)
+    remove_stale_partials_of(req.out_dir)
     with atomic_dir(req.out_dir) as work:
         write_fcd(work / "fcd.xml.gz", frames)
         write_lanes(work / LANES_NAME, lane_map)

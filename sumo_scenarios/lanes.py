@@ -20,6 +20,7 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import unary_union
 
+from . import checks
 from .errors import InputError
 
 #: slack when testing a footprint against the drivable area (m): SUMO's lane and junction shapes
@@ -48,11 +49,12 @@ class Lane:
 
     @staticmethod
     def from_dict(d: dict) -> "Lane":
+        where = f"lane {str(d['id'])[:40]!r}"
         return Lane(
             lane_id=str(d["id"]),
-            centerline_xy=np.asarray(d["centerline"], dtype=float).reshape(-1, 2),
-            width_m=float(d["width_m"]),
-            speed_mps=float(d["speed_mps"]),
+            centerline_xy=checks.points_xy(d["centerline"], f"{where} centerline", 2),
+            width_m=checks.number(d["width_m"], f"{where} width_m", 0.0, 50.0, lo_open=True),
+            speed_mps=checks.number(d["speed_mps"], f"{where} speed_mps", 0.0, 150.0),
             internal=bool(d.get("internal", False)),
         )
 
@@ -76,10 +78,11 @@ class Junction:
 
     @staticmethod
     def from_dict(d: dict) -> "Junction":
-        c = d["center"]
+        where = f"junction {str(d['id'])[:40]!r}"
+        c = checks.points_xy([d["center"]], f"{where} center", 1)[0]
         return Junction(
             junction_id=str(d["id"]),
-            shape_xy=np.asarray(d["shape"], dtype=float).reshape(-1, 2),
+            shape_xy=checks.points_xy(d["shape"], f"{where} shape", 0) if len(d["shape"]) else np.zeros((0, 2)),
             kind=str(d["kind"]),
             center_xy=(float(c[0]), float(c[1])),
         )

@@ -38,8 +38,9 @@ class TrafficParams:
 
 
 def make_routes(net_path: Path, vtypes_path: Path, out_path: Path, seed: int, end_s: float,
-                density: Density, params: TrafficParams = TrafficParams()) -> Path:
-    """Write a route file for ``[0, end_s]`` seconds of traffic; returns ``out_path``."""
+                density: Density, params: TrafficParams = TrafficParams(), label: str | None = None) -> Path:
+    """Write a route file for ``[0, end_s]`` seconds of traffic; returns ``out_path``. ``label``
+    names the net in errors (the user's town or file, not the copy being worked on)."""
     trips = out_path.with_name(out_path.name.replace(".rou.xml", ".trips.xml"))
     sumo_tools.run_python_tool(
         "randomTrips.py",
@@ -53,6 +54,6 @@ def make_routes(net_path: Path, vtypes_path: Path, out_path: Path, seed: int, en
             "--additional-file", str(vtypes_path),
             "--remove-loops", "--validate",
         ],
-        f"randomTrips for {net_path.name}",
+        f"making routes for {label or net_path.name} (SUMO's randomTrips)",
     )
     return out_path

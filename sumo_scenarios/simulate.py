@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from . import checks
 from .atomic import atomic_dir, write_text_atomic
 from .buildings import write_buildings
 from .errors import InputError
@@ -38,8 +39,9 @@ class SimulationRequest:
 
     def validate(self) -> None:
         validate_times(self.duration_s, self.warmup_s)
-        if not 0 < self.step_s <= 1.0:
-            raise InputError(f"--step must be in (0, 1] seconds, got {self.step_s:g}")
+        checks.number(self.step_s, "--step (s)", 0.0, 1.0, lo_open=True)
+        checks.number(self.record_period_s, "--record-period (s)", 0.0, MAX_SECONDS, lo_open=True)
+        checks.number(self.seed, "--seed", 0, 2**31 - 1)
         if self.record_period_s < self.step_s:
             raise InputError(f"--record-period ({self.record_period_s:g} s) must be at least the step ({self.step_s:g} s)")
         if self.density not in ("normal", "dense"):
@@ -47,17 +49,25 @@ class SimulationRequest:
 
 
 def validate_times(duration_s: float, warmup_s: float) -> None:
-    """The recorded duration must be positive and the warm-up not negative (seconds)."""
-    if duration_s <= 0:
+    """The recorded duration must be positive and the warm-up not negative (seconds), both finite
+    and at most MAX_SECONDS."""
+    if not duration_s > 0:  # also NaN
         raise InputError(f"--duration must be positive seconds, got {duration_s:g}")
-    if warmup_s < 0:
+    checks.number(duration_s, "--duration (s)", 0.0, MAX_SECONDS)
+    if not warmup_s >= 0:
         raise InputError(f"--warmup must be zero or more seconds, got {warmup_s:g}")
+    checks.number(warmup_s, "--warmup (s)", 0.0, MAX_SECONDS)
+
+
+#: a day of simulated traffic at most
+MAX_SECONDS = 86_400.0
 
 
 def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> dict:
     """Simulate and write the log folder ``req.out_dir`` atomically; returns the density stats."""
     req.validate()
     town = load_town(req.town, req.net, seed=req.seed)
+    remove_stale_partials_of(req.out_dir)
     rsus = place_rsus(town.lane_map, town.buildings)
     end_s = req.warmup_s + req.duration_s
     with atomic_dir(req.out_dir) as work:
@@ -66,7 +76,8 @@ def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> d
         vtypes = work / "vtypes.add.xml"
         write_text_atomic(vtypes, vtypes_additional_xml())
         traffic = req.traffic or TrafficParams(scale=demand_scale(req.town))
-        routes = make_routes(work / NET_NAME, vtypes, work / "routes.rou.xml", req.seed, end_s, req.density, traffic)
+        routes = make_routes(work / NET_NAME, vtypes, work / "routes.rou.xml", req.seed, end_s, req.density, traffic,
+                             label=req.town or str(req.net))
         for leftover in work.glob("*.trips.xml"):
             leftover.unlink()
         max_vehicles = traffic.max_vehicles(req.density, town.lane_map.lane_km())
@@ -84,6 +95,14 @@ def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> d
             rsus=tuple(r.to_dict() for r in rsus), stats=stats, net_source=str(town.net_path),
         ))
     return stats
+
+
+def remove_stale_partials_of(out_dir: Path) -> None:
+    """Remove what an interrupted run into ``out_dir`` left beside it (``.NAME.XXXX.tmp``)."""
+    parent = Path(out_dir).parent
+    if parent.is_dir():
+        for p in parent.glob(f".{Path(out_dir).name}.*.tmp"):
+            shutil.rmtree(p, ignore_errors=True)
 
 
 #: simulated seconds between the samples that the density statistics are computed on

@@ -8,7 +8,11 @@ from sumo_scenarios.paths import nets_dir
 
 
 def run(capsys, *argv):
-    code = main(list(argv))
+    """(exit code, stderr) of ``asg ARGV``, whether argparse or the command refused it."""
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:
+        code = exc.code
     captured = capsys.readouterr()
     return code, captured.err
 

@@ -12,7 +12,6 @@ both held-out towns, many logs and both ego kinds are in; they are written once 
 """
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -87,13 +86,17 @@ def pick_scenes(scene_dir: Path, count: int, set_name: str = "normal") -> Path:
 def _run_config(run_dir: Path, scene_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str,
                 seed: int, threads: int | None = None) -> None:
     """One configuration as an ``asg generate`` run into ``run_dir`` (resumes a partial one)."""
-    from ..generate_cmd import run_generate
+    from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+    from ..generate_cmd import print_table
+    from ..pipeline import load_generate_config
     from ..progress import console
 
     if threads:
         import torch
 
         torch.set_num_threads(threads)
-    args = argparse.Namespace(town=None, net=None, scenes=scene_dir, fusion=fusion, search=search,
-                              acs=acs, aps="on", count=scenes, budget=budget, seed=seed, config=None, out=run_dir)
-    run_generate(args, table_console=console)  # per-scene tables to stderr: stdout holds the result
+    cfg = load_generate_config(fusion=fusion, search=search, acs=acs, aps=True, budget=budget)
+    source = SceneSource(scenes=scene_dir)
+    prepare_run(run_dir, run_settings(cfg, seed, scenes, source.describe()))
+    run = generate(cfg, load_scenes(source, scenes, seed, run_dir), run_dir, seed=seed)
+    print_table(run.summary, console)  # per-scene tables to stderr: stdout holds the result

@@ -17,11 +17,13 @@ from __future__ import annotations
 import csv
 import io
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from sumo_scenarios.atomic import atomic_dir, atomic_path, write_text_atomic
+from sumo_scenarios.checks import inside
 
 from ..pipeline import SceneResult
 from ..scene import save_scene
@@ -36,14 +38,17 @@ def scene_entry(r: SceneResult) -> dict:
         "loss_normal": round(r.loss_normal, 6), "loss_final": round(r.loss_final, 6),
         "evaluations": r.evaluations, "seconds": round(r.seconds, 3),
         "collaborators": {"initial": list(r.initial.collaborators), "final": list(r.after_acs.collaborators)},
-        "perturbed": list(r.perturbed), "delta": r.delta,
+        "perturbed": list(r.perturbed), "moved": list(r.moved), "delta": r.delta,
         "plausibility": r.plausibility.to_dict(), "notes": r.notes,
     }
 
 
-def write_scene(out_dir: Path, r: SceneResult, m_ids: list[str]) -> dict:
+def write_scene(out_dir: Path, r: SceneResult) -> dict:
+    """Write scene folder ``OUT/scenes/SCENE_ID`` atomically (its id must be a safe name) and
+    return its summary entry."""
     entry = scene_entry(r)
-    with atomic_dir(out_dir / "scenes" / r.scene_id) as work:
+    m_ids = list(r.perturbed)
+    with atomic_dir(inside(out_dir / "scenes", out_dir / "scenes" / r.scene_id)) as work:
         save_scene(r.initial, work / "initial.yaml")
         save_scene(r.after_acs, work / "after_acs.yaml")
         save_scene(r.final, work / "final.yaml")
@@ -51,13 +56,14 @@ def write_scene(out_dir: Path, r: SceneResult, m_ids: list[str]) -> dict:
         w = csv.writer(buf)
         cols = [f"{v}_{k}" for v in m_ids for k in ("dx_m", "dy_m", "dyaw_deg")]
         w.writerow(["step", *cols, "loss", "ap_0.3", "ap_0.5", "ap_0.7"])
-        scale = np.tile([2.5, 2.5, 45.0], len(m_ids))
+        scale = np.tile(r.move_bounds, len(m_ids))
         for e in r.history:
             w.writerow([e.step, *[round(float(v), 4) for v in e.x * scale], round(e.loss, 6),
                         *[round(e.ap.get(k, 0.0), 6) for k in ("0.3", "0.5", "0.7")]])
         (work / "history.csv").write_text(buf.getvalue())
         frame = r.frames["final"]
         for aid, cloud in frame.clouds.items():
+            inside(work / "clouds", work / "clouds" / aid)
             write_pcd(work / "clouds" / f"{aid}.pcd", cloud)
             with atomic_path(work / "clouds" / f"{aid}.npy") as tmp:
                 np.save(tmp, cloud)
@@ -79,9 +85,18 @@ def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:
 
 
 def load_done(out_dir: Path) -> dict[str, dict]:
+    """The finished scenes of a run folder by id: those whose result.json reads back whole and whose
+    detections.npz is there. Any other scene folder (damaged after the fact) is generated again."""
     done = {}
     for p in sorted((out_dir / "scenes").glob("*/result.json")):
-        done[p.parent.name] = json.loads(p.read_text())
+        try:
+            entry = json.loads(p.read_text(encoding="utf-8"))
+            with np.load(p.parent / "detections.npz") as z:
+                z.files  # noqa: B018  (opens the archive's index: a truncated file fails here)
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+            continue
+        if isinstance(entry, dict) and entry.get("scene_id") == p.parent.name:
+            done[p.parent.name] = entry
     return done
 
 

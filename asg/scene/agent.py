@@ -12,6 +12,9 @@ from typing import Literal
 
 import numpy as np
 
+from sumo_scenarios import checks
+from sumo_scenarios.errors import InputError
+
 AgentKind = Literal["vehicle", "rsu"]
 
 
@@ -58,12 +61,33 @@ class Agent:
 
     @staticmethod
     def from_dict(d: dict) -> "Agent":
+        """An agent from its yaml mapping; every number is checked (finite, sizes positive and within
+        SIZE_LIMITS_M, coordinates within checks.MAX_COORD_M), the id must be a safe file name."""
+        where = f"agent {str(d['id'])[:40]!r}"
+        kind = d["kind"]
+        if kind not in ("vehicle", "rsu"):
+            raise InputError(f"{where}: kind {kind!r} is not one of vehicle, rsu")
+        size = {k: checks.number(d[k], f"{where} {k}", 0.0, SIZE_LIMITS_M[k], lo_open=True)
+                for k in ("length_m", "width_m", "height_m")}
+        lane = d.get("lane")
         return Agent(
-            agent_id=str(d["id"]), kind=d["kind"], type_id=str(d["type"]),
-            x_m=float(d["x_m"]), y_m=float(d["y_m"]), z_m=float(d["z_m"]), yaw_rad=float(d["yaw_rad"]),
-            length_m=float(d["length_m"]), width_m=float(d["width_m"]), height_m=float(d["height_m"]),
-            speed_mps=float(d.get("speed_mps", 0.0)), lane_id=d.get("lane"),
+            agent_id=checks.safe_id(d["id"], where), kind=kind, type_id=str(d["type"]),
+            x_m=checks.coordinate(d["x_m"], f"{where} x_m"), y_m=checks.coordinate(d["y_m"], f"{where} y_m"),
+            z_m=checks.number(d["z_m"], f"{where} z_m", -MAX_ABS_Z_M, MAX_ABS_Z_M),
+            yaw_rad=checks.number(d["yaw_rad"], f"{where} yaw_rad", -MAX_ABS_YAW_RAD, MAX_ABS_YAW_RAD),
+            speed_mps=checks.number(d.get("speed_mps", 0.0), f"{where} speed_mps", 0.0, MAX_SPEED_MPS),
+            lane_id=None if lane is None else str(lane), **size,
         )
+
+
+#: largest sizes accepted from a file (m): a long articulated truck, a tall RSU pole
+SIZE_LIMITS_M = {"length_m": 30.0, "width_m": 5.0, "height_m": 20.0}
+#: ground heights beyond this (m) are refused (SUMO nets with elevation stay far inside it)
+MAX_ABS_Z_M = 10_000.0
+#: headings are normally within [-pi, pi]; a few turns either way are accepted, nothing wilder
+MAX_ABS_YAW_RAD = 8 * math.pi
+#: 540 km/h: faster is not traffic
+MAX_SPEED_MPS = 150.0
 
 
 #: a rectangle's corners in its own frame, in half lengths and half widths, counter-clockwise

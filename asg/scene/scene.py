@@ -21,6 +21,7 @@ from typing import Sequence
 
 import yaml
 
+from sumo_scenarios import checks
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.buildings import Building
 from sumo_scenarios.errors import InputError
@@ -93,23 +94,47 @@ class Scene:
         if missing:
             raise InputError(f"{where}: scene is missing key '{missing[0]}'; re-extract it with 'asg scenes extract'")
         try:
-            agents = tuple(Agent.from_dict(a) for a in d["agents"])
+            agents = tuple(Agent.from_dict(a) for a in _items(d["agents"], "agents"))
             scene = Scene(
-                scene_id=str(d["scene_id"]), town=str(d["town"]), source=str(d["source"]), time_s=float(d["time_s"]),
+                scene_id=checks.safe_id(d["scene_id"], f"{where}: scene_id"), town=str(d["town"]),
+                source=str(d["source"]), time_s=checks.number(d["time_s"], f"{where}: time_s", 0.0, 1.0e7),
                 ego_id=str(d["ego"]), agents=agents,
-                buildings=tuple(Building.from_dict(b) for b in d["buildings"]),
+                buildings=tuple(Building.from_dict(b) for b in _items(d["buildings"], "buildings")),
                 lane_map=LaneMap.from_dict(d["lanes"]),
-                collaborators=tuple(str(c) for c in d.get("collaborators") or ()), log=d.get("log"),
+                collaborators=tuple(str(c) for c in _items(d.get("collaborators"), "collaborators")),
+                log=None if d.get("log") is None else str(d["log"]),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed scene ({type(exc).__name__}: {exc}); re-extract it") from None
-        ids = {a.agent_id for a in agents}
+        if scene.source not in SOURCES:
+            raise InputError(f"{where}: source {scene.source!r} is not one of {', '.join(SOURCES)}")
+        ids = [a.agent_id for a in agents]
         if not agents:
             raise InputError(f"{where}: the scene has no agents; pick a frame with traffic")
+        dup = next((i for i in ids if ids.count(i) > 1), None)
+        if dup is not None:
+            raise InputError(f"{where}: agent id '{dup}' appears twice; ids must be unique")
         for needed in scene.sensing_ids:
             if needed not in ids:
                 raise InputError(f"{where}: agent '{needed}' named as ego or collaborator is not in 'agents'")
+        if len(set(scene.sensing_ids)) != len(scene.sensing_ids):
+            raise InputError(f"{where}: the ego or a collaborator is named twice")
         return scene
+
+
+#: where scenes come from
+SOURCES = ("sumo", "highway-env")
+
+
+def _items(value, key: str) -> list:
+    """A yaml list (None = empty); anything else is malformed."""
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise TypeError(f"'{key}' must be a list")
+    return value
 
 
 def save_scene(scene: Scene, path: str | Path) -> None:
@@ -125,6 +150,10 @@ def load_scene(path: str | Path) -> Scene:
         data = yaml.load(p.read_text(encoding="utf-8"), Loader=_loader())
     except yaml.YAMLError:
         raise InputError(f"{p}: not valid YAML; re-extract the scene") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not UTF-8 text; give a scene yaml written by 'asg scenes extract'") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot be read ({exc.strerror}); check its permissions") from None
     return Scene.from_dict(data, str(p))
 
 

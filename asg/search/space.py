@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 
 from ..scene import Agent, Scene
@@ -27,6 +28,20 @@ class SpaceConfig:
     n_q: int = 1000
     #: at most this many draws (x n_q) while filling Q
     max_draw_factor: int = 20
+
+    def __post_init__(self) -> None:
+        checks.number(self.dxy_m, "space.dxy_m", 0.0, MAX_DXY_M, lo_open=True)
+        checks.number(self.dyaw_deg, "space.dyaw_deg", 0.0, 180.0, lo_open=True)
+        checks.number(self.n_q, "space.n_q", 1, 1_000_000)
+        checks.number(self.max_draw_factor, "space.max_draw_factor", 1, 10_000)
+
+    def scale_per_vehicle(self) -> np.ndarray:
+        """(3,) the bounds of one vehicle's move: dx_m, dy_m, dyaw_rad (x = 1 in normalised units)."""
+        return np.array([self.dxy_m, self.dxy_m, math.radians(self.dyaw_deg)])
+
+
+#: a move larger than this (m) is no longer a nudge within the lane's neighbourhood
+MAX_DXY_M = 20.0
 
 
 def nearest_index(points: np.ndarray, x: np.ndarray) -> int:
@@ -43,7 +58,7 @@ class SearchSpace:
         self.scene = scene
         self.vehicle_ids = tuple(vehicle_ids)
         self.cfg = cfg
-        self.scale = np.tile([cfg.dxy_m, cfg.dxy_m, math.radians(cfg.dyaw_deg)], len(self.vehicle_ids))
+        self.scale = np.tile(cfg.scale_per_vehicle(), len(self.vehicle_ids))
 
     @property
     def dim(self) -> int:

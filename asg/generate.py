@@ -1,0 +1,210 @@
+"""``generate(cfg, scenes, out, ...)``: run ACS then APS on each scene and write the run folder.
+
+The library call behind ``asg generate`` and the benchmarks. A run folder records the settings it
+was made with (``OUT/run.json``): a rerun with the same settings resumes (finished scenes are kept),
+a rerun with other settings is refused unless ``force`` starts the folder over. Temporary work
+stays inside the folder and stale partial files of an interrupted run are removed on the next.
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+from sumo_scenarios.atomic import remove_stale_partials, write_text_atomic
+from sumo_scenarios.checks import inside
+from sumo_scenarios.errors import InputError
+
+from .pipeline import GenerateConfig, Generator, SceneResult
+from .scene import Scene
+
+#: the file in a run folder that records its settings
+RUN_RECORD = "run.json"
+#: temporary work (a simulated log) inside the run folder, removed when the run ends
+WORK_DIR = ".work"
+#: what a run folder may hold: the only names ``force`` removes
+RUN_CONTENTS = ("scenes", "summary.json", RUN_RECORD, WORK_DIR)
+
+
+@dataclass(frozen=True)
+class SceneSource:
+    """Where the normal scenes come from: a bundled town or any SUMO net (60 s of normal traffic,
+    every 10th recorded frame with 5+ vehicles near the ego), or a folder / named set of scenes."""
+
+    town: str | None = None
+    net: Path | None = None
+    scenes: Path | None = None
+    #: recorded seconds of traffic simulated for a town or net
+    duration_s: float = 60.0
+
+    def describe(self) -> dict:
+        """The source as recorded in run.json (paths as given)."""
+        return {k: (None if v is None else str(v)) for k, v in
+                (("town", self.town), ("net", self.net), ("scenes", self.scenes))}
+
+
+@dataclass(frozen=True)
+class GenerateRun:
+    """A finished (or resumed) run: its summary.json content and what was skipped, with why."""
+
+    out: Path
+    summary: dict
+    skipped: tuple[tuple[str, str], ...]
+
+
+#: called before each scene (index, total, scene id) and after each evaluation (step)
+SceneProgress = Callable[[int, int, str], None]
+StepProgress = Callable[[int], None]
+
+
+def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: int = 1,
+             target=None, acs_model=None,
+             on_scene: SceneProgress | None = None, on_step: StepProgress | None = None) -> GenerateRun:
+    """Generate a challenging scene from each of ``scenes`` into run folder ``out`` (prepared by
+    :func:`prepare_run`); finished scenes of an earlier run with the same settings are kept.
+    ``target`` / ``acs_model``: detectors (default: the shipped ``cfg.fusion`` and AttFuse)."""
+    from .io.run import load_done, previous_wall_s, write_scene, write_summary
+
+    _refuse_duplicates(scenes)
+    for s in scenes:
+        inside(out / "scenes", out / "scenes" / s.scene_id)
+    if target is None:
+        target, acs_model = _shipped_models(cfg)
+    gen = Generator(cfg, target, acs_model)
+    done = load_done(out)
+    entries = [done[s.scene_id] for s in scenes if s.scene_id in done]
+    config = asdict(cfg) | {"seed": seed}
+    started = time.perf_counter() - (previous_wall_s(out) if entries else 0.0)  # a resumed run adds its time
+    skipped: list[tuple[str, str]] = []
+    for i, scene in enumerate(scenes):
+        if scene.scene_id in done:
+            continue
+        if on_scene:
+            on_scene(i, len(scenes), scene.scene_id)
+        try:
+            result = gen.generate(scene, seed, on_step=(lambda e: on_step(e.step)) if on_step else None)
+        except InputError as exc:
+            skipped.append((scene.scene_id, str(exc)))
+            continue
+        entries.append(write_scene(out, result))
+        write_summary(out, entries, config, time.perf_counter() - started)
+    if not entries:
+        reasons = "; ".join(f"{sid}: {why}" for sid, why in skipped[:2])
+        raise InputError(f"no scene could be generated ({reasons})")
+    summary = write_summary(out, entries, config, time.perf_counter() - started)
+    return GenerateRun(out, summary, tuple(skipped))
+
+
+def _shipped_models(cfg: GenerateConfig):
+    from .perception import build_detector
+
+    target = build_detector(cfg.fusion)
+    acs_model = None
+    if cfg.acs == "attention":
+        acs_model = target if cfg.fusion == "attfuse" else build_detector("attfuse")
+    return target, acs_model
+
+
+def _refuse_duplicates(scenes: Sequence[Scene]) -> None:
+    seen: set[str] = set()
+    for s in scenes:
+        if s.scene_id in seen:
+            raise InputError(f"scene id '{s.scene_id}' appears twice in the input; give each scene its own id")
+        seen.add(s.scene_id)
+
+
+# ---- the run folder ----------------------------------------------------------------------------
+def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> dict:
+    """What run.json records: every setting that changes the run's scenes or numbers."""
+    return {"config": asdict(cfg), "seed": seed, "count": count, "source": source}
+
+
+def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
+    """Check and claim run folder ``out`` before any scene is computed: it must be a writable
+    folder; if it records other settings the run is refused (``force``: start it over). Removes
+    stale partial files left by an interrupted run."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file; give a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError(f"--out {out}: a part of the path is a file; give a folder") from None
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot create it ({exc.strerror}); give a writable folder") from None
+    record = out / RUN_RECORD
+    if force:
+        for name in RUN_CONTENTS:
+            p = out / name
+            shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
+    elif record.is_file():
+        earlier = _read_record(record)
+        diff = _first_difference(earlier, settings)
+        if diff:
+            raise InputError(f"{out} holds a run made with other settings ({diff}); give another --out, "
+                             f"or --force to start it over")
+    elif (out / "scenes").is_dir() and any((out / "scenes").iterdir()):
+        raise InputError(f"{out} holds scenes of a run that recorded no settings; give another --out, or --force")
+    remove_stale_partials(out)
+    remove_stale_partials(out / "scenes")
+    shutil.rmtree(out / WORK_DIR, ignore_errors=True)
+    try:
+        write_text_atomic(record, json.dumps(settings, indent=1, sort_keys=True))
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write in it ({exc.strerror}); give a writable folder") from None
+
+
+def _read_record(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        raise InputError(f"{path} is unreadable; give another --out, or --force to start it over") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path} is not a run record; give another --out, or --force to start it over")
+    return data
+
+
+def _first_difference(a, b, where: str = "") -> str | None:
+    """The first setting that differs between two records, as 'key: old -> new' (None if equal)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            d = _first_difference(a.get(k), b.get(k), f"{where}.{k}" if where else k)
+            if d:
+                return d
+        return None
+    return None if a == b else f"{where}: {a!r} -> {b!r}"
+
+
+# ---- where scenes come from ----------------------------------------------------------------------
+def load_scenes(source: SceneSource, count: int, seed: int, workdir: Path) -> list[Scene]:
+    """The first ``count`` scenes of ``source`` (a town's traffic is simulated into ``workdir``)."""
+    scenes = _scenes_from_dir(source.scenes) if source.scenes is not None else \
+        _scenes_from_town(source, seed, workdir)
+    picked = list(itertools.islice(scenes, count))
+    if not picked:
+        raise InputError("no usable scene (none with 5+ vehicles near the ego); try another town or seed")
+    return picked
+
+
+def _scenes_from_town(source: SceneSource, seed: int, workdir: Path) -> Iterator[Scene]:
+    from dataclasses import replace
+
+    from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
+
+    from .scene.from_log import ExtractParams, extract_scenes
+
+    log = workdir / "log"
+    simulate_sumo(SimulationRequest(out_dir=log, town=source.town, net=source.net, seed=seed,
+                                    duration_s=source.duration_s, density="normal"))
+    # the log lives in the run's work folder, removed at the end: record its name, not its path
+    return (replace(s, log=None) for s in extract_scenes(log, ExtractParams(every=10, min_vehicles=5)))
+
+
+def _scenes_from_dir(path: Path) -> Iterator[Scene]:
+    from .perception.evaluate import scenes_of
+
+    return scenes_of(str(path))

@@ -1,0 +1,72 @@
+"""Checks for values read from files a user hands in: every number finite and in range, every id a
+safe file name, every polyline long enough. Each failure is an InputError naming where it is.
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError
+
+#: coordinates further than this from a net's origin (m) are refused: SUMO nets are offset to the
+#: origin, so anything larger is a corrupt or hostile file (and breaks collision checking)
+MAX_COORD_M = 1.0e6
+
+#: ids that become file or folder names: letters, digits and ``_ - . # : +``, not starting with a dot
+_SAFE_ID = re.compile(r"^[A-Za-z0-9_\-#:+][A-Za-z0-9_.\-#:+]{0,127}$")
+
+
+def number(value: Any, where: str, lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False) -> float:
+    """``value`` as a float, refused unless it is a finite number with ``lo <= value <= hi``
+    (``lo < value`` when ``lo_open``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(f"{where}: expected a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(f"{where}: {v} is not a finite number")
+    if v < lo or v > hi or (lo_open and v <= lo):
+        low = f"above {lo:g}" if lo_open else f"at least {lo:g}"
+        raise InputError(f"{where}: {v:g} is out of range (must be {low} and at most {hi:g})")
+    return v
+
+
+def coordinate(value: Any, where: str) -> float:
+    return number(value, where, -MAX_COORD_M, MAX_COORD_M)
+
+
+def points_xy(value: Any, where: str, min_points: int) -> np.ndarray:
+    """A polyline or polygon ``[[x, y], ...]`` as an (N, 2) float array, with N >= ``min_points``
+    and every coordinate finite and within MAX_COORD_M."""
+    try:
+        xy = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: expected a list of [x, y] points, got {str(value)[:60]}") from None
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise InputError(f"{where}: expected a list of [x, y] points, got shape {xy.shape}")
+    if len(xy) < min_points:
+        raise InputError(f"{where}: needs at least {min_points} points, got {len(xy)}")
+    if not np.all(np.isfinite(xy)) or np.abs(xy).max() > MAX_COORD_M:
+        raise InputError(f"{where}: a coordinate is not finite or beyond {MAX_COORD_M:g} m")
+    return xy
+
+
+def safe_id(value: Any, where: str) -> str:
+    """An id that may become a file or folder name: refused if it could leave its folder
+    (``/``, ``..``, an absolute path), is hidden, empty, over 128 characters or has other characters."""
+    text = str(value)
+    if not _SAFE_ID.match(text):
+        raise InputError(f"{where}: id {text[:60]!r} is not a safe name (letters, digits and _ - . # : + "
+                         f"only, at most 128, not starting with a dot); rename it")
+    return text
+
+
+def inside(root: Path, path: Path) -> Path:
+    """``path``, refused unless it resolves inside folder ``root`` (no write may leave it)."""
+    r, p = Path(root).resolve(), Path(path).resolve()
+    if p != r and r not in p.parents:
+        raise InputError(f"{path}: would be written outside {root}; check the ids in the input")
+    return path
