@@ -111,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ego", choices=["rsu", "vehicle"], default="rsu", help="ego agent kind (default rsu: V2I)")
     p.add_argument("--radius", type=float, default=120.0, help="keep agents within this many metres of the ego")
     p.add_argument("--min-vehicles", type=_whole(0, 10_000, "--min-vehicles"), default=1, help="skip frames with fewer vehicles within 48 m of the ego")
+    p.add_argument("--collaborators", type=_whole(0, 16, "--collaborators"), default=None,
+                   help="sensing vehicles drawn at random within communication range of the ego, as the "
+                        "data sets draw them (default: the generator's sensing_agents - 1, i.e. 2)")
     p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
     scenes.set_defaults(func=lambda a: (scenes.print_help(), 2)[1])
 

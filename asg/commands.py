@@ -12,6 +12,7 @@ from rich.table import Table
 from sumo_scenarios import towns as towns_mod
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.highway import HighwayRequest, simulate_highway
+from sumo_scenarios.log import NEAR_RADIUS_M
 from sumo_scenarios.paths import nets_dir
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
@@ -75,20 +76,25 @@ def simulate(args: argparse.Namespace) -> int:
                                     warmup_s=90.0 if args.warmup is None else args.warmup)
             stats = simulate_sumo(req, report)
     console.print(
-        f"wrote {args.out}: {stats.get('frames', 0)} frames; vehicles within 48 m of an RSU: "
+        f"wrote {args.out}: {stats.get('frames', 0)} frames; vehicles within {NEAR_RADIUS_M:g} m of an RSU: "
         f"median {stats.get('near_rsu_median', 0):g} (p10 {stats.get('near_rsu_p10', 0):g}, p90 {stats.get('near_rsu_p90', 0):g})"
     )
     return 0
 
 
 def scenes_extract(args: argparse.Namespace) -> int:
-    params = ExtractParams(every=args.every, radius_m=args.radius, ego=args.ego, min_vehicles=args.min_vehicles)
+    from .pipeline import GenerateConfig
+
+    k = GenerateConfig().sensing_agents - 1 if args.collaborators is None else args.collaborators
+    params = ExtractParams(every=args.every, radius_m=args.radius, ego=args.ego, min_vehicles=args.min_vehicles,
+                           collaborators=k)
     n = 0
     for scene in extract_scenes(args.log, params):
         save_scene(scene, Path(args.out) / f"{scene.scene_id}.yaml")
         n += 1
     if n == 0:
-        raise InputError(f"{args.log}: no frame had an ego with {args.min_vehicles}+ vehicles within 48 m; lower --min-vehicles")
+        raise InputError(f"{args.log}: no frame had an ego with {args.min_vehicles}+ vehicles within {NEAR_RADIUS_M:g} m; "
+                         "lower --min-vehicles")
     console.print(f"wrote {n} scenes to {args.out}")
     return 0
 
@@ -134,6 +140,7 @@ def render(args: argparse.Namespace) -> int:
     from .io.pcd import write_pcd
     from .scene import load_scene
     from .scene.neighbours import with_nearest_collaborators
+    from .perception.data import in_range as eval_range
     from .sensors import load_lidar_spec, simulate_frame
 
     spec = load_lidar_spec(args.lidar)
@@ -143,14 +150,16 @@ def render(args: argparse.Namespace) -> int:
     bev_figure(scene, frame, args.out, title=f"{scene.scene_id} ({spec.name})")
     if args.pcd_dir is not None:
         from sumo_scenarios.atomic import atomic_path
+        from sumo_scenarios.checks import inside
         import numpy as np
 
         for aid, cloud in frame.clouds.items():
+            inside(Path(args.pcd_dir), Path(args.pcd_dir) / aid)
             write_pcd(Path(args.pcd_dir) / f"{aid}.pcd", cloud)
             with atomic_path(Path(args.pcd_dir) / f"{aid}.npy") as tmp:
                 np.save(tmp, cloud)
-    in_range = [c for c, b in zip(counts["fused"], frame.ego_boxes) if abs(b[0]) <= 48 and abs(b[1]) <= 48]
-    mean_pts = sum(in_range) / len(in_range) if in_range else 0.0
+    in_range = counts["fused"][eval_range(frame.ego_boxes)] if len(frame.ego_boxes) else []
+    mean_pts = float(sum(in_range)) / len(in_range) if len(in_range) else 0.0
     console.print(f"wrote {args.out}: agents {', '.join(frame.sensing_ids)}; "
                   f"{sum(len(c) for c in frame.clouds.values())} points; {len(in_range)} vehicles in range, "
                   f"{mean_pts:.1f} points per box on average")
@@ -205,8 +214,13 @@ def evaluate(args: argparse.Namespace) -> int:
     with progress_bar() as bar:
         task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
         result = run(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n))
+    if result["without_collaborators"]:
+        console.print(f"[yellow]note: {result['without_collaborators']} of {result['frames']} scenes name no "
+                      "collaborator, so cooperation is off there (every model scores as single-agent); "
+                      "extract scenes with 'asg scenes extract --collaborators K'")
     if args.json:
-        print(json.dumps({"ap": result["ap"], "frames": result["frames"]}))
+        print(json.dumps({"ap": result["ap"], "frames": result["frames"],
+                          "without_collaborators": result["without_collaborators"]}))
     else:
         _print_result(f"asg evaluate --fusion {args.fusion} --set {args.set}",
                       {**{f"AP@{k}": round(v, 4) for k, v in result["ap"].items()}, "frames": result["frames"]}, False)

@@ -22,13 +22,14 @@ import numpy as np
 
 from sumo_scenarios.atomic import atomic_dir
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.log import NEAR_RADIUS_M
 from sumo_scenarios.paths import configs_dir, project_root
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 from sumo_scenarios.strict import from_mapping, read_yaml
 
 from .scene import Scene
 from .scene.from_log import ExtractParams, extract_scenes
-from .scene.neighbours import vehicles_within
+from .scene.neighbours import random_collaborators, vehicles_within
 
 
 @dataclass(frozen=True)
@@ -60,15 +61,12 @@ def _choose_agents(scene: Scene, rng: np.random.Generator, use_rsu: bool, collab
     """Pick the ego (the scene's RSU, or a random vehicle near it) and random collaborators."""
     ego = scene.ego_id
     if not use_rsu:
-        near = vehicles_within(scene, scene.ego_id, 48.0)
+        near = vehicles_within(scene, scene.ego_id, NEAR_RADIUS_M)
         if not near:
             return None
         ego = near[int(rng.integers(len(near)))].agent_id
-    cands = sorted(a.agent_id for a in vehicles_within(scene, ego))
-    if not cands:
-        return None
-    pick = rng.choice(len(cands), size=min(collaborators, len(cands)), replace=False)
-    return replace(scene, ego_id=ego, collaborators=tuple(cands[i] for i in sorted(pick)))
+    chosen = random_collaborators(scene, ego, collaborators, rng)
+    return None if chosen is None else replace(scene, ego_id=ego, collaborators=chosen)
 
 
 def _log_frames(spec: DatasetSpec, town: str, density: str, seed: int, workdir: Path) -> list[Scene]:

@@ -21,7 +21,7 @@ from .objective import ObjectiveConfig, adversarial_loss, ap_at
 from .scene import Scene
 from .perception.data import in_range
 from .scene.feasibility import Plausibility, check_scene, in_eval_range
-from .scene.neighbours import vehicles_within
+from .scene.neighbours import COMM_RANGE_M, vehicles_within
 from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, check_settings, run_search
 from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
 from .sensors.frame import CooperativeFrame, render_frame
@@ -34,6 +34,8 @@ Detections = tuple[np.ndarray, np.ndarray, np.ndarray]  # boxes (K, 7), scores (
 
 @dataclass(frozen=True)
 class GenerateConfig:
+    """The generator's settings; configs/generate.yaml mirrors these defaults (a test checks it)."""
+
     fusion: str = "attfuse"
     search: str = "bo"
     acs: Literal["attention", "random", "off"] = "attention"
@@ -44,7 +46,7 @@ class GenerateConfig:
     acs_tau: float = 0.03
     attention_cells: Literal["all", "vehicles"] = "all"
     perturbed: int = 3
-    comm_range_m: float = 70.0
+    comm_range_m: float = COMM_RANGE_M
     lidar: str = "v2xp"
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
     space: SpaceConfig = field(default_factory=SpaceConfig)

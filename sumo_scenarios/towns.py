@@ -149,7 +149,7 @@ def resolve_net(town: str | None = None, net: str | Path | None = None) -> tuple
         parse_net_root(p)
         return p.name.replace(".net.xml", "").replace(".xml", ""), p
     p = nets_dir() / f"{town}.net.xml"
-    if not p.is_file():
+    if not p.is_file() or str(town) not in {q.name.replace(".net.xml", "") for q in list_towns()}:
         known = ", ".join(q.name.replace(".net.xml", "") for q in list_towns()) or "none (run 'asg towns build')"
         raise InputError(f"unknown town '{town}'; known towns: {known}")
     return str(town), p

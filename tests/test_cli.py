@@ -152,7 +152,7 @@ def test_render_bad_inputs(capsys, tmp_path):
     assert_one_line_error(err, "missing key 'agents'")
     # an empty scene: the ego alone
     empty = tmp_path / "empty.yaml"
-    data_empty = dict(data, agents=[a for a in data["agents"] if a["id"] == data["ego"]], buildings=[])
+    data_empty = dict(data, agents=[a for a in data["agents"] if a["id"] == data["ego"]], buildings=[], collaborators=[])
     empty.write_text(yaml.safe_dump(data_empty))
     code, err = run(capsys, "render", str(empty), "--out", str(tmp_path / "x.png"))
     assert code == 2

@@ -16,8 +16,10 @@ from sumo_scenarios.errors import InputError
 
 from conftest import car, make_scene, rsu
 
+#: a tiny plain PointPillars (no IoU or refinement branch, AttFuse fused on the backbone output)
+PLAIN = dict(iou_rescore=0.0, iou_patch=1, box_refine=False, attfuse_fusion="output")
 TINY = DetectorConfig(range_m=16.0, pillar_m=0.5, pfn_channels=16, layers=(1, 1, 1), filters=(16, 32, 32),
-                      upsample_channels=16)
+                      upsample_channels=16, **PLAIN)
 
 
 def tiny_frames(cross_map, n=4):
@@ -237,7 +239,7 @@ def test_corrupt_and_mismatched_weights(tmp_path):
         load_state(AttFuse(replace(TINY, attfuse_fusion="stages")), other)
     wrong_size = tmp_path / "wide.pt"
     save_state(PointPillars(DetectorConfig(range_m=16.0, pillar_m=0.5, pfn_channels=16, layers=(1, 1, 1),
-                                           filters=(16, 32, 64), upsample_channels=16)), wrong_size)
+                                           filters=(16, 32, 64), upsample_channels=16, **PLAIN)), wrong_size)
     with pytest.raises(InputError, match="do not match"):
         load_state(PointPillars(TINY), wrong_size)
     good = tmp_path / "good.pt"

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sumo_scenarios.log import NEAR_RADIUS_M
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
 from ..scene.from_log import ExtractParams, extract_scenes
@@ -19,13 +20,13 @@ from ..sensors.world import World
 
 
 def dense_scene(town: str = "grid_small", seed: int = 7):
-    """A dense-traffic frame: the scene (RSU ego) with the most vehicles within 48 m."""
+    """A dense-traffic frame: the scene (RSU ego) with the most vehicles within NEAR_RADIUS_M."""
     with tempfile.TemporaryDirectory() as tmp:
         simulate_sumo(SimulationRequest(out_dir=Path(tmp) / "log", town=town, seed=seed, duration_s=20.0, density="dense"))
         scenes = list(extract_scenes(Path(tmp) / "log", ExtractParams(every=10)))
     def near(s):
         e = s.ego
-        return sum(math.hypot(a.x_m - e.x_m, a.y_m - e.y_m) <= 48 for a in s.vehicles)
+        return sum(math.hypot(a.x_m - e.x_m, a.y_m - e.y_m) <= NEAR_RADIUS_M for a in s.vehicles)
     return max(scenes, key=near)
 
 

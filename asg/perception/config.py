@@ -15,7 +15,11 @@ ATTFUSE_FUSIONS = ("output", "stages", "stage1", "pillars")
 
 @dataclass(frozen=True)
 class DetectorConfig:
-    """PointPillars settings. Frames: the detecting agent's sensor frame (x forward, metres)."""
+    """PointPillars settings. Frames: the detecting agent's sensor frame (x forward, metres).
+
+    The defaults are the shipped detectors' (configs/detectors/pointpillars.yaml mirrors them; a
+    test checks that the two agree). ``range_m`` is the BEV grid's half size and equals the
+    evaluation range (``asg.scene.feasibility.EVAL_RANGE_M``)."""
 
     range_m: float = 48.0
     z_range_m: tuple[float, float] = (-5.0, 1.5)
@@ -39,12 +43,12 @@ class DetectorConfig:
     #: IoU-aware rescoring: score = class score ** (1 - iou_rescore) * predicted IoU ** iou_rescore
     #: (0: the class score alone); the IoU branch is an MLP with iou_hidden units over the
     #: iou_patch x iou_patch head cells around each candidate
-    iou_rescore: float = 0.0
+    iou_rescore: float = 1.0
     iou_hidden: int = 256
-    iou_patch: int = 1
+    iou_patch: int = 3
     #: box refinement: each candidate's decoded box corrected by the refinement branch (an MLP of
     #: iou_hidden units over the same iou_patch x iou_patch cells) before rescoring, NMS and voting
-    box_refine: bool = False
+    box_refine: bool = True
     #: where AttFuse fuses the agents: "output" (the concatenated, upsampled backbone output; the
     #: head's 1x1 convolutions follow, so the fused prediction is linear in the agents' features) or
     #: "stages" (each backbone stage's output before its upsampling block, as the reference
@@ -52,7 +56,7 @@ class DetectorConfig:
     #: that the rest of the backbone sees every agent's features of a vehicle together: "stage1"
     #: (the first stage's output; stages 2 and 3 and every upsampling block run once, on the fused
     #: map) or "pillars" (the pillar canvas; the whole backbone runs once)
-    attfuse_fusion: str = "output"
+    attfuse_fusion: str = "stage1"
 
     def __post_init__(self) -> None:
         checks = [("range_m", self.range_m > 0), ("pillar_m", self.pillar_m > 0),

@@ -11,11 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..scene import Scene
+from ..scene.feasibility import EVAL_RANGE_M
 from ..sensors import LidarSpec, simulate_frame
 from ..sensors.frame import CooperativeFrame, boxes_to_sensor, count_points_in_boxes
-
-#: evaluation range: |x|, |y| <= this many metres in the ego frame (ground truth and detections)
-EVAL_RANGE_M = 48.0
 
 
 def in_range(boxes: np.ndarray, range_m: float = EVAL_RANGE_M) -> np.ndarray:

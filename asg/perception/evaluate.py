@@ -38,22 +38,25 @@ def scenes_of(set_name: str) -> Iterator[Scene]:
 
 
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:
-    """{"ap": {"0.3", "0.5", "0.7"}, "frames": N} with ground truth = every vehicle in range."""
+    """{"ap": {"0.3", "0.5", "0.7"}, "frames": N, "without_collaborators": M} with ground truth =
+    every vehicle in range; M counts the scenes that name no collaborator (scored single-agent)."""
     spec = load_lidar_spec("v2xp")
     frames = []
+    alone = 0
     for i, scene in enumerate(scenes):
+        alone += not scene.collaborators
         sample = Sample(scene.scene_id, simulate_frame(scene, spec))
         boxes, scores = detector.detect(sample.frame)
         frames.append((boxes, scores, sample.gt_eval()))
         if progress:
             progress(i + 1)
-    return {"ap": ap_at(frames), "frames": len(frames)}
+    return {"ap": ap_at(frames), "frames": len(frames), "without_collaborators": alone}
 
 
 def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None) -> dict:
     detector = build_detector(fusion)
     scenes = scenes_of(set_name)
-    if limit:
+    if limit is not None:
         import itertools
 
         scenes = itertools.islice(scenes, limit)

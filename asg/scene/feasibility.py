@@ -15,12 +15,15 @@ import numpy as np
 from shapely.geometry import MultiPoint
 
 from sumo_scenarios.buildings import Building
+from sumo_scenarios.log import NEAR_RADIUS_M
 
 from .agent import Agent
 from .scene import Scene
 
-#: the evaluation range around the ego (|x|, |y| in the ego frame), metres
-EVAL_RANGE_M = 48.0
+#: the evaluation range around the ego (|x|, |y| <= this in the ego frame), metres: what AP counts,
+#: where moved vehicles must stay. The same number as the radius of "near the ego" when logs pick
+#: an ego and count traffic (a circle, sumo_scenarios.log)
+EVAL_RANGE_M = NEAR_RADIUS_M
 
 
 def box_object(a: Agent) -> fcl.CollisionObject:

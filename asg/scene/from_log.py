@@ -7,6 +7,7 @@ from typing import Iterator, Literal
 
 import numpy as np
 
+from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.fcd import FcdFrame, center_from_front, yaw_rad_from_sumo_angle
 from sumo_scenarios.log import NEAR_RADIUS_M, TrafficLog, open_log
@@ -14,6 +15,7 @@ from sumo_scenarios.rsu import RoadsideUnit
 from shapely.geometry import Point, Polygon
 
 from .agent import Agent
+from .neighbours import random_collaborators
 from .scene import Scene
 
 EgoChoice = Literal["rsu", "vehicle"]
@@ -25,13 +27,17 @@ class ExtractParams:
 
     ``every``: take every N-th recorded frame; ``radius_m``: keep agents, lanes and buildings
     within this distance of the ego; ``ego``: an RSU (V2I) or a vehicle (V2V) as ego, whichever has
-    the most vehicles within 48 m; ``min_vehicles``: skip frames with fewer vehicles near the ego.
+    the most vehicles within the evaluation range; ``min_vehicles``: skip frames with fewer vehicles
+    near the ego; ``collaborators``: how many sensing vehicles to draw besides the ego.
     """
 
     every: int = 10
     radius_m: float = 120.0
     ego: EgoChoice = "rsu"
     min_vehicles: int = 1
+    #: collaborators drawn at random among the vehicles in communication range of the ego, as the
+    #: data sets draw them (0: none; the generator then picks its own)
+    collaborators: int = 0
 
     def validate(self) -> None:
         if self.every < 1:
@@ -40,6 +46,8 @@ class ExtractParams:
             raise InputError(f"--radius must exceed {NEAR_RADIUS_M:g} m (the evaluation range), got {self.radius_m:g}")
         if self.ego not in ("rsu", "vehicle"):
             raise InputError(f"--ego must be rsu or vehicle, got {self.ego!r}")
+        checks.number(self.radius_m, "--radius (m)", NEAR_RADIUS_M, 10_000.0)
+        checks.number(self.collaborators, "--collaborators", 0, 16)
 
 
 def frame_vehicles(log: TrafficLog, frame: FcdFrame) -> list[Agent]:
@@ -85,11 +93,15 @@ def scene_from_frame(log: TrafficLog, frame: FcdFrame, params: ExtractParams) ->
     disk = Point(centre).buffer(params.radius_m + 30.0)
     buildings = tuple(b for b in log.buildings if disk.intersects(Polygon(b.footprint_xy)))
     name = log.meta.town
-    return Scene(
+    scene = Scene(
         scene_id=f"{name}_s{log.meta.seed}_t{frame.time_s:07.1f}_{ego.agent_id}",
         town=name, source=log.meta.source, time_s=frame.time_s, ego_id=ego.agent_id, agents=tuple(keep),
         buildings=buildings, lane_map=log.lane_map.crop(centre, params.radius_m + 30.0), log=str(log.directory),
     )
+    if params.collaborators:
+        rng = np.random.default_rng([log.meta.seed, int(round(frame.time_s * 10))])  # same frame, same pick
+        scene = scene.with_collaborators(random_collaborators(scene, ego.agent_id, params.collaborators, rng) or ())
+    return scene
 
 
 def extract_scenes(log_path: str | Path, params: ExtractParams) -> Iterator[Scene]:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import numpy as np
 
 from .agent import Agent
 from .scene import Scene
@@ -23,3 +24,14 @@ def with_nearest_collaborators(scene: Scene, count: int, range_m: float = COMM_R
     if scene.collaborators or count <= 0:
         return scene
     return scene.with_collaborators([a.agent_id for a in vehicles_within(scene, scene.ego_id, range_m)[:count]])
+
+
+def random_collaborators(scene: Scene, ego_id: str, count: int, rng: np.random.Generator,
+                         range_m: float = COMM_RANGE_M) -> tuple[str, ...] | None:
+    """``count`` vehicles drawn at random (without replacement) among those within ``range_m`` of
+    ``ego_id``, in id order (fewer if fewer are in range; None if none is): how the data sets pick."""
+    cands = sorted(a.agent_id for a in vehicles_within(scene, ego_id, range_m))
+    if not cands:
+        return None
+    pick = rng.choice(len(cands), size=min(count, len(cands)), replace=False)
+    return tuple(cands[i] for i in sorted(pick))
