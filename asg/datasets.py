@@ -23,7 +23,7 @@ import numpy as np
 from sumo_scenarios.atomic import atomic_dir
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.log import NEAR_RADIUS_M
-from sumo_scenarios.paths import configs_dir, project_root
+from sumo_scenarios.paths import configs_dir, runs_dir
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 from sumo_scenarios.strict import from_mapping, read_yaml
 
@@ -47,7 +47,7 @@ class DatasetSpec:
 
 
 def data_root() -> Path:
-    return Path(os.environ.get("ASG_DATA", project_root() / "runs" / "datasets"))
+    return Path(os.environ.get("ASG_DATA", runs_dir() / "datasets"))
 
 
 def load_spec(name: str) -> DatasetSpec:

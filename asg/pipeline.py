@@ -20,7 +20,8 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 from .objective import ObjectiveConfig, adversarial_loss, ap_at
 from .scene import Scene
 from .perception.data import in_range
-from .scene.feasibility import Plausibility, check_scene, in_eval_range
+from .scene.feasibility import Plausibility, in_eval_range
+from .scene.recheck import recheck
 from .scene.neighbours import COMM_RANGE_M, vehicles_within
 from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, check_settings, run_search
 from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
@@ -223,11 +224,11 @@ class Generator:
                     perturbed = []
             else:
                 notes.append("APS skipped: no vehicle to move")
-        plaus = check_scene(after, final)
+        plaus = recheck(after, final)  # shapely, not the fcl checker that built Q
         if not plaus.ok:  # never publish an implausible scene
             notes.append(f"final scene failed the independent plausibility check {plaus.to_dict()}; kept the scene after ACS")
             final, ap_f, loss_f, frame_f, delta = after, ap_a, loss_a, frame_a, []
-            plaus = check_scene(after, final)
+            plaus = recheck(after, final)
         detections = {k: self._detections(f) for k, f in (("initial", frame_n), ("after_acs", frame_a), ("final", frame_f))}
         return SceneResult(
             scene.scene_id, initial, after, final, ap_n, ap_a, ap_f, loss_n, loss_f, 1 + n_combos + len(history),

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import copy
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Literal
@@ -87,9 +88,13 @@ class Candidates:
 
     @classmethod
     def load(cls, path: Path) -> "Candidates":
-        with np.load(path) as data:
-            fields = {k: data[k] for k in cls.__dataclass_fields__ if k in data}
-        return cls(**{**fields, "collect_s": float(fields.get("collect_s", 0.0))})
+        try:
+            with np.load(path) as data:
+                fields = {k: data[k] for k in cls.__dataclass_fields__ if k in data}
+            return cls(**{**fields, "collect_s": float(fields.get("collect_s", 0.0))})
+        except (OSError, ValueError, EOFError, TypeError, zipfile.BadZipFile) as exc:
+            raise InputError(f"{path}: the cached candidates are damaged ({type(exc).__name__}); "
+                             f"delete the file to collect them again") from None
 
     def best_iou(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per candidate, the best BEV IoU (N,) of ``boxes`` (N, 7) (the candidates' own or moved

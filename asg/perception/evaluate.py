@@ -53,8 +53,10 @@ def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: 
     return {"ap": ap_at(frames), "frames": len(frames), "without_collaborators": alone}
 
 
-def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None) -> dict:
-    detector = build_detector(fusion)
+def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None,
+             weights_file: str | None = None) -> dict:
+    """AP of detector ``fusion`` (its shipped weights, or ``weights_file``) on a set (see scenes_of)."""
+    detector = build_detector(fusion, weights_file=weights_file)
     scenes = scenes_of(set_name)
     if limit is not None:
         import itertools

@@ -23,7 +23,7 @@ import torch
 
 from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
-from sumo_scenarios.paths import configs_dir, project_root
+from sumo_scenarios.paths import configs_dir, runs_dir
 from sumo_scenarios.strict import from_mapping, read_yaml
 
 from ..datasets import iter_frames
@@ -151,11 +151,11 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     total = steps or tcfg.steps
     cfg = detector_config or load_detector_config()
     torch.set_num_threads(threads)
-    run_dir = out_dir or project_root() / "runs" / "train" / name
+    run_dir = out_dir or runs_dir() / "train" / name
     ckpt = run_dir / "last.pt"
-    state = torch.load(ckpt, map_location="cpu", weights_only=True) if ckpt.is_file() else None
-    if init_from and state is not None:
+    if init_from and ckpt.is_file():
         raise InputError(f"{ckpt} holds an unfinished chunk: resume it without --init-from, or delete it to start over")
+    state = load_checkpoint(ckpt)
     # the chunks before this one: from the checkpoint when resuming, else from the shipped card
     if init_from:
         previous = {"init_from": _init_record(init_from, weights_dir), "chunks": []}
@@ -233,7 +233,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     (run_dir / CACHE_NAME).unlink(missing_ok=True)  # candidates of an unfinished branch fit belong to the old weights
     log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training")
     if validate:
-        card_validation(name, log)
+        card_validation(name, log, weights_dir=weights_dir)
     return weights
 
 
@@ -253,7 +253,7 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     if not previous.get("chunks"):
         raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit the branches to; train them first")
     torch.set_num_threads(threads)
-    run_dir = out_dir or project_root() / "runs" / "train" / name
+    run_dir = out_dir or runs_dir() / "train" / name
     model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
     load_state(model, weights_dir / f"{name}.pt", allow_missing=BRANCH_KEYS)
     started = time.perf_counter()
@@ -279,7 +279,7 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     log(f"wrote {weights}: branches fitted on {figures['candidates']} candidates in {wall / 60:.1f} min "
         f"(mean IoU of the candidates on a vehicle {figures['mean_iou_before']} -> {figures['mean_iou_after']} refined)")
     if validate:
-        card_validation(name, log)
+        card_validation(name, log, weights_dir=weights_dir)
     return weights
 
 
@@ -302,17 +302,18 @@ def _write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous:
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
 
 
-def card_validation(name: str, log: Callable[[str], None] = print, set_name: str = "normal-val") -> dict:
-    """Evaluate the shipped ``name`` weights on ``set_name`` (every fusion that uses them) and
-    record the APs in the model card."""
+def card_validation(name: str, log: Callable[[str], None] = print, set_name: str = "normal-val",
+                    weights_dir: Path = WEIGHTS_DIR) -> dict:
+    """Evaluate the ``name`` weights in ``weights_dir`` (default the shipped ones) on ``set_name``
+    (every fusion that uses them) and record the APs in that folder's model card."""
     from .evaluate import evaluate
 
-    card_path = WEIGHTS_DIR / f"{name}.json"
+    card_path = weights_dir / f"{name}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {"weights": f"{name}.pt"}
     card["validation"] = {}
     for fusion in [f for f, w in FUSION_TO_WEIGHTS.items() if w == name]:  # none and late share 'single'
         t0 = time.perf_counter()
-        res = evaluate(fusion, set_name)
+        res = evaluate(fusion, set_name, weights_file=str(weights_dir / f"{name}.pt"))
         card["validation"][fusion] = {"set": set_name, "frames": res["frames"],
                                       "ap": {k: round(v, 4) for k, v in res["ap"].items()},
                                       "eval_wall_s": round(time.perf_counter() - t0, 1)}
@@ -407,6 +408,22 @@ def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
         sched._schedule_phases = reference._schedule_phases
     else:
         sched.milestones = Counter(int(f * total) for f in tcfg.decay_at)
+
+
+def load_checkpoint(path: Path) -> dict | None:
+    """The resumable state of an unfinished chunk (None if there is none); tensors only, never
+    unpickled objects. A damaged file is one InputError saying how to start the chunk over."""
+    if not path.is_file():
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for damaged files
+        raise InputError(f"{path}: the training checkpoint is damaged ({type(exc).__name__}); "
+                         f"delete it to start this chunk over") from None
+    needed = {"model", "optimizer", "scheduler", "step", "wall_s", "rng", "torch_rng", "previous"}
+    if not isinstance(state, dict) or not needed <= set(state):
+        raise InputError(f"{path}: not a training checkpoint of this version; delete it to start this chunk over")
+    return state
 
 
 def _checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng: np.random.Generator,
