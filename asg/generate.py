@@ -132,7 +132,7 @@ def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
         raise InputError(f"--out {out} is a file; give a folder")
     try:
         out.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
+    except (FileExistsError, NotADirectoryError):
         raise InputError(f"--out {out}: a part of the path is a file; give a folder") from None
     except OSError as exc:
         raise InputError(f"--out {out}: cannot create it ({exc.strerror}); give a writable folder") from None
@@ -141,13 +141,13 @@ def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
         for name in RUN_CONTENTS:
             p = out / name
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
-    elif record.is_file():
+    elif record.is_file() and _has_finished_scenes(out):
         earlier = _read_record(record)
         diff = _first_difference(earlier, settings)
         if diff:
             raise InputError(f"{out} holds a run made with other settings ({diff}); give another --out, "
                              f"or --force to start it over")
-    elif (out / "scenes").is_dir() and any((out / "scenes").iterdir()):
+    elif not record.is_file() and _has_finished_scenes(out):
         raise InputError(f"{out} holds scenes of a run that recorded no settings; give another --out, or --force")
     remove_stale_partials(out)
     remove_stale_partials(out / "scenes")
@@ -156,6 +156,12 @@ def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
         write_text_atomic(record, json.dumps(settings, indent=1, sort_keys=True))
     except OSError as exc:
         raise InputError(f"--out {out}: cannot write in it ({exc.strerror}); give a writable folder") from None
+
+
+def _has_finished_scenes(out: Path) -> bool:
+    """Does run folder ``out`` hold a scene that a rerun would keep? (A folder claimed by a run that
+    failed before its first scene holds none, and may be claimed anew with other settings.)"""
+    return any((out / "scenes").glob("*/result.json"))
 
 
 def _read_record(path: Path) -> dict:
@@ -185,6 +191,7 @@ def load_scenes(source: SceneSource, count: int, seed: int, workdir: Path) -> li
     scenes = _scenes_from_dir(source.scenes) if source.scenes is not None else \
         _scenes_from_town(source, seed, workdir)
     picked = list(itertools.islice(scenes, count))
+    _refuse_duplicates(picked)
     if not picked:
         raise InputError("no usable scene (none with 5+ vehicles near the ego); try another town or seed")
     return picked

@@ -31,9 +31,14 @@ def run_generate(args: argparse.Namespace) -> int:
     cfg = load_generate_config(args.config, fusion=fusion, search=args.search, acs=args.acs,
                                aps=None if args.aps is None else args.aps == "on", budget=budget)
     out = Path(args.out)
+    fresh = not out.exists()
     prepare_run(out, run_settings(cfg, args.seed, count, source.describe()), force=args.force)
     try:
         scenes = load_scenes(source, count, args.seed, out / WORK_DIR)
+    except BaseException:
+        if fresh:  # bad input: leave no trace of the folder this run created
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     finally:
         shutil.rmtree(out / WORK_DIR, ignore_errors=True)
     if len(scenes) < count:

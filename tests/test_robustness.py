@@ -1,0 +1,398 @@
+"""Hostile but realistic input (docs/robustness.md): one line and exit code 2, or it works; nothing
+written outside ``--out``; nothing stale left; a rerun with other settings refused."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from asg.cli import main
+from asg.scene import save_scene
+from sumo_scenarios.lanes import Lane, LaneMap
+
+from conftest import car, make_scene, rsu
+from test_cli import assert_one_line_error, run
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+# ---- a small valid scene, written as yaml ---------------------------------------------------------
+def _road() -> LaneMap:
+    """A straight 2+2-lane road along x, 300 m long."""
+    lanes = [Lane(f"e_{i}", np.array([[-150.0, -1.6 - 3.2 * i], [150.0, -1.6 - 3.2 * i]]), 3.2, 13.9) for i in range(2)]
+    lanes += [Lane(f"w_{i}", np.array([[150.0, 1.6 + 3.2 * i], [-150.0, 1.6 + 3.2 * i]]), 3.2, 13.9) for i in range(2)]
+    return LaneMap(lanes)
+
+
+def _scene_dict(scene_id: str = "road_t0") -> dict:
+    cars = [car(f"v{i}", -30.0 + 12.0 * i, -1.6 if i % 2 else -4.8) for i in range(6)]
+    cars += [car(f"u{i}", -25.0 + 14.0 * i, 1.6, math.pi) for i in range(3)]
+    scene = make_scene(_road(), [rsu("rsu0", 0.0, 9.0), *cars], ego="rsu0", collaborators=("v1", "u1"))
+    d = scene.to_dict()
+    d["scene_id"] = scene_id
+    return d
+
+
+def _write(folder: Path, d: dict, name: str | None = None) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    p = folder / f"{name or d['scene_id']}.yaml"
+    p.write_text(yaml.safe_dump(d))
+    return p
+
+
+GEN = ["--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "2", "--seed", "1"]
+
+
+def _generate(capsys, scenes: Path, out: Path, *extra: str):
+    return run(capsys, "generate", "--scenes", str(scenes), "--out", str(out), *GEN, *extra)
+
+
+def _files_outside(root: Path, allowed: Path) -> list[Path]:
+    return [p for p in root.rglob("*") if p.is_file() and allowed not in p.parents and p.suffix != ".yaml"]
+
+
+# ---- 1. numbers that crashed python-fcl ------------------------------------------------------------
+def _agent(d, i):
+    return d["agents"][i]
+
+
+HOSTILE = {
+    "x inf": lambda d: _agent(d, 3).update(x_m=math.inf),
+    "x 1e308": lambda d: _agent(d, 3).update(x_m=1e308),
+    "length 1e300": lambda d: _agent(d, 3).update(length_m=1e300),
+    "ego y -inf": lambda d: _agent(d, 0).update(y_m=-math.inf),
+    "every yaw NaN": lambda d: [a.update(yaw_rad=math.nan) for a in d["agents"]],
+    "negative width": lambda d: _agent(d, 2).update(width_m=-1.0),
+    "unknown kind": lambda d: _agent(d, 2).update(kind="tank"),
+    "duplicate id": lambda d: _agent(d, 2).update(id="v0"),
+    "one-point lane": lambda d: d["lanes"]["lanes"][0].update(centerline=[[0.0, 0.0]]),
+    "one-point building": lambda d: d.update(buildings=[{"id": "b", "height_m": 5.0, "footprint": [[1.0, 1.0]]}]),
+    "string as number": lambda d: _agent(d, 3).update(x_m="12 m"),
+    "list-shaped scene": lambda d: d.clear(),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE))
+def test_hostile_scene_numbers_are_one_line(capsys, tmp_path, case):
+    d = _scene_dict()
+    HOSTILE[case](d)
+    scenes = tmp_path / "scenes"
+    p = _write(scenes, d if d else {"scene_id": "x"}, "bad")
+    if case == "list-shaped scene":
+        p.write_text("- 1\n- 2\n")
+    out = tmp_path / "out"
+    code, err = _generate(capsys, scenes, out)
+    assert code == 2, err
+    assert_one_line_error(err, "bad.yaml")
+    assert not out.exists()
+    code, err = run(capsys, "render", str(p), "--out", str(tmp_path / "x.png"))
+    assert code == 2 and not (tmp_path / "x.png").exists()
+    assert_one_line_error(err, "bad.yaml")
+
+
+# ---- 2. ids that would write outside the folder -----------------------------------------------------
+@pytest.mark.parametrize("where,value", [("scene_id", "../../escaped"), ("scene_id", "/tmp/abs"),
+                                         ("ego", "../../x"), ("ego", ".hidden")])
+def test_unsafe_ids_are_refused(capsys, tmp_path, where, value):
+    d = _scene_dict()
+    if where == "ego":
+        _agent(d, 0)["id"] = value
+        d["ego"] = value
+    else:
+        d["scene_id"] = value
+    scenes = tmp_path / "in" / "scenes"
+    p = _write(scenes, d, "unsafe")
+    out = tmp_path / "in" / "out"
+    code, err = _generate(capsys, scenes, out)
+    assert code == 2
+    assert_one_line_error(err, "not a safe name")
+    code, err = run(capsys, "render", str(p), "--out", str(tmp_path / "in" / "x.png"), "--pcd-dir", str(tmp_path / "in" / "pcd"))
+    assert code == 2
+    assert_one_line_error(err, "not a safe name")
+    assert not _files_outside(tmp_path, tmp_path / "in" / "out")
+
+
+# ---- 3. resume that told the truth ---------------------------------------------------------------
+def test_a_rerun_with_other_settings_is_refused_and_force_starts_over(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    out = tmp_path / "out"
+    code, err = _generate(capsys, scenes, out)
+    assert code == 0, err
+    first = (out / "summary.json").read_text()
+    for other in (["--search", "ga"], ["--seed", "2"], ["--count", "3"], ["--fusion", "early"]):
+        argv = ["generate", "--scenes", str(scenes), "--out", str(out), *GEN, *other]
+        code, err = run(capsys, *argv)
+        assert code == 2, other
+        assert_one_line_error(err, "other settings", "--force")
+    assert (out / "summary.json").read_text() == first  # untouched
+    code, err = _generate(capsys, scenes, out, "--seed", "2", "--force")
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["config"]["seed"] == 2 and len(summary["scenes"]) == 1
+
+
+def test_duplicate_scene_ids_are_refused(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("same"), "a")
+    _write(scenes, _scene_dict("same"), "b")
+    code, err = _generate(capsys, scenes, tmp_path / "out")
+    assert code == 2
+    assert_one_line_error(err, "'same' appears twice")
+
+
+def test_damaged_scene_folders_are_generated_again(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("s1"))
+    _write(scenes, _scene_dict("s2"))
+    out = tmp_path / "out"
+    assert _generate(capsys, scenes, out)[0] == 0
+    before = json.loads((out / "summary.json").read_text())
+    (out / "scenes" / "s1" / "result.json").write_text('{"scene_id": "s1", "ap_')  # truncated
+    (out / "scenes" / "s2" / "detections.npz").unlink()
+    code, err = _generate(capsys, scenes, out)
+    assert code == 0, err
+    after = json.loads((out / "summary.json").read_text())
+    strip = lambda s: [{k: v for k, v in e.items() if k != "seconds"} for e in s["scenes"]]
+    assert strip(after) == strip(before)  # regenerated to the same numbers
+
+
+# ---- 4. output locations and values --------------------------------------------------------------
+def test_output_location_problems_are_one_line_before_any_work(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    for out, needle in ((a_file, "is a file"), (a_file / "sub", "is a file")):
+        code, err = _generate(capsys, scenes, out)
+        assert code == 2, err
+        assert_one_line_error(err, needle)
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_output_is_one_line(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    code, err = _generate(capsys, scenes, ro / "out")
+    assert code == 2
+    assert_one_line_error(err, "writable")
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["generate", "--seed", "-5"], "--seed"),
+    (["generate", "--count", "12345678901234567890"], "--count"),
+    (["generate", "--count", "0"], "--count"),
+    (["generate", "--budget", "nan"], "--budget"),
+    (["simulate", "--town", "fiveleg", "--record-period", "nan", "--out", "OUT"], "--record-period"),
+    (["simulate", "--town", "fiveleg", "--duration", "nan", "--out", "OUT"], "--duration"),
+    (["simulate", "--town", "fiveleg", "--duration", "inf", "--out", "OUT"], "--duration"),
+    (["evaluate", "--fusion", "none", "--limit", "-1"], "--limit"),
+    (["evaluate", "--fusion", "none", "--limit", "0"], "--limit"),
+    (["simulate", "--town", "../nets/fiveleg", "--out", "OUT"], "unknown town"),
+    (["render", "SCENE", "--out", "x.png", "--collaborators", "-1"], "--collaborators"),
+])
+def test_bad_values_are_one_line(capsys, tmp_path, argv, needle):
+    argv = [str(tmp_path / "out") if a == "OUT" else str(tmp_path / "s.yaml") if a == "SCENE" else a for a in argv]
+    code, err = run(capsys, *argv)
+    assert code == 2
+    assert_one_line_error(err, needle)
+    assert not (tmp_path / "out").exists()
+
+
+BAD_CONFIGS = {
+    "acs_samples: -2\n": "acs_samples",
+    "acs_tau: 0\n": "acs_tau",
+    "comm_range_m: -1\n": "comm_range_m",
+    "perturbed: -1\n": "perturbed",
+    "sensing_agents: 0\n": "sensing_agents",
+    "space: {dxy_m: 0}\n": "dxy_m",
+    "space: {dyaw_deg: .nan}\n": "dyaw_deg",
+    "space: {n_q: 0}\n": "n_q",
+    "objective: {weights: {'0.3': 1.0, 'high': 2.0}}\n": "objective.weights",
+    "objective: {weights: {'0.3': -1.0}}\n": "objective.weights",
+    "- a\n- b\n": "expected a mapping",
+    "budget: [1\n": "not valid YAML",
+}
+
+
+@pytest.mark.parametrize("text", sorted(BAD_CONFIGS))
+def test_bad_generate_configs_are_one_line_naming_the_file(capsys, tmp_path, text):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    cfg = tmp_path / "mine.yaml"
+    cfg.write_text(text)
+    code, err = _generate(capsys, scenes, tmp_path / "out", "--config", str(cfg))
+    assert code == 2
+    assert_one_line_error(err, BAD_CONFIGS[text])
+    assert "generate.yaml" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_non_utf8_inputs_are_one_line(capsys, tmp_path):
+    cfg = tmp_path / "latin1.yaml"
+    cfg.write_bytes("budget: 5 # caf\xe9\n".encode("latin-1"))
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    code, err = _generate(capsys, scenes, tmp_path / "out", "--config", str(cfg))
+    assert code == 2
+    assert_one_line_error(err, "UTF-8")
+    bad_scene = scenes / "z.yaml"
+    bad_scene.write_bytes(b"scene_id: \xff\xfe\n")
+    code, err = run(capsys, "render", str(bad_scene), "--out", str(tmp_path / "x.png"))
+    assert code == 2
+    assert_one_line_error(err, "UTF-8")
+
+
+def test_another_objective_weighting_is_used(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    cfg = tmp_path / "w.yaml"
+    cfg.write_text("objective: {weights: {'0.6': 1.0}}\nspace: {dxy_m: 1.0, dyaw_deg: 10.0}\n")
+    out = tmp_path / "out"
+    code, err = _generate(capsys, scenes, out, "--config", str(cfg))
+    assert code == 0, err
+    (entry,) = json.loads((out / "summary.json").read_text())["scenes"]
+    assert set(entry["ap_final"]) == {"0.3", "0.5", "0.6", "0.7"}
+    assert entry["loss_final"] == pytest.approx(entry["ap_final"]["0.6"], abs=1e-6)
+    rows = (out / "scenes" / entry["scene_id"] / "history.csv").read_text().splitlines()
+    header = rows[0].split(",")
+    for row in rows[1:]:  # moves in the configured bounds (1 m, 10 deg), not the paper's 2.5 m / 45 deg
+        for name, value in zip(header, row.split(",")):
+            if name.endswith(("_dx_m", "_dy_m")):
+                assert abs(float(value)) <= 1.0 + 1e-9
+            if name.endswith("_dyaw_deg"):
+                assert abs(float(value)) <= 10.0 + 1e-9
+
+
+# ---- 5. a source smaller than --count ----------------------------------------------------------------
+def test_count_beyond_the_source_says_how_many(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    code, err = _generate(capsys, scenes, tmp_path / "out", "--count", "1000000")
+    assert code == 0
+    assert "holds 1 usable scenes (asked for 1000000)" in err
+
+
+# ---- 6. leftovers and signals ------------------------------------------------------------------------
+def test_stale_partials_are_removed_on_rerun(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    out = tmp_path / "out"
+    assert _generate(capsys, scenes, out)[0] == 0
+    stale = [out / "scenes" / ".road_t0.abc123.tmp", out / ".summary.xyz.tmp.json", out / ".work"]
+    for p in stale:
+        p.mkdir() if not p.suffix == ".json" else p.write_text("{")
+    assert _generate(capsys, scenes, out)[0] == 0
+    assert not [p for p in stale if p.exists()]
+
+
+def test_sigterm_mid_run_says_so_and_leaves_nothing(tmp_path):
+    scenes = tmp_path / "scenes"
+    for i in range(3):
+        _write(scenes, _scene_dict(f"s{i}"))
+    out, tmp = tmp_path / "out", tmp_path / "systemtmp"
+    tmp.mkdir()
+    env = dict(os.environ, TMPDIR=str(tmp))
+    argv = [sys.executable, "-m", "asg.cli", "generate", "--scenes", str(scenes), "--out", str(out),
+            "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "400"]
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, env=env, text=True, cwd=ROOT)
+    deadline = time.time() + 60
+    while not (out / "run.json").exists() and time.time() < deadline:
+        time.sleep(0.2)
+    time.sleep(3.0)  # models loaded, the first scene under way
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert "terminated" in err and "Traceback" not in err
+    leftovers = [p for p in out.rglob("*") if p.name.startswith(".")]
+    assert not leftovers, leftovers
+    assert not list(tmp.iterdir())  # no folder in the system's temporary directory
+
+
+def test_simulate_removes_stale_partials_beside_its_output(capsys, tmp_path):
+    out = tmp_path / "log"
+    stale = tmp_path / ".log.k9x.tmp"
+    stale.mkdir()
+    assert main(["simulate", "--town", "fiveleg", "--duration", "2", "--warmup", "5", "--out", str(out)]) == 0
+    assert not stale.exists()
+
+
+# ---- 7. messages that name the user's file -----------------------------------------------------------
+def test_unusable_net_is_named(capsys, tmp_path):
+    net = tmp_path / "tiny.net.xml"
+    # one short dead-end lane: a readable net on which no trip fits
+    net.write_text('<net version="1.20"><location netOffset="0,0" convBoundary="0,0,5,0"/>'
+                   '<edge id="e" from="a" to="b"><lane id="e_0" index="0" speed="13.9" length="5" shape="0,0 5,0"/></edge>'
+                   '<junction id="a" type="dead_end" x="0" y="0" incLanes="" intLanes="" shape="0,0"/>'
+                   '<junction id="b" type="dead_end" x="5" y="0" incLanes="e_0" intLanes="" shape="5,0"/></net>')
+    code, err = run(capsys, "simulate", "--net", str(net), "--duration", "5", "--out", str(tmp_path / "out"))
+    assert code == 2
+    assert "map.net.xml" not in err and "tiny.net.xml" in err
+
+
+# ---- 8. byte-identical scene files ----------------------------------------------------------------
+def test_scenes_from_a_town_record_no_temporary_path(tmp_path):
+    from asg.generate import SceneSource, load_scenes
+
+    scenes = load_scenes(SceneSource(town="fiveleg", duration_s=20.0), 2, 1, tmp_path / ".work")
+    assert scenes and all(s.log is None for s in scenes)
+
+
+# ---- 10. the independent plausibility check ----------------------------------------------------------
+def test_recheck_catches_what_it_should():
+    from asg.scene import Scene
+    from asg.scene.recheck import recheck
+
+    base = Scene.from_dict(_scene_dict())
+    v2 = base.agent("v2")
+
+    def moved_to(**kw):
+        from dataclasses import replace
+
+        return base.with_agents([replace(a, **kw) if a.agent_id == "v2" else a for a in base.agents])
+
+    assert recheck(base, moved_to(x_m=v2.x_m + 1.0)).ok
+    assert recheck(base, moved_to(x_m=base.agent("v3").x_m, y_m=base.agent("v3").y_m)).collisions == 1
+    assert recheck(base, moved_to(y_m=-20.0)).off_road == 1
+    assert recheck(base, moved_to(x_m=120.0)).out_of_range == 1
+
+
+def test_recheck_accepts_every_member_of_q():
+    """Both checks agree on plausible moves: every member of a feasible set passes the re-check."""
+    from asg.scene import Scene
+    from asg.scene.recheck import recheck
+    from asg.search import FeasibleSet, SearchSpace, SpaceConfig
+
+    scene = Scene.from_dict(_scene_dict())
+    space = SearchSpace(scene, ("v2", "v3", "u0"), SpaceConfig(n_q=150))
+    q = FeasibleSet(space, np.random.default_rng(3))
+    for x in q.members:
+        moved = space.moved_agents(x)
+        assert recheck(scene, scene.with_agents([moved.get(a.agent_id, a) for a in scene.agents])).ok
+
+
+# ---- 12. cooperation on for a user's own scenes -------------------------------------------------------
+def test_extract_picks_collaborators_and_evaluate_says_when_none(capsys, tmp_path, sumo_log):
+    out = tmp_path / "scenes"
+    assert main(["scenes", "extract", str(sumo_log), "--every", "40", "--out", str(out)]) == 0
+    files = sorted(out.glob("*.yaml"))
+    assert files and all(len(yaml.safe_load(f.read_text())["collaborators"]) == 2 for f in files)
+    alone = tmp_path / "alone"
+    assert main(["scenes", "extract", str(sumo_log), "--every", "40", "--collaborators", "0", "--out", str(alone)]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", "--fusion", "none", "--set", str(alone), "--limit", "1", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "name no collaborator" in captured.err
+    assert json.loads(captured.out)["without_collaborators"] == 1
