@@ -178,7 +178,9 @@ def dataset_build(args: argparse.Namespace) -> int:
 
 
 def train(args: argparse.Namespace) -> int:
-    from .perception.train import card_validation, train as run, weights_for
+    from .perception.cards import card_validation
+    from .perception.train import train as run
+    from .perception.train_config import weights_for
 
     if args.validate_only and (args.init_from or args.iou_branch):
         raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from or --iou-branch")

@@ -19,7 +19,7 @@ from sumo_scenarios.atomic import remove_stale_partials, write_text_atomic
 from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
 
-from .pipeline import GenerateConfig, Generator, SceneResult
+from .pipeline import GenerateConfig, Generator
 from .scene import Scene
 
 #: the file in a run folder that records its settings

@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from asg.objective.ap import average_precision
-from asg.perception.boxes import assign_targets, make_anchors, rotated_nms, select_boxes, vote_boxes
+from asg.perception.boxes import assign_targets, make_anchors
+from asg.perception.nms import rotated_nms, select_boxes, vote_boxes
 from asg.perception.config import ATTFUSE_FUSIONS, DetectorConfig
 from asg.perception.head import detection_loss
 from asg.perception.model import AttFuse, PointPillars, postprocess
@@ -252,7 +253,8 @@ def test_branch_targets_are_the_decoded_boxes_fit_to_the_ground_truth():
     and the refinement residuals that move it back, a confident anchor on nothing 0 and no
     refinement; anchors below the score and not positive get no target."""
     from asg.objective.iou import bev_iou_matrix
-    from asg.perception.boxes import branch_targets, encode, refine_boxes
+    from asg.perception.boxes import encode
+    from asg.perception.branch_boxes import branch_targets, refine_boxes
 
     anchors = torch.from_numpy(make_anchors(TINY)).float()
     gt = np.array([[2.0, 3.0, -1.0, 4.5, 1.9, 1.6, 0.2]])
@@ -280,7 +282,7 @@ def test_branch_targets_are_the_decoded_boxes_fit_to_the_ground_truth():
 def test_refinement_residuals_move_boxes_onto_their_vehicles_either_way_round():
     """refine_boxes(boxes, refinement_residuals(gt, boxes)) is gt, up to a half turn of the yaw
     (the residual yaw is folded into [-pi/2, pi/2): a box facing backwards keeps its direction)."""
-    from asg.perception.boxes import refine_boxes, refinement_residuals
+    from asg.perception.branch_boxes import refine_boxes, refinement_residuals
 
     gt = np.array([[2.0, 3.0, -1.0, 4.5, 1.9, 1.6, 0.2], [-10.0, 5.0, -0.8, 10.0, 2.5, 3.3, -2.9]])
     boxes = gt + [[0.4, -0.3, 0.1, 0.3, -0.1, 0.0, 0.3], [-0.5, 0.2, 0.0, -0.8, 0.2, 0.1, np.pi - 0.2]]
@@ -338,7 +340,8 @@ def test_iou_rescoring_reorders_detections():
 def test_box_refinement_moves_the_decoded_boxes_by_the_branch():
     """With box_refine the boxes out of postprocess are the decoded ones moved by the refinement
     branch's residuals; a branch predicting zeros changes nothing."""
-    from asg.perception.boxes import decode_with_direction, refine_boxes, top_candidates
+    from asg.perception.boxes import decode_with_direction, top_candidates
+    from asg.perception.branch_boxes import refine_boxes
 
     torch.manual_seed(0)
     model = PointPillars(TINY).eval()

@@ -16,7 +16,6 @@ import pytest
 import yaml
 
 from asg.cli import main
-from asg.scene import save_scene
 from sumo_scenarios.lanes import Lane, LaneMap
 
 from conftest import car, make_scene, rsu

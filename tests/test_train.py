@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from asg.perception.train import TrainConfig, train
+from asg.perception.train import train
+from asg.perception.train_config import TrainConfig
 from asg.scene.from_log import ExtractParams, extract_scenes
 from asg.scene.neighbours import with_nearest_collaborators
 
@@ -301,7 +302,7 @@ def test_candidates_are_matched_with_their_own_views_ground_truth():
 def test_branch_fit_settings_are_checked(tmp_path):
     from sumo_scenarios.errors import InputError
 
-    from asg.perception.train import load_branch_config
+    from asg.perception.train_config import load_branch_config
 
     assert load_branch_config().epochs >= 1  # the shipped block loads
     bad = tmp_path / "train.yaml"

@@ -35,7 +35,8 @@ from torch import nn
 from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
 
-from .boxes import REFINE_MIN_IOU, best_match, decode_with_direction, refine_boxes, refinement_residuals, top_candidates
+from .boxes import decode_with_direction, top_candidates
+from .branch_boxes import REFINE_MIN_IOU, best_match, refine_boxes, refinement_residuals
 from .data import augment
 from .head import iou_loss, patch_features, refine_loss
 from .inference import fold_batch_norms

@@ -13,7 +13,9 @@ import torch
 from torch import nn
 
 from .backbone import Backbone
-from .boxes import decode_with_direction, make_anchors, refine_boxes, select_boxes, top_candidates
+from .boxes import decode_with_direction, make_anchors, top_candidates
+from .branch_boxes import refine_boxes
+from .nms import select_boxes
 from .config import DetectorConfig
 from .head import AnchorHead, rescore
 from .pillars import PillarEncoder

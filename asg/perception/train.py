@@ -14,78 +14,29 @@ from __future__ import annotations
 import json
 import time
 from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Callable
 
 import numpy as np
 import torch
 
-from sumo_scenarios.atomic import atomic_path, write_text_atomic
+from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
-from sumo_scenarios.paths import configs_dir, runs_dir
-from sumo_scenarios.strict import from_mapping, read_yaml
+from sumo_scenarios.paths import runs_dir
 
 from ..datasets import iter_frames
 from ..sensors import load_lidar_spec
-from .boxes import assign_targets, branch_targets
+from .boxes import assign_targets
+from .branch_boxes import branch_targets
 from .branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
 from .config import load_detector_config
 from .data import Sample, augment, make_sample
 from .head import detection_loss, iou_loss, refine_loss
 from .model import AttFuse, PointPillars
+from .cards import card_validation, init_record, previous_training, write_card
+from .checkpoint import load_checkpoint, save_checkpoint
+from .train_config import TrainConfig, load_branch_config, load_train_config, weights_for  # noqa: F401  (asg train's API)
 from .weights_io import WEIGHTS_DIR
-
-FUSION_TO_WEIGHTS = {"none": "single", "late": "single", "early": "early", "attfuse": "attfuse"}
-
-
-def weights_for(fusion: str) -> str:
-    """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError if unknown."""
-    if fusion not in FUSION_TO_WEIGHTS:
-        raise InputError(f"unknown fusion '{fusion}'; choose one of {', '.join(FUSION_TO_WEIGHTS)}")
-    return FUSION_TO_WEIGHTS[fusion]
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    dataset: str = "detector-train"
-    steps: int = 4000
-    batch_size: int = 4
-    lr: float = 0.002
-    weight_decay: float = 0.0001
-    #: "step": lr x0.1 at each fraction in decay_at; "onecycle": warm up to lr over pct_start of
-    #: the steps (from lr / div_factor), then cosine annealing (Adam's beta1 cycled 0.95 <-> 0.85)
-    schedule: Literal["step", "onecycle"] = "step"
-    decay_at: tuple[float, ...] = (0.7, 0.9)
-    pct_start: float = 0.4
-    div_factor: float = 10.0
-    seed: int = 1
-    checkpoint_every: int = 200
-    #: fusion models: "ego" trains on each frame as its ego sees it; "all" on each sensing agent's
-    #: view in turn (3 times the distinct examples from the same frames)
-    views: Literal["ego", "all"] = "ego"
-
-
-#: the train.yaml block of the branch fit (any weights): ``asg train --fusion F --iou-branch``
-IOU_BLOCK = "iou_branch"
-
-
-def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
-    """The training settings of ``weights`` (its train.yaml block)."""
-    return from_mapping(TrainConfig, _block(weights, path), f"train.yaml:{weights}")
-
-
-def load_branch_config(path: Path | None = None) -> BranchFitConfig:
-    """The settings of the IoU and refinement branches' fit (train.yaml's ``iou_branch`` block)."""
-    return from_mapping(BranchFitConfig, _block(IOU_BLOCK, path), f"train.yaml:{IOU_BLOCK}")
-
-
-def _block(name: str, path: Path | None) -> dict:
-    data = read_yaml(path or configs_dir() / "detectors" / "train.yaml")
-    if name not in data:
-        raise InputError(f"no training block '{name}' in train.yaml")
-    return data[name]
-
 
 def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None) -> list[Sample]:
     spec = load_lidar_spec("v2xp")
@@ -158,9 +109,9 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     state = load_checkpoint(ckpt)
     # the chunks before this one: from the checkpoint when resuming, else from the shipped card
     if init_from:
-        previous = {"init_from": _init_record(init_from, weights_dir), "chunks": []}
+        previous = {"init_from": init_record(init_from, weights_dir), "chunks": []}
     elif state is None:
-        previous = _previous_training(name, weights_dir)
+        previous = previous_training(name, weights_dir)
     else:
         previous = json.loads(state.get("previous", "{}"))
     chunk = len(previous.get("chunks", []))  # a continuation chunk draws other batches than the first
@@ -218,7 +169,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
             parts = " ".join(f"{k} {float(v.detach()):.3f}" for k, v in loss.items() if k != "total")
             log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} ({parts})")
         if step % tcfg.checkpoint_every == 0 or step == total:
-            _checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng, previous)
+            save_checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng, previous)
     wall += time.perf_counter() - started
     model.eval()
     weights = weights_dir / f"{name}.pt"
@@ -227,7 +178,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
                                             "wall_s": round(wall, 1), "part": "all"}]
-    _write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
+    write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
                 examples=len(batches.items), batch_size=tcfg.batch_size)
     ckpt.unlink(missing_ok=True)  # the chunk is complete: the next run starts a new one from these weights
     (run_dir / CACHE_NAME).unlink(missing_ok=True)  # candidates of an unfinished branch fit belong to the old weights
@@ -249,7 +200,7 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
 
     fcfg = branch_config or load_branch_config()
     cfg = detector_config or load_detector_config()
-    previous = _previous_training(name, weights_dir)
+    previous = previous_training(name, weights_dir)
     if not previous.get("chunks"):
         raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit the branches to; train them first")
     torch.set_num_threads(threads)
@@ -272,7 +223,7 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     fit = {"part": "branches", "passes": fcfg.passes, "epochs": fcfg.epochs, "batch_size": fcfg.batch_size,
            "lr": fcfg.lr, "seed": fcfg.seed, "views": fcfg.views, "iou_target": fcfg.iou_target,
            "wall_s": round(wall, 1), **figures}
-    _write_card(name, weights_dir, cfg, previous["chunks"] + [fit], previous, threads,
+    write_card(name, weights_dir, cfg, previous["chunks"] + [fit], previous, threads,
                 dataset=previous.get("dataset", fcfg.dataset), examples=previous.get("examples", len(items)),
                 batch_size=previous.get("batch_size", 0), branch_fit=fit)
     (run_dir / CACHE_NAME).unlink(missing_ok=True)
@@ -281,75 +232,6 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     if validate:
         card_validation(name, log, weights_dir=weights_dir)
     return weights
-
-
-def _write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: dict, threads: int, *,
-                dataset: str, examples: int, batch_size: int, branch_fit: dict | None = None) -> None:
-    """The model card of ``name``: the chunks that made it (whole-network ones count as detector
-    steps), their total wall time and, when the last step was a branch fit, that fit."""
-    card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
-            "dataset": dataset, "examples": examples,
-            # detector steps: the chunks that trained the whole network (branch chunks and fits are listed apart)
-            "steps": sum(c["steps"] for c in chunks if c.get("part", "all") == "all"),
-            "batch_size": batch_size, "train_wall_s": round(sum(c["wall_s"] for c in chunks), 1),
-            "chunks": chunks, "threads": threads,
-            # how the shipped IoU and refinement branches were made: a fit on the frozen detector,
-            # absent when the last chunk trained them alongside the whole network
-            **({"branch_fit": branch_fit} if branch_fit else {}),
-            **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
-            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp",
-            **({"attfuse_fusion": cfg.attfuse_fusion} if name == "attfuse" else {})}
-    write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
-
-
-def card_validation(name: str, log: Callable[[str], None] = print, set_name: str = "normal-val",
-                    weights_dir: Path = WEIGHTS_DIR) -> dict:
-    """Evaluate the ``name`` weights in ``weights_dir`` (default the shipped ones) on ``set_name``
-    (every fusion that uses them) and record the APs in that folder's model card."""
-    from .evaluate import evaluate
-
-    card_path = weights_dir / f"{name}.json"
-    card = json.loads(card_path.read_text()) if card_path.is_file() else {"weights": f"{name}.pt"}
-    card["validation"] = {}
-    for fusion in [f for f, w in FUSION_TO_WEIGHTS.items() if w == name]:  # none and late share 'single'
-        t0 = time.perf_counter()
-        res = evaluate(fusion, set_name, weights_file=str(weights_dir / f"{name}.pt"))
-        card["validation"][fusion] = {"set": set_name, "frames": res["frames"],
-                                      "ap": {k: round(v, 4) for k, v in res["ap"].items()},
-                                      "eval_wall_s": round(time.perf_counter() - t0, 1)}
-        log(f"{fusion} on {set_name}: AP {res['ap']}")
-    write_text_atomic(card_path, json.dumps(card, indent=1))
-    return card
-
-
-def _previous_training(name: str, weights_dir: Path = WEIGHTS_DIR) -> dict:
-    """What the weights of ``name`` in ``weights_dir`` were trained with (from its card), or {} if
-    none: a new run then continues from them (training in chunks across sittings)."""
-    card_path = weights_dir / f"{name}.json"
-    if not (weights_dir / f"{name}.pt").is_file() or not card_path.is_file():
-        return {}
-    card = json.loads(card_path.read_text())
-    chunks = card.get("chunks") or [{"steps": card.get("steps", 0), "lr": card.get("lr"), "seed": card.get("seed"),
-                                     "wall_s": card.get("train_wall_s", 0.0)}]
-    out = {"chunks": chunks, "steps_total": sum(c.get("steps", 0) for c in chunks),
-           # what the detector chunks trained on, for a branch fit's card
-           **{k: card[k] for k in ("dataset", "examples", "batch_size") if k in card}}
-    if card.get("init_from"):
-        out["init_from"] = card["init_from"]
-    return out
-
-
-def _init_record(init_from: str, weights_dir: Path) -> dict:
-    """What a new sequence starts from: the weights name, their steps and training time (from
-    their card), recorded in the new model card."""
-    names = sorted(set(FUSION_TO_WEIGHTS.values()))
-    if init_from not in names:
-        raise InputError(f"unknown weights '{init_from}' for --init-from; choose one of {', '.join(names)}")
-    if not (weights_dir / f"{init_from}.pt").is_file():
-        raise InputError(f"{weights_dir / f'{init_from}.pt'}: weights not found; train them first with 'asg train'")
-    card_path = weights_dir / f"{init_from}.json"
-    card = json.loads(card_path.read_text()) if card_path.is_file() else {}
-    return {"weights": f"{init_from}.pt", "steps": card.get("steps", 0), "train_wall_s": card.get("train_wall_s", 0.0)}
 
 
 def init_from_weights(model: torch.nn.Module, path: Path) -> None:
@@ -410,26 +292,3 @@ def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
         sched.milestones = Counter(int(f * total) for f in tcfg.decay_at)
 
 
-def load_checkpoint(path: Path) -> dict | None:
-    """The resumable state of an unfinished chunk (None if there is none); tensors only, never
-    unpickled objects. A damaged file is one InputError saying how to start the chunk over."""
-    if not path.is_file():
-        return None
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises several types for damaged files
-        raise InputError(f"{path}: the training checkpoint is damaged ({type(exc).__name__}); "
-                         f"delete it to start this chunk over") from None
-    needed = {"model", "optimizer", "scheduler", "step", "wall_s", "rng", "torch_rng", "previous"}
-    if not isinstance(state, dict) or not needed <= set(state):
-        raise InputError(f"{path}: not a training checkpoint of this version; delete it to start this chunk over")
-    return state
-
-
-def _checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng: np.random.Generator,
-                previous: dict) -> None:
-    state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-             "step": step, "wall_s": wall_s, "rng": json.dumps(rng.bit_generator.state),
-             "torch_rng": torch.get_rng_state(), "previous": json.dumps(previous)}
-    with atomic_path(path) as tmp:
-        torch.save(state, tmp)

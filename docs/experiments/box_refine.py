@@ -27,7 +27,8 @@ from iou_branch import OUT, best_iou, cache_eval, candidates, fit_loop, load_fro
 
 from asg.objective.ap import ap_at  # noqa: E402
 from asg.objective.iou import bev_iou_matrix  # noqa: E402
-from asg.perception.boxes import refine_boxes, refinement_residuals, select_boxes  # noqa: E402
+from asg.perception.branch_boxes import refine_boxes, refinement_residuals  # noqa: E402
+from asg.perception.nms import select_boxes  # noqa: E402
 from asg.perception.data import augment, in_range  # noqa: E402
 from asg.perception.head import REFINE_SCALE  # noqa: E402
 from asg.perception.train import _Batches, render_samples  # noqa: E402

@@ -24,7 +24,7 @@ from torch import nn
 from asg.datasets import iter_frames
 from asg.objective.ap import ap_at
 from asg.objective.iou import bev_iou_matrix
-from asg.perception.boxes import select_boxes
+from asg.perception.nms import select_boxes
 from asg.perception.branch_fit import BranchFitConfig, fit_minibatches, view_candidates
 from asg.perception.config import load_detector_config
 from asg.perception.data import Sample, augment, in_range

@@ -6,7 +6,7 @@ import torch
 
 from ...registry import register
 from ...sensors.frame import CooperativeFrame, boxes_to_sensor, boxes_to_world
-from ..boxes import select_boxes
+from ..nms import select_boxes
 from ..model import PointPillars, postprocess
 from .base import Detections, V2XDetector
 

@@ -1,0 +1,62 @@
+"""Which weights each fusion model uses and how they are trained (configs/detectors/train.yaml)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import configs_dir
+from sumo_scenarios.strict import from_mapping, read_yaml
+
+from .branch_fit import BranchFitConfig
+
+FUSION_TO_WEIGHTS = {"none": "single", "late": "single", "early": "early", "attfuse": "attfuse"}
+
+
+def weights_for(fusion: str) -> str:
+    """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError if unknown."""
+    if fusion not in FUSION_TO_WEIGHTS:
+        raise InputError(f"unknown fusion '{fusion}'; choose one of {', '.join(FUSION_TO_WEIGHTS)}")
+    return FUSION_TO_WEIGHTS[fusion]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    dataset: str = "detector-train"
+    steps: int = 4000
+    batch_size: int = 4
+    lr: float = 0.002
+    weight_decay: float = 0.0001
+    #: "step": lr x0.1 at each fraction in decay_at; "onecycle": warm up to lr over pct_start of
+    #: the steps (from lr / div_factor), then cosine annealing (Adam's beta1 cycled 0.95 <-> 0.85)
+    schedule: Literal["step", "onecycle"] = "step"
+    decay_at: tuple[float, ...] = (0.7, 0.9)
+    pct_start: float = 0.4
+    div_factor: float = 10.0
+    seed: int = 1
+    checkpoint_every: int = 200
+    #: fusion models: "ego" trains on each frame as its ego sees it; "all" on each sensing agent's
+    #: view in turn (3 times the distinct examples from the same frames)
+    views: Literal["ego", "all"] = "ego"
+
+
+#: the train.yaml block of the branch fit (any weights): ``asg train --fusion F --iou-branch``
+IOU_BLOCK = "iou_branch"
+
+
+def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
+    """The training settings of ``weights`` (its train.yaml block)."""
+    return from_mapping(TrainConfig, _block(weights, path), f"train.yaml:{weights}")
+
+
+def load_branch_config(path: Path | None = None) -> BranchFitConfig:
+    """The settings of the IoU and refinement branches' fit (train.yaml's ``iou_branch`` block)."""
+    return from_mapping(BranchFitConfig, _block(IOU_BLOCK, path), f"train.yaml:{IOU_BLOCK}")
+
+
+def _block(name: str, path: Path | None) -> dict:
+    data = read_yaml(path or configs_dir() / "detectors" / "train.yaml")
+    if name not in data:
+        raise InputError(f"no training block '{name}' in train.yaml")
+    return data[name]
