@@ -80,7 +80,13 @@ def load_generate_config(path: Path | None = None, **overrides) -> GenerateConfi
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of settings (key: value), got a {type(data).__name__}")
     data.update({k: v for k, v in overrides.items() if v is not None})
-    return from_mapping(GenerateConfig, data, str(path)).validate()
+    try:
+        return from_mapping(GenerateConfig, data, str(path)).validate()
+    except InputError as exc:  # a range check inside a component's config: say which file it came from
+        text = str(exc)
+        if str(path) in text or text.startswith("--"):
+            raise
+        raise InputError(f"{path}: {text}") from None
 
 
 def search_params(name: str) -> dict:

@@ -73,7 +73,7 @@ def _check_value(value: Any, hint: Any, where: str) -> Any:
         if not isinstance(value, dict):
             raise InputError(f"{where}: expected a mapping, got {value!r}")
         kt, vt = args if args else (Any, Any)
-        return {_check_value(k, kt, where): _check_value(v, vt, f"{where}.{k}") for k, v in value.items()}
+        return {_check_value(k, kt, where): _check_value(v, vt, _child(where, k)) for k, v in value.items()}
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise InputError(f"{where}: expected a number, got {value!r}")
@@ -89,6 +89,11 @@ def _check_value(value: Any, hint: Any, where: str) -> Any:
             raise InputError(f"{where}: expected {_name(hint)}, got {value!r}")
         return value
     return value
+
+
+def _child(where: str, key: Any) -> str:
+    """Where a key sits: ``file.yaml: key`` at a file's top, ``outer.key`` below."""
+    return f"{where}: {key}" if where.endswith((".yaml", ".yml")) else f"{where}.{key}"
 
 
 def _name(hint: Any) -> str:
@@ -111,7 +116,7 @@ def from_mapping(cls: type[T], data: Any, where: str = "config") -> T:
     kwargs = {}
     for name, f in fields.items():
         if name in data:
-            kwargs[name] = _check_value(data[name], hints[name], f"{where}.{name}")
+            kwargs[name] = _check_value(data[name], hints[name], _child(where, name))
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise InputError(f"{where}: missing key '{name}'; add it")
     return cls(**kwargs)
