@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Re-measure every figure in docs/results/ (from the project root, after `make demo`):
+#   docs/results/measure.sh [OUT]        (OUT default runs/results; about 45 minutes on 2 cores)
+# Each command writes its JSON to OUT/NAME.json; the commit is recorded in OUT/commit.
+set -euo pipefail
+OUT=${1:-runs/results}
+ASG=.venv/bin/asg
+mkdir -p "$OUT"
+git rev-parse --short HEAD > "$OUT/commit"
+for set in normal-val normal; do
+  for fusion in none late early attfuse; do
+    $ASG evaluate --fusion "$fusion" --set "$set" --json > "$OUT/evaluate-$fusion-$set.json"
+  done
+done
+for run in 1 2 3; do
+  $ASG bench detect --json > "$OUT/bench-detect-$run.json"
+  $ASG bench generate --json > "$OUT/bench-generate-$run.json"
+  $ASG bench lidar --json > "$OUT/bench-lidar-$run.json"
+  $ASG bench simulate --json > "$OUT/bench-simulate-$run.json"
+done
+$ASG bench paper --scenes 30 --jobs 2 --json --out "$OUT/paper" > "$OUT/bench-paper.json"
