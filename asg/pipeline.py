@@ -147,10 +147,10 @@ class Generator:
         ap = ap_at([self._detections(frame)], self.cfg.objective.thresholds)
         return adversarial_loss(ap, self.cfg.objective), ap
 
-    def evaluate_scene(self, scene: Scene) -> tuple[float, dict[str, float], CooperativeFrame]:
+    def evaluate_scene(self, scene: Scene) -> "Scored":
         frame = render_frame(World(scene, self.spec))
         loss, ap = self._score(frame)
-        return loss, ap, frame
+        return Scored(scene, loss, ap, frame)
 
     # ---- the two stages ----------------------------------------------------------------------
     def normal_collaborators(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> Scene:
@@ -163,8 +163,8 @@ class Generator:
         pick = sorted(rng.choice(len(cands), size=min(need, len(cands)), replace=False).tolist()) if cands else []
         return scene.with_collaborators([cands[i] for i in pick])
 
-    def collaborator_search(self, scene: Scene, rng: np.random.Generator, notes: list[str]):
-        """(scene with the chosen collaborators, its loss, AP, frame, probabilities by combination)."""
+    def collaborator_search(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> "AcsOutcome":
+        """The lowest-loss of the sampled collaborator combinations, with ACS-A's probabilities."""
         from .collaborators import attention_combinations, random_combinations
 
         cands = [a.agent_id for a in vehicles_within(scene, scene.ego_id, self.cfg.comm_range_m)]
@@ -183,14 +183,13 @@ class Generator:
             probs = {"+".join(c): float(v) for c, v in zip(all_combinations(cands, size), p) if v > 1e-4}
         else:
             combos = random_combinations(cands, size, self.cfg.acs_samples, rng)
-        best = None
+        best: Scored | None = None
         combos = combos or [tuple()]
         for combo in combos:
-            candidate = scene.with_collaborators(combo)
-            loss, ap, frame = self.evaluate_scene(candidate)
-            if best is None or loss < best[1]:
-                best = (candidate, loss, ap, frame)
-        return (*best, probs, len(combos))
+            scored = self.evaluate_scene(scene.with_collaborators(combo))
+            if best is None or scored.loss < best.loss:
+                best = scored
+        return AcsOutcome(best, probs, len(combos))
 
     def pick_perturbed(self, scene: Scene, notes: list[str]) -> list[str]:
         sensing = set(scene.sensing_ids)
@@ -209,41 +208,36 @@ class Generator:
         rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
         notes: list[str] = []
         initial = self.normal_collaborators(scene, rng, notes)
-        loss_n, ap_n, frame_n = self.evaluate_scene(initial)
-        if self.cfg.acs == "off":
-            after, loss_a, ap_a, frame_a, probs, n_combos = initial, loss_n, ap_n, frame_n, {}, 0
-        else:
-            after, loss_a, ap_a, frame_a, probs, n_combos = self.collaborator_search(initial, rng, notes)
-        final, ap_f, loss_f, frame_f = after, ap_a, loss_a, frame_a
-        history: list[Evaluation] = []
-        perturbed: list[str] = []
-        delta: list[list[float]] = []
-        overhead: list[float] = []
+        normal = self.evaluate_scene(initial)
+        acs = AcsOutcome(normal, {}, 0) if self.cfg.acs == "off" else self.collaborator_search(initial, rng, notes)
+        after = acs.best
+        aps = ApsOutcome(after, [], [], ())
         if self.cfg.aps:
-            perturbed = self.pick_perturbed(after, notes)
+            perturbed = self.pick_perturbed(after.scene, notes)
             if perturbed:
                 try:
-                    final, ap_f, loss_f, frame_f, history, delta = self._perturb(after, perturbed, loss_a, ap_a, frame_a, rng, on_step)
-                    overhead = [e.optimizer_s for e in history]
+                    aps = self._perturb(after, perturbed, rng, on_step)
                 except EmptyFeasibleSet as exc:
                     notes.append(f"APS skipped: {exc}")
-                    perturbed = []
             else:
                 notes.append("APS skipped: no vehicle to move")
-        plaus = recheck(after, final)  # shapely, not the fcl checker that built Q
+        plaus = recheck(after.scene, aps.best.scene)  # shapely, not the fcl checker that built Q
         if not plaus.ok:  # never publish an implausible scene
             notes.append(f"final scene failed the independent plausibility check {plaus.to_dict()}; kept the scene after ACS")
-            final, ap_f, loss_f, frame_f, delta = after, ap_a, loss_a, frame_a, []
-            plaus = recheck(after, final)
-        detections = {k: self._detections(f) for k, f in (("initial", frame_n), ("after_acs", frame_a), ("final", frame_f))}
+            aps = ApsOutcome(after, aps.history, [], aps.perturbed)
+            plaus = recheck(after.scene, after.scene)
+        final = aps.best
+        stages = {"initial": normal, "after_acs": after, "final": final}
         return SceneResult(
-            scene.scene_id, initial, after, final, ap_n, ap_a, ap_f, loss_n, loss_f, 1 + n_combos + len(history),
-            time.perf_counter() - t0, tuple(perturbed), delta, plaus, history,
-            {"initial": frame_n, "after_acs": frame_a, "final": frame_f}, notes, probs, overhead, detections,
+            scene.scene_id, initial, after.scene, final.scene, normal.ap, after.ap, final.ap, normal.loss, final.loss,
+            1 + acs.combinations + len(aps.history), time.perf_counter() - t0, aps.perturbed, aps.delta, plaus,
+            aps.history, {k: v.frame for k, v in stages.items()}, notes, acs.probabilities,
+            [e.optimizer_s for e in aps.history], {k: self._detections(v.frame) for k, v in stages.items()},
             (self.cfg.space.dxy_m, self.cfg.space.dxy_m, self.cfg.space.dyaw_deg))
 
-    def _perturb(self, scene: Scene, perturbed: list[str], loss0: float, ap0: dict, frame0: CooperativeFrame,
-                 rng: np.random.Generator, on_step):
+    def _perturb(self, start_at: "Scored", perturbed: list[str], rng: np.random.Generator, on_step) -> "ApsOutcome":
+        """Search the moves of ``perturbed`` from ``start_at`` (its loss is told first, not counted)."""
+        scene = start_at.scene
         space = SearchSpace(scene, perturbed, self.cfg.space)
         feasible = FeasibleSet(space, rng)
         world = World(scene, self.spec, movable_ids=perturbed)
@@ -253,13 +247,45 @@ class Generator:
             return self._score(render_frame(world, moved=space.moved_agents(x)))
 
         optimizer = build_optimizer(self.cfg.search, space.dim, self.cfg.budget, rng, **self.params)
-        start = Evaluation(0, np.zeros(space.dim), loss0, ap0, 0.0)
+        start = Evaluation(0, np.zeros(space.dim), start_at.loss, start_at.ap, 0.0)
         history = run_search(optimizer, feasible, objective, self.cfg.budget, start, on_step)
         best = best_of(history, start)
         if best.step == 0:
-            return scene, ap0, loss0, frame0, history, []
+            return ApsOutcome(start_at, history, [], tuple(perturbed))
         moved = space.moved_agents(best.x)
         final = scene.with_agents([moved.get(a.agent_id, a) for a in scene.agents])
-        frame = render_frame(world, moved=moved)
-        deltas = space.denormalise(best.x)
-        return final, best.ap, best.loss, frame, history, [[round(float(v), 4) for v in d] for d in deltas]
+        delta = [[round(float(v), 4) for v in d] for d in space.denormalise(best.x)]
+        return ApsOutcome(Scored(final, best.loss, best.ap, render_frame(world, moved=moved)), history, delta,
+                          tuple(perturbed))
+
+
+@dataclass(frozen=True)
+class Scored:
+    """A scene as the target model sees it: its adversarial loss, AP by threshold and rendered frame."""
+
+    scene: Scene
+    loss: float
+    ap: dict[str, float]
+    frame: CooperativeFrame
+
+
+@dataclass(frozen=True)
+class AcsOutcome:
+    """The collaborator search: the best combination scored, ACS-A's probability of each
+    combination ("a+b" -> p; empty for ACS-R and off) and how many combinations were scored."""
+
+    best: Scored
+    probabilities: dict[str, float]
+    combinations: int
+
+
+@dataclass(frozen=True)
+class ApsOutcome:
+    """The perturbation search: the final scene scored (the start if no move helped), every
+    evaluation, the kept moves (dx_m, dy_m, dyaw_rad per perturbed vehicle; [] if none) and the
+    vehicles the search moved."""
+
+    best: Scored
+    history: list[Evaluation]
+    delta: list[list[float]]
+    perturbed: tuple[str, ...]
