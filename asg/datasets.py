@@ -13,14 +13,14 @@ from __future__ import annotations
 import gzip
 import json
 import os
-import tempfile
+import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
 
-from sumo_scenarios.atomic import atomic_dir
+from sumo_scenarios.atomic import atomic_dir, remove_stale_partials_of
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.log import NEAR_RADIUS_M
 from sumo_scenarios.paths import configs_dir, runs_dir
@@ -88,13 +88,18 @@ def build_dataset(name: str, progress: Callable[[int, int], None] | None = None)
     spec = load_spec(name)
     runs = [(t, d, s) for t in spec.towns for d in spec.densities for s in spec.seeds]
     logs: list[tuple[str, list[Scene]]] = []
-    with tempfile.TemporaryDirectory() as tmp:
+    out = data_root() / name
+    logs_dir = out.parent / f".work-{name}"  # the simulated logs: beside the set, removed when done
+    shutil.rmtree(logs_dir, ignore_errors=True)  # what a killed build left
+    remove_stale_partials_of(out)
+    try:
         for i, (town, density, seed) in enumerate(runs):
-            logs.append((f"{town}_{density}_{seed}", _log_frames(spec, town, density, seed, Path(tmp))))
+            logs.append((f"{town}_{density}_{seed}", _log_frames(spec, town, density, seed, logs_dir)))
             if progress:
                 progress(i + 1, len(runs))
+    finally:
+        shutil.rmtree(logs_dir, ignore_errors=True)
     splits = _split(spec, logs)
-    out = data_root() / name
     with atomic_dir(out) as work:
         with gzip.open(work / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
             for _, scenes in logs:

@@ -83,3 +83,12 @@ def remove_stale_partials(folder: str | os.PathLike) -> int:
     for p in stale:
         shutil.rmtree(p, ignore_errors=True) if p.is_dir() and not p.is_symlink() else p.unlink(missing_ok=True)
     return len(stale)
+
+
+def remove_stale_partials_of(final: str | os.PathLike) -> None:
+    """Remove what an interrupted :func:`atomic_dir` write of folder ``final`` left beside it
+    (``.NAME.XXXX.tmp``); other names are kept."""
+    final = Path(final)
+    if final.parent.is_dir():
+        for p in final.parent.glob(f".{final.name}.*.tmp"):
+            shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)

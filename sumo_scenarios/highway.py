@@ -16,14 +16,14 @@ import numpy as np
 from shapely.geometry import LineString, box
 
 from . import checks
-from .atomic import atomic_dir
+from .atomic import atomic_dir, remove_stale_partials_of
 from .buildings import generate_buildings, write_buildings
 from .errors import InputError
 from .fcd import FcdFrame, FcdVehicle, front_from_center, sumo_angle_from_yaw_rad, write_fcd
 from .lanes import Junction, Lane, LaneMap
 from .log import BUILDINGS_NAME, LANES_NAME, LogMeta, density_stats, write_lanes, write_meta
 from .rsu import place_rsus
-from .simulate import MAX_SECONDS, remove_stale_partials_of, validate_times
+from .simulate import MAX_SECONDS, validate_times
 
 ENVS = ("highway-v0", "merge-v0", "roundabout-v0", "intersection-v0")
 #: highway-env's vehicles are all 5 m x 2 m; we record them as this type (height is ours)

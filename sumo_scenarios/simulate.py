@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Callable
 
 from . import checks
-from .atomic import atomic_dir, write_text_atomic
+from .atomic import atomic_dir, remove_stale_partials_of, write_text_atomic
 from .buildings import write_buildings
 from .errors import InputError
 from .fcd import FcdFrame, FcdVehicle
@@ -95,14 +95,6 @@ def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> d
             rsus=tuple(r.to_dict() for r in rsus), stats=stats, net_source=str(town.net_path),
         ))
     return stats
-
-
-def remove_stale_partials_of(out_dir: Path) -> None:
-    """Remove what an interrupted run into ``out_dir`` left beside it (``.NAME.XXXX.tmp``)."""
-    parent = Path(out_dir).parent
-    if parent.is_dir():
-        for p in parent.glob(f".{Path(out_dir).name}.*.tmp"):
-            shutil.rmtree(p, ignore_errors=True)
 
 
 #: simulated seconds between the samples that the density statistics are computed on
