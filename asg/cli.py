@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 from sumo_scenarios.errors import InputError
 
 from . import commands
+from .executors.base import WorkerLost
 
 
 class _Parser(argparse.ArgumentParser):
@@ -174,8 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget", type=COUNT, default=50)
     p.add_argument("--fusion", default="attfuse")
     p.add_argument("--out", type=Path, default=Path("runs/bench-paper"))
-    p.add_argument("--jobs", type=_whole(1, 64, "--jobs"), default=1,
-                   help="run the seven configurations in this many processes (2 on a 2-core machine: about half the time)")
+    _executor_args(p)
+    p.add_argument("--jobs", type=_whole(1, 64, "--jobs"), default=None, dest="workers", help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print JSON only")
     bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
 
@@ -196,7 +197,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("runs/generate"), help="run folder (default runs/generate)")
     p.add_argument("--force", action="store_true",
                    help="start the run folder over when it holds a run made with other settings")
+    p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
+                   help="your own target: a function (config) -> (detector, ACS model or None); default the shipped --fusion")
+    _executor_args(p)
     return parser
+
+
+def _executor_args(p: argparse.ArgumentParser) -> None:
+    """--workers, --executor, --address: how a batch command spreads its items."""
+    p.add_argument("--workers", type=_whole(1, 1024, "--workers"), default=None,
+                   help="worker processes, one thread each (default: one per core); results do not depend on it")
+    p.add_argument("--executor", choices=["local", "ray"], default="local",
+                   help="local processes (default) or Ray actors (pip install 'asg[ray]')")
+    p.add_argument("--address", default=None, help="an existing Ray cluster (default: a local Ray instance)")
 
 
 class Terminated(Exception):
@@ -232,6 +245,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write("asg: interrupted; nothing half-written was left behind (rerun the command to resume)\n")
         return 130
+    except WorkerLost as exc:
+        sys.stderr.write(f"asg: error: {exc}; what finished is kept: rerun the command to resume\n")
+        return 1
     except Terminated:
         sys.stderr.write("asg: terminated; nothing half-written was left behind (rerun the command to resume)\n")
         return 143

@@ -249,9 +249,10 @@ def bench_paper(args: argparse.Namespace) -> int:
     from .benchmarks.paper import bench_paper as run
     from .io.run import after_acs_ap
 
-    if args.jobs < 1:
-        raise InputError(f"--jobs must be at least 1, got {args.jobs}")
-    result = run(Path(args.out), scenes=args.scenes, budget=args.budget, fusion=args.fusion, jobs=args.jobs)
+    from .generate_cmd import executor_from_args
+
+    with executor_from_args(args, args.scenes) as executor:
+        result = run(Path(args.out), scenes=args.scenes, budget=args.budget, fusion=args.fusion, executor=executor)
     if args.json:
         print(json.dumps(result))
     else:

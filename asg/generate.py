@@ -19,6 +19,8 @@ from sumo_scenarios.atomic import remove_stale_partials, write_text_atomic
 from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
 
+from .executors import Executor, Job
+from .executors.local import LocalExecutor
 from .pipeline import GenerateConfig, Generator
 from .scene import Scene
 
@@ -56,47 +58,95 @@ class GenerateRun:
     skipped: tuple[tuple[str, str], ...]
 
 
-#: called before each scene (index, total, scene id) and after each evaluation (step)
+#: called after each finished scene (scenes done, total, scene id) and after each evaluation (step)
 SceneProgress = Callable[[int, int, str], None]
 StepProgress = Callable[[int], None]
 
 
 def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: int = 1,
-             target=None, acs_model=None,
+             detector_factory: str | None = None, executor: Executor | None = None,
              on_scene: SceneProgress | None = None, on_step: StepProgress | None = None) -> GenerateRun:
     """Generate a challenging scene from each of ``scenes`` into run folder ``out`` (prepared by
     :func:`prepare_run`); finished scenes of an earlier run with the same settings are kept.
-    ``target`` / ``acs_model``: detectors (default: the shipped ``cfg.fusion`` and AttFuse)."""
-    from .io.run import load_done, previous_wall_s, write_scene, write_summary
+
+    ``detector_factory``: ``"module:function"`` returning (target, ACS model or None), built once
+    per worker (default: the shipped ``cfg.fusion`` and AttFuse). ``executor``: where the scenes run
+    (default: this process, one thread). A scene's result depends only on the scene, ``cfg`` and
+    ``seed``, so any executor and worker count gives the same summary (timings aside).
+    ``on_step`` reports evaluations only when the scenes run in this process."""
+    from .io.run import load_done, previous_wall_s, write_summary
 
     _refuse_duplicates(scenes)
     for s in scenes:
         inside(out / "scenes", out / "scenes" / s.scene_id)
-    if target is None:
-        target, acs_model = _shipped_models(cfg)
-    gen = Generator(cfg, target, acs_model)
+    executor = executor or LocalExecutor(workers=1, threads=1)
     done = load_done(out)
-    entries = [done[s.scene_id] for s in scenes if s.scene_id in done]
+    entries = {s.scene_id: done[s.scene_id] for s in scenes if s.scene_id in done}
+    todo = [s.to_dict() for s in scenes if s.scene_id not in done]
     config = asdict(cfg) | {"seed": seed}
     started = time.perf_counter() - (previous_wall_s(out) if entries else 0.0)  # a resumed run adds its time
+    order = [s.scene_id for s in scenes]
+    in_order = lambda: [entries[i] for i in order if i in entries]
     skipped: list[tuple[str, str]] = []
-    for i, scene in enumerate(scenes):
-        if scene.scene_id in done:
-            continue
-        if on_scene:
-            on_scene(i, len(scenes), scene.scene_id)
-        try:
-            result = gen.generate(scene, seed, on_step=(lambda e: on_step(e.step)) if on_step else None)
-        except InputError as exc:
-            skipped.append((scene.scene_id, str(exc)))
-            continue
-        entries.append(write_scene(out, result))
-        write_summary(out, entries, config, time.perf_counter() - started)
+    job = Job(_worker_setup, _worker_run, (cfg, detector_factory, str(out), seed))
+    global _ON_STEP
+    _ON_STEP = on_step
+    try:
+        for n, (item, (status, value)) in enumerate(executor.map_unordered(job, todo), start=1):
+            if status == "skipped":
+                skipped.append((item["scene_id"], value))
+            else:
+                entries[item["scene_id"]] = value
+                write_summary(out, in_order(), config, time.perf_counter() - started)
+            if on_scene:
+                on_scene(n, len(todo), item["scene_id"])
+    finally:
+        _ON_STEP = None
     if not entries:
         reasons = "; ".join(f"{sid}: {why}" for sid, why in skipped[:2])
         raise InputError(f"no scene could be generated ({reasons})")
-    summary = write_summary(out, entries, config, time.perf_counter() - started)
+    skipped.sort(key=lambda s: order.index(s[0]))
+    summary = write_summary(out, in_order(), config, time.perf_counter() - started)
     return GenerateRun(out, summary, tuple(skipped))
+
+
+# ---- one worker ------------------------------------------------------------------------------------
+#: the evaluation callback of a run in this process (workers in other processes report none)
+_ON_STEP: StepProgress | None = None
+
+
+def _worker_setup(cfg: GenerateConfig, detector_factory: str | None, out: str, seed: int):
+    """A worker's state: the generator with its detectors, where to write, the seed."""
+    target, acs_model = load_factory(detector_factory)(cfg) if detector_factory else _shipped_models(cfg)
+    return Generator(cfg, target, acs_model), Path(out), seed
+
+
+def _worker_run(state, scene_dict: dict) -> tuple[str, object]:
+    """One scene: generated and written to its folder; ("done", its summary entry) or ("skipped",
+    why) when the scene cannot be attacked (too few vehicles, nothing plausible to move)."""
+    from .io.run import write_scene
+
+    gen, out, seed = state
+    scene = Scene.from_dict(scene_dict)
+    on_step = _ON_STEP
+    try:
+        result = gen.generate(scene, seed, on_step=(lambda e: on_step(e.step)) if on_step else None)
+    except InputError as exc:
+        return "skipped", str(exc)
+    return "done", write_scene(out, result)
+
+
+def load_factory(spec: str):
+    """The callable named by ``"module:function"``; InputError if it cannot be imported."""
+    import importlib
+
+    module_name, _, attr = spec.partition(":")
+    if not module_name or not attr:
+        raise InputError(f"detector factory {spec!r} must be written module:function")
+    try:
+        return getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise InputError(f"detector factory {spec!r} cannot be loaded ({type(exc).__name__}: {exc})") from None
 
 
 def _shipped_models(cfg: GenerateConfig):

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from rich.table import Table
 
+from .executors import Executor, build_executor, default_workers
 from .generate import SceneSource, WORK_DIR, generate, load_scenes, prepare_run, run_settings
 from .pipeline import load_generate_config
 from .progress import console, progress_bar, stdout
@@ -30,6 +31,7 @@ def run_generate(args: argparse.Namespace) -> int:
     fusion = args.fusion or (DEMO["fusion"] if demo else None)
     cfg = load_generate_config(args.config, fusion=fusion, search=args.search, acs=args.acs,
                                aps=None if args.aps is None else args.aps == "on", budget=budget)
+    executor = executor_from_args(args, count)  # checked before anything is written
     out = Path(args.out)
     fresh = not out.exists()
     prepare_run(out, run_settings(cfg, args.seed, count, source.describe()), force=args.force)
@@ -41,27 +43,35 @@ def run_generate(args: argparse.Namespace) -> int:
         raise
     finally:
         shutil.rmtree(out / WORK_DIR, ignore_errors=True)
-    if len(scenes) < count:
+    if args.count is not None and len(scenes) < count:
         console.print(f"the source holds {len(scenes)} usable scenes (asked for {count}); generating {len(scenes)}")
     if demo:
         console.print(f"demo: {len(scenes)} scenes of the bundled town '{source.town}', {cfg.fusion} + "
                       f"ACS-{cfg.acs} + {cfg.search}, budget {cfg.budget}")
-    with progress_bar() as bar:
+    with progress_bar() as bar, executor:
         scene_task = bar.add_task("scenes", total=len(scenes))
-        eval_task = bar.add_task("evaluations", total=cfg.budget)
+        in_process = executor.workers == 1 and executor.registry_name == "local"
+        eval_task = bar.add_task("evaluations", total=cfg.budget, visible=in_process)
 
-        def on_scene(i: int, total: int, scene_id: str) -> None:
-            bar.update(scene_task, completed=i)
-            bar.update(eval_task, completed=0, description=scene_id[-28:])
+        def on_scene(done: int, total: int, scene_id: str) -> None:
+            bar.update(scene_task, completed=len(scenes) - total + done)
+            bar.update(eval_task, completed=0)
 
-        run = generate(cfg, scenes, out, seed=args.seed, on_scene=on_scene,
-                       on_step=lambda step: bar.update(eval_task, completed=step))
+        run = generate(cfg, scenes, out, seed=args.seed, detector_factory=args.detector, executor=executor,
+                       on_scene=on_scene, on_step=lambda step: bar.update(eval_task, completed=step))
         bar.update(scene_task, completed=len(scenes))
     for scene_id, why in run.skipped:
         console.print(f"[yellow]skipped {scene_id}: {why}")
     print_table(run.summary, stdout)
     console.print(f"wrote {out}/summary.json and {len(run.summary['scenes'])} scene folders")
     return 0
+
+
+def executor_from_args(args: argparse.Namespace, items: int) -> Executor:
+    """The executor of ``--executor``, ``--workers`` (default: one per core, at most ``items``) and
+    ``--address``: one thread per worker."""
+    workers = args.workers if args.workers is not None else default_workers(items)
+    return build_executor(args.executor, workers, threads=1, address=args.address)
 
 
 def print_table(summary: dict, out) -> None:

@@ -30,3 +30,35 @@ class OracleDetector(V2XDetector):
         counts = {a: float(len(frame.clouds[a])) for a in frame.sensing_ids}
         total = sum(counts.values())
         return {a: c / total for a, c in counts.items()}
+
+
+def oracle_factory(cfg):
+    """A detector factory (``--detector fakes:oracle_factory``): the oracle as target and ACS model."""
+    det = OracleDetector()
+    return det, det
+
+
+class _DiesOnce(OracleDetector):
+    """The oracle, but the first call of the whole test (marker file absent) kills its process."""
+
+    def __init__(self, marker: str):
+        self.marker = marker
+        super().__init__()
+
+    def detect(self, frame):
+        import os
+        import signal
+        from pathlib import Path
+
+        if not Path(self.marker).exists():
+            Path(self.marker).write_text("killed once")
+            os.kill(os.getpid(), signal.SIGKILL)
+        return super().detect(frame)
+
+
+def dies_once_factory(cfg):
+    """A detector factory whose worker process is killed mid-scene once (marker: $ASG_TEST_MARKER)."""
+    import os
+
+    det = _DiesOnce(os.environ["ASG_TEST_MARKER"])
+    return det, det

@@ -1,14 +1,16 @@
-"""`asg bench paper --jobs N`: the configurations run in parallel workers give the table a
-sequential run gives (each configuration is seeded on its own). Slow: it builds the normal set."""
+"""`asg bench paper --workers N`: the scenes run in parallel workers give the table a sequential
+run gives (each scene is seeded on its own). Slow: it builds the normal set."""
 import pytest
 
 from asg.benchmarks.paper import bench_paper
+from asg.executors import build_executor
 
 
 @pytest.mark.slow
 def test_parallel_workers_give_the_sequential_table(tmp_path):
-    one = bench_paper(tmp_path / "one", scenes=1, budget=3, jobs=1)
-    two = bench_paper(tmp_path / "two", scenes=1, budget=3, jobs=2)
+    one = bench_paper(tmp_path / "one", scenes=2, budget=3)
+    with build_executor("local", 2) as two_workers:
+        two = bench_paper(tmp_path / "two", scenes=2, budget=3, executor=two_workers)
     strip = lambda r: {k: {m: v[m] for m in ("normal", "after_acs", "challenging", "scenes")} for k, v in r["table"].items()}
     assert strip(one) == strip(two)
     assert set(one["table"]) == {"attention-bo", "attention-ga", "attention-rs", "random-bo", "off-bo", "off-ga", "off-rs"}

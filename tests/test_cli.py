@@ -218,10 +218,10 @@ def test_train_validate_only_updates_the_card_without_training(capsys, monkeypat
     assert_one_line_error(err, "cannot be combined with --init-from")
 
 
-def test_bench_paper_bad_jobs(capsys, out):
-    code, err = run(capsys, "bench", "paper", "--jobs", "0", "--out", str(out))
+def test_bench_paper_bad_workers(capsys, out):
+    code, err = run(capsys, "bench", "paper", "--workers", "0", "--out", str(out))
     assert code == 2
-    assert_one_line_error(err, "--jobs")
+    assert_one_line_error(err, "--workers")
     assert_nothing_written(out)
 
 

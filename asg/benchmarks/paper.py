@@ -17,33 +17,23 @@ from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
+from ..executors import Executor
+
 CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"),
            ("off", "bo"), ("off", "ga"), ("off", "rs"))
 
 
 def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1,
-                jobs: int = 1) -> dict:
-    """Run (or resume) the seven configurations and collect their pooled AP. ``jobs`` > 1 runs them
-    in that many worker processes, the machine's threads shared among them; each configuration's
-    result does not depend on which worker ran it."""
+                executor: Executor | None = None) -> dict:
+    """Run (or resume) the seven configurations and collect their pooled AP. Each configuration's
+    scenes run on ``executor`` (default: this process); a scene's result does not depend on which
+    worker ran it."""
     scene_dir = out / f"scenes-{scenes}"
     todo = [(out / f"{acs}-{search}", acs, search) for acs, search in CONFIGS]
     _refuse_other_scenes(out, scene_dir, [run_dir for run_dir, _, _ in todo])
     pick_scenes(scene_dir, scenes)
-    if jobs <= 1:
-        for run_dir, acs, search in todo:
-            _run_config(run_dir, scene_dir, acs, search, scenes, budget, fusion, seed)
-    else:
-        import multiprocessing
-        import os
-        from concurrent.futures import ProcessPoolExecutor
-
-        threads = max(1, (os.cpu_count() or 1) // jobs)
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_run_config, run_dir, scene_dir, acs, search, scenes, budget, fusion, seed, threads)
-                       for run_dir, acs, search in todo]
-            for f in futures:
-                f.result()
+    for run_dir, acs, search in todo:
+        _run_config(run_dir, scene_dir, acs, search, scenes, budget, fusion, seed, executor)
     table = {}
     for run_dir, acs, search in todo:
         agg = json.loads((run_dir / "summary.json").read_text())["aggregate"]
@@ -84,19 +74,15 @@ def pick_scenes(scene_dir: Path, count: int, set_name: str = "normal") -> Path:
 
 
 def _run_config(run_dir: Path, scene_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str,
-                seed: int, threads: int | None = None) -> None:
+                seed: int, executor: Executor | None = None) -> None:
     """One configuration as an ``asg generate`` run into ``run_dir`` (resumes a partial one)."""
     from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
     from ..generate_cmd import print_table
     from ..pipeline import load_generate_config
     from ..progress import console
 
-    if threads:
-        import torch
-
-        torch.set_num_threads(threads)
     cfg = load_generate_config(fusion=fusion, search=search, acs=acs, aps=True, budget=budget)
     source = SceneSource(scenes=scene_dir)
     prepare_run(run_dir, run_settings(cfg, seed, scenes, source.describe()))
-    run = generate(cfg, load_scenes(source, scenes, seed, run_dir), run_dir, seed=seed)
+    run = generate(cfg, load_scenes(source, scenes, seed, run_dir), run_dir, seed=seed, executor=executor)
     print_table(run.summary, console)  # per-scene tables to stderr: stdout holds the result

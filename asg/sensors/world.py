@@ -398,12 +398,26 @@ class World:
 
 
 _POOL = None
+#: threads a cast may use: 2 (the calling thread and one worker thread) or 1 (one task after the
+#: other, for a process that shares the machine with other workers); the points are the same
+_CAST_THREADS = 2
+
+
+def set_cast_threads(threads: int) -> None:
+    """Let a render use ``threads`` threads (1, or 2 and more: two)."""
+    global _CAST_THREADS
+    _CAST_THREADS = 1 if threads <= 1 else 2
 
 
 def _run_on_two_threads(tasks: list) -> None:
-    """Run the callables, the first on the calling thread and the others on a worker thread;
-    the first exception propagates, after every task has stopped."""
+    """Run the callables, the first on the calling thread and the others on a worker thread (or
+    all on the calling thread when casts may use one thread); the first exception propagates,
+    after every task has stopped."""
     global _POOL
+    if _CAST_THREADS == 1:
+        for task in tasks:
+            task()
+        return
     if _POOL is None:
         from concurrent.futures import ThreadPoolExecutor
 

@@ -18,4 +18,4 @@ for run in 1 2 3; do
   $ASG bench lidar --json > "$OUT/bench-lidar-$run.json"
   $ASG bench simulate --json > "$OUT/bench-simulate-$run.json"
 done
-$ASG bench paper --scenes 30 --jobs 2 --json --out "$OUT/paper" > "$OUT/bench-paper.json"
+$ASG bench paper --scenes 30 --workers 2 --json --out "$OUT/paper" > "$OUT/bench-paper.json"

@@ -1,0 +1,91 @@
+"""Executors: run a batch of independent items on N workers, each holding its own state.
+
+A batch is a :class:`Job`: ``setup(*args)`` builds a worker's state once (the detectors, a
+generator), ``run(state, item)`` computes one item. Both must be importable top-level functions
+(workers are fresh processes). Every worker runs with ``threads`` threads (torch's intra-op
+threads and the LiDAR's cast threads); one thread per worker is the default because a result then
+does not depend on how many workers ran the batch (torch's float sums change in the last bits with
+the thread count).
+
+Executors are registered by name (``local``, ``ray``): ``build_executor(name, workers, ...)``.
+"""
+from __future__ import annotations
+
+import os
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator, Sequence
+
+from sumo_scenarios.errors import InputError
+
+#: how often one item may take its worker down before the batch gives up on it
+MAX_ATTEMPTS = 3
+
+
+@dataclass(frozen=True)
+class Job:
+    """``setup(*setup_args) -> state`` once per worker, then ``run(state, item) -> result`` per item."""
+
+    setup: Callable[..., Any]
+    run: Callable[[Any, Any], Any]
+    setup_args: tuple = field(default_factory=tuple)
+
+
+class WorkerLost(Exception):
+    """An item took its worker down (killed, crashed) more than MAX_ATTEMPTS times."""
+
+
+class Executor(ABC):
+    """Runs a job's items on ``workers`` workers of ``threads`` threads each."""
+
+    registry_name: str = ""
+
+    def __init__(self, workers: int = 1, threads: int = 1, address: str | None = None):
+        if not isinstance(workers, int) or workers < 1:
+            raise InputError(f"--workers must be at least 1, got {workers}")
+        if not isinstance(threads, int) or threads < 1:
+            raise InputError(f"threads per worker must be at least 1, got {threads}")
+        self.workers = workers
+        self.threads = threads
+        self.address = address
+
+    @abstractmethod
+    def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
+        """Yield ``(item, result)`` as items finish, in any order. An item whose worker dies is
+        retried on a fresh worker (at most MAX_ATTEMPTS times, then WorkerLost); an exception
+        raised by ``run`` propagates."""
+
+    def close(self) -> None:
+        """Release the workers (called when the batch is done)."""
+
+    def __enter__(self) -> "Executor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def apply_threads(threads: int) -> None:
+    """Limit this process to ``threads`` threads for torch and the LiDAR casts."""
+    from ..sensors.world import set_cast_threads
+
+    set_cast_threads(threads)
+    try:
+        import torch
+    except ImportError:  # a job without a detector
+        return
+    torch.set_num_threads(threads)
+
+
+def default_workers(items: int) -> int:
+    """One worker per core, no more than there are items."""
+    return max(1, min(os.cpu_count() or 1, items))
+
+
+def build_executor(name: str, workers: int, threads: int = 1, address: str | None = None) -> Executor:
+    """The executor registered as ``name``; InputError naming the known ones on a miss."""
+    from ..registry import lookup
+
+    if address is not None and name != "ray":
+        raise InputError("--address applies to --executor ray only")
+    return lookup("executor", name)(workers=workers, threads=threads, address=address)

@@ -1,0 +1,122 @@
+"""``--executor ray``: one Ray actor per worker, on an existing cluster (``--address``) or a local
+Ray instance started for the batch.
+
+Ray is an optional extra (``pip install 'asg[ray]'``). Each actor builds its state once and takes
+one item at a time; Ray restarts an actor whose process dies and retries its task (at most
+MAX_ATTEMPTS times, then the batch stops with WorkerLost). Workers get this process's import
+path, so a detector factory importable here is importable there.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any, Iterator, Sequence
+
+from sumo_scenarios.errors import InputError
+
+from ..registry import register
+from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads
+
+
+class _Worker:
+    """The actor: a worker's state, built once."""
+
+    def __init__(self, threads: int, job: Job):
+        apply_threads(threads)
+        self.job = job
+        self.state = job.setup(*job.setup_args)
+
+    def run(self, item: Any) -> Any:
+        return self.job.run(self.state, item)
+
+
+#: seconds to wait for a cluster's port to answer (Ray itself retries for minutes)
+PROBE_TIMEOUT_S = 5.0
+
+
+def _probe(address: str) -> None:
+    """InputError unless ``address`` ("host:port", "ray://host:port" or "auto") answers on TCP."""
+    import socket
+
+    if address == "auto":
+        return
+    host, _, port = address.split("://")[-1].rpartition(":")
+    if not host or not port.isdigit():
+        raise InputError(f"--address {address!r} is not host:port (e.g. 10.0.0.5:6379)")
+    try:
+        socket.create_connection((host, int(port)), timeout=PROBE_TIMEOUT_S).close()
+    except OSError as exc:
+        raise InputError(f"the Ray cluster at {address} does not answer ({exc.strerror or exc}); "
+                         f"check --address and that 'ray start --head' runs there") from None
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise InputError("--executor ray needs Ray, which is not installed; pip install 'asg[ray]'") from None
+    return ray
+
+
+@register("executor", "ray")
+class RayExecutor(Executor):
+    """``workers`` Ray actors of ``threads`` CPUs each."""
+
+    def __init__(self, workers: int = 1, threads: int = 1, address: str | None = None):
+        super().__init__(workers, threads, address)
+        self.ray = _import_ray()
+        self._started = False
+
+    def _connect(self) -> None:
+        ray = self.ray
+        if ray.is_initialized():
+            return
+        if self.address:
+            _probe(self.address)
+        env = {"env_vars": {"PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}}
+        try:
+            if self.address:
+                ray.init(address=self.address, runtime_env=env, log_to_driver=False, logging_level="ERROR")
+            else:
+                ray.init(num_cpus=self.workers * self.threads, runtime_env=env, include_dashboard=False,
+                         log_to_driver=False, logging_level="ERROR")
+        except Exception as exc:  # Ray raises ConnectionError, RuntimeError, ValueError ... for a bad address
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            where = f"the Ray cluster at {self.address}" if self.address else "a local Ray instance"
+            raise InputError(f"could not connect to {where} ({first[:160]}); check --address") from None
+        self._started = True
+
+    def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
+        ray = self.ray
+        self._connect()
+        actor_cls = ray.remote(num_cpus=self.threads, max_restarts=MAX_ATTEMPTS,
+                               max_task_retries=MAX_ATTEMPTS)(_Worker)
+        actors = [actor_cls.remote(self.threads, job) for _ in range(min(self.workers, len(items)))]
+        queue = list(enumerate(items))
+        running: dict[Any, tuple[int, Any]] = {}
+        idle = list(actors)
+        try:
+            while queue or running:
+                while idle and queue:
+                    actor = idle.pop()
+                    i, item = queue.pop(0)
+                    running[actor.run.remote(item)] = (actor, i)
+                ready, _ = ray.wait(list(running), num_returns=1)
+                ref = ready[0]
+                actor, i = running.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except ray.exceptions.RayActorError as exc:
+                    raise WorkerLost(f"a Ray worker died {MAX_ATTEMPTS + 1} times on item {i}: {exc}") from None
+                except ray.exceptions.RayTaskError as exc:
+                    raise exc.as_instanceof_cause() from None
+                idle.append(actor)
+                yield items[i], result
+        finally:
+            for a in actors:
+                ray.kill(a)
+
+    def close(self) -> None:
+        if self._started and self.ray.is_initialized():
+            self.ray.shutdown()
+            self._started = False

@@ -1,0 +1,124 @@
+"""Executors: the same summary whichever way the scenes run, a killed worker recovered, bad
+executor settings one line (exit 2). The fake detector keeps it fast."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from asg.cli import main
+from asg.executors import Job, build_executor
+from asg.generate import generate
+from asg.pipeline import GenerateConfig
+from asg.search import SpaceConfig
+
+from test_cli import assert_one_line_error, run
+from test_robustness import _scene_dict, _write
+
+CFG = GenerateConfig(fusion="none", search="bo", acs="attention", budget=4, space=SpaceConfig(n_q=100))
+
+
+def _scenes():
+    from asg.scene import Scene
+
+    return [Scene.from_dict(_scene_dict(f"s{i}")) for i in range(3)]
+
+
+def _numbers(out: Path) -> dict:
+    """summary.json without the timings."""
+    summary = json.loads((out / "summary.json").read_text())
+    for e in summary["scenes"]:
+        e.pop("seconds")
+    for k in ("seconds_per_scene_median", "scenes_per_hour", "wall_s"):
+        summary["aggregate"].pop(k)
+    return summary
+
+
+def _run(out: Path, executor=None) -> dict:
+    generate(CFG, _scenes(), out, seed=3, detector_factory="fakes:oracle_factory", executor=executor)
+    return _numbers(out)
+
+
+def test_one_worker_two_workers_and_ray_give_the_same_summary(tmp_path):
+    pytest.importorskip("ray")
+    one = _run(tmp_path / "one")
+    with build_executor("local", 2) as two:
+        assert _run(tmp_path / "two", two) == one
+    with build_executor("ray", 2) as ray_two:
+        assert _run(tmp_path / "ray", ray_two) == one
+    assert [e["scene_id"] for e in one["scenes"]] == ["s0", "s1", "s2"]  # input order, not finishing order
+
+
+def test_a_killed_worker_is_recovered(tmp_path, monkeypatch):
+    monkeypatch.setenv("ASG_TEST_MARKER", str(tmp_path / "marker"))
+    reference = _run(tmp_path / "reference")
+    with build_executor("local", 2) as two:
+        generate(CFG, _scenes(), tmp_path / "killed", seed=3, detector_factory="fakes:dies_once_factory", executor=two)
+    assert (tmp_path / "marker").exists()  # a worker was killed mid-scene
+    assert _numbers(tmp_path / "killed") == reference  # every scene once, same numbers
+    assert not [p for p in (tmp_path / "killed").rglob(".*")]
+
+
+def test_a_killed_ray_actor_is_recovered(tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    monkeypatch.setenv("ASG_TEST_MARKER", str(tmp_path / "marker"))
+    reference = _run(tmp_path / "reference")
+    with build_executor("ray", 2) as ray_two:
+        generate(CFG, _scenes(), tmp_path / "killed", seed=3, detector_factory="fakes:dies_once_factory",
+                 executor=ray_two)
+    assert (tmp_path / "marker").exists()
+    assert _numbers(tmp_path / "killed") == reference
+
+
+def _square(state, x):
+    return x * x
+
+
+def test_local_executor_yields_every_item_once():
+    with build_executor("local", 2) as ex:
+        got = sorted(ex.map_unordered(Job(dict, _square), list(range(7))))
+    assert got == [(i, i * i) for i in range(7)]
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--workers", "0"], "--workers"),
+    (["--executor", "dask"], "--executor"),
+    (["--address", "10.0.0.1:6379"], "--address applies to --executor ray"),
+])
+def test_bad_executor_settings_are_one_line(capsys, tmp_path, argv, needle):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    code, err = run(capsys, "generate", "--scenes", str(scenes), "--out", str(tmp_path / "out"),
+                    "--detector", "fakes:oracle_factory", *argv)
+    assert code == 2
+    assert_one_line_error(err, needle)
+
+
+def test_ray_not_installed_is_one_line(capsys, tmp_path, monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_ray(name, *a, **k):
+        if name == "ray" or name.startswith("ray."):
+            raise ImportError("No module named 'ray'")
+        return real_import(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    code, err = run(capsys, "generate", "--scenes", str(scenes), "--out", str(tmp_path / "out"),
+                    "--detector", "fakes:oracle_factory", "--executor", "ray")
+    assert code == 2
+    assert_one_line_error(err, "pip install 'asg[ray]'")
+
+
+def test_unreachable_ray_address_is_one_line(capsys, tmp_path):
+    pytest.importorskip("ray")
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    code, err = run(capsys, "generate", "--scenes", str(scenes), "--out", str(tmp_path / "out"),
+                    "--detector", "fakes:oracle_factory", "--executor", "ray", "--address", "127.0.0.1:1")
+    assert code == 2
+    assert_one_line_error(err, "127.0.0.1:1")
