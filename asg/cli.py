@@ -130,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
     dsub = ds.add_subparsers(dest="dataset_command", metavar="ACTION", parser_class=_Parser)
     p = _add(dsub, "build", "simulate and extract a data set from configs/datasets.yaml", commands.dataset_build)
     p.add_argument("name", help="detector-train or normal")
+    _executor_args(p)
     ds.set_defaults(func=lambda a: (ds.print_help(), 2)[1])
 
     p = _add(sub, "train", "train a detector on CPU (resumes from runs/train/NAME/last.pt)", commands.train)
@@ -151,8 +152,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", default="normal", help="normal (train split), normal-val, normal-all, or a folder of scenes")
     p.add_argument("--limit", type=COUNT, default=None, help="only the first N scenes")
     p.add_argument("--json", action="store_true", help="print JSON only")
+    _executor_args(p)
 
-    bench = sub.add_parser("bench", help="benchmarks: simulate, lidar, detect, generate", description="Speed benchmarks.")
+    bench = sub.add_parser("bench", help="benchmarks: simulate, lidar, detect, generate, scale, paper",
+                           description="Speed benchmarks and the paper's tables.")
     bsub = bench.add_subparsers(dest="bench_command", metavar="WHAT", parser_class=_Parser)
     p = _add(bsub, "simulate", "10 simulated minutes of a dense town at 0.1 s steps", commands.bench_simulate)
     p.add_argument("--town", default="grid_small")
@@ -168,6 +171,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = _add(bsub, "generate", "seconds per scene of AttFuse + ACS-A + BO, BO overhead per suggestion", commands.bench_generate)
     p.add_argument("--scenes", type=COUNT, default=5)
     p.add_argument("--budget", type=COUNT, default=50)
+    p.add_argument("--json", action="store_true", help="print JSON only")
+    p = _add(bsub, "scale", "scenes per hour of the generator benchmark: 1 worker (1 thread, all threads), "
+             "2 workers, 2 Ray actors", commands.bench_scale)
+    p.add_argument("--scenes", type=COUNT, default=8)
+    p.add_argument("--budget", type=COUNT, default=50)
+    p.add_argument("--out", type=Path, default=Path("runs/bench-scale"))
     p.add_argument("--json", action="store_true", help="print JSON only")
     p = _add(bsub, "paper", "the generator's targets: AttFuse with ACS-A/BO, GA, RS and ACS-R/BO on normal scenes",
              commands.bench_paper)

@@ -169,10 +169,13 @@ def render(args: argparse.Namespace) -> int:
 def dataset_build(args: argparse.Namespace) -> int:
     from .datasets import build_dataset, load_spec
 
+    from .generate_cmd import executor_from_args
+
     spec = load_spec(args.name)
-    with progress_bar() as bar:
-        task = bar.add_task(f"building {args.name}", total=len(spec.towns) * len(spec.densities) * len(spec.seeds))
-        out = build_dataset(args.name, lambda done, total: bar.update(task, completed=done))
+    logs = len(spec.towns) * len(spec.densities) * len(spec.seeds)
+    with progress_bar() as bar, executor_from_args(args, logs) as executor:
+        task = bar.add_task(f"building {args.name}", total=logs)
+        out = build_dataset(args.name, lambda done, total: bar.update(task, completed=done), executor)
     console.print(f"wrote {out}")
     return 0
 
@@ -213,9 +216,16 @@ def evaluate(args: argparse.Namespace) -> int:
 
     if args.fusion not in names("fusion"):
         raise InputError(f"unknown fusion '{args.fusion}'; known: {', '.join(names('fusion'))}")
+    executor = None
+    if args.workers is not None or args.executor != "local":
+        from .executors import build_executor
+
+        executor = build_executor(args.executor, args.workers or 1, threads=1, address=args.address)
     with progress_bar() as bar:
         task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
-        result = run(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n))
+        result = run(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n), executor=executor)
+    if executor is not None:
+        executor.close()
     if result["without_collaborators"]:
         console.print(f"[yellow]note: {result['without_collaborators']} of {result['frames']} scenes name no "
                       "collaborator, so cooperation is off there (every model scores as single-agent); "
@@ -242,6 +252,13 @@ def bench_generate(args: argparse.Namespace) -> int:
     if args.scenes < 1 or args.budget < 1:
         raise InputError("--scenes and --budget must be at least 1")
     _print_result("asg bench generate", run(scenes=args.scenes, budget=args.budget), args.json)
+    return 0
+
+
+def bench_scale(args: argparse.Namespace) -> int:
+    from .benchmarks.scale import bench_scale as run
+
+    _print_result("asg bench scale", run(Path(args.out), scenes=args.scenes, budget=args.budget), args.json)
     return 0
 
 

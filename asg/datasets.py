@@ -83,22 +83,29 @@ def _log_frames(spec: DatasetSpec, town: str, density: str, seed: int, workdir: 
     return out
 
 
-def build_dataset(name: str, progress: Callable[[int, int], None] | None = None) -> Path:
-    """Simulate the logs of data set ``name`` and write its frames; returns the folder."""
+def build_dataset(name: str, progress: Callable[[int, int], None] | None = None, executor=None) -> Path:
+    """Simulate the logs of data set ``name`` and write its frames; returns the folder. The logs
+    run on ``executor`` (default: this process); each log is seeded on its own, so the set does not
+    depend on where they ran."""
+    from .executors import Job
+    from .executors.local import LocalExecutor
+
     spec = load_spec(name)
     runs = [(t, d, s) for t in spec.towns for d in spec.densities for s in spec.seeds]
-    logs: list[tuple[str, list[Scene]]] = []
     out = data_root() / name
     logs_dir = out.parent / f".work-{name}"  # the simulated logs: beside the set, removed when done
     shutil.rmtree(logs_dir, ignore_errors=True)  # what a killed build left
     remove_stale_partials_of(out)
+    scenes_of_log: dict[tuple, list[Scene]] = {}
     try:
-        for i, (town, density, seed) in enumerate(runs):
-            logs.append((f"{town}_{density}_{seed}", _log_frames(spec, town, density, seed, logs_dir)))
+        job = Job(_worker_setup, _worker_run, (spec, str(logs_dir)))
+        for run, dicts in (executor or LocalExecutor()).map_unordered(job, runs):
+            scenes_of_log[run] = [Scene.from_dict(d) for d in dicts]
             if progress:
-                progress(i + 1, len(runs))
+                progress(len(scenes_of_log), len(runs))
     finally:
         shutil.rmtree(logs_dir, ignore_errors=True)
+    logs = [(f"{t}_{d}_{s}", scenes_of_log[(t, d, s)]) for t, d, s in runs]
     splits = _split(spec, logs)
     with atomic_dir(out) as work:
         with gzip.open(work / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
@@ -110,6 +117,16 @@ def build_dataset(name: str, progress: Callable[[int, int], None] | None = None)
                  "logs": {k: [s.scene_id for s in v] for k, v in logs}}
         (work / "index.json").write_text(json.dumps(index, indent=1))
     return out
+
+
+def _worker_setup(spec: DatasetSpec, logs_dir: str) -> tuple[DatasetSpec, Path]:
+    return spec, Path(logs_dir)
+
+
+def _worker_run(state: tuple[DatasetSpec, Path], run: tuple[str, str, int]) -> list[dict]:
+    """One log of the set: simulated, its frames extracted and their agents chosen (as dicts)."""
+    spec, logs_dir = state
+    return [s.to_dict() for s in _log_frames(spec, *run, logs_dir)]
 
 
 def _split(spec: DatasetSpec, logs: list[tuple[str, list[Scene]]]) -> dict[str, list[str]]:

@@ -122,3 +122,14 @@ def test_unreachable_ray_address_is_one_line(capsys, tmp_path):
                     "--detector", "fakes:oracle_factory", "--executor", "ray", "--address", "127.0.0.1:1")
     assert code == 2
     assert_one_line_error(err, "127.0.0.1:1")
+
+
+def test_evaluate_on_workers_gives_the_same_ap(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    for i in range(3):
+        _write(scenes, _scene_dict(f"s{i}"))
+    results = []
+    for workers in ("1", "2"):
+        assert main(["evaluate", "--fusion", "none", "--set", str(scenes), "--workers", workers, "--json"]) == 0
+        results.append(json.loads(capsys.readouterr().out))
+    assert results[0] == results[1] and results[0]["frames"] == 3

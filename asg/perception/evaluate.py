@@ -40,29 +40,52 @@ def scenes_of(set_name: str) -> Iterator[Scene]:
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "frames": N, "without_collaborators": M} with ground truth =
     every vehicle in range; M counts the scenes that name no collaborator (scored single-agent)."""
-    spec = load_lidar_spec("v2xp")
     frames = []
     alone = 0
     for i, scene in enumerate(scenes):
         alone += not scene.collaborators
-        sample = Sample(scene.scene_id, simulate_frame(scene, spec))
-        boxes, scores = detector.detect(sample.frame)
-        frames.append((boxes, scores, sample.gt_eval()))
+        frames.append(_detect(detector, scene))
         if progress:
             progress(i + 1)
     return {"ap": ap_at(frames), "frames": len(frames), "without_collaborators": alone}
 
 
-def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None,
-             weights_file: str | None = None) -> dict:
-    """AP of detector ``fusion`` (its shipped weights, or ``weights_file``) on a set (see scenes_of)."""
-    detector = build_detector(fusion, weights_file=weights_file)
-    scenes = scenes_of(set_name)
-    if limit is not None:
-        import itertools
+def _detect(detector: V2XDetector, scene: Scene) -> tuple:
+    """(boxes (K, 7), scores (K,), ground truth in range (M, 7)) of ``detector`` on ``scene``, ego frame."""
+    sample = Sample(scene.scene_id, simulate_frame(scene, load_lidar_spec("v2xp")))
+    boxes, scores = detector.detect(sample.frame)
+    return boxes, scores, sample.gt_eval()
 
-        scenes = itertools.islice(scenes, limit)
-    result = evaluate_detector(detector, scenes, progress)
+
+def _worker_setup(fusion: str, weights_file: str | None) -> V2XDetector:
+    return build_detector(fusion, weights_file=weights_file)
+
+
+def _worker_run(detector: V2XDetector, item: tuple[int, dict]) -> tuple:
+    return _detect(detector, Scene.from_dict(item[1]))
+
+
+def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None,
+             weights_file: str | None = None, executor=None) -> dict:
+    """AP of detector ``fusion`` (its shipped weights, or ``weights_file``) on a set (see scenes_of),
+    its scenes on ``executor`` (default: this process); the frames are pooled in the set's order."""
+    import itertools
+
+    from ..executors import Job
+
+    scenes = list(itertools.islice(scenes_of(set_name), limit))
+    if executor is None:
+        result = evaluate_detector(build_detector(fusion, weights_file=weights_file), scenes, progress)
+    else:
+        frames: dict[int, tuple] = {}
+        job = Job(_worker_setup, _worker_run, (fusion, weights_file))
+        for (i, _), detected in executor.map_unordered(job, [(i, s.to_dict()) for i, s in enumerate(scenes)]):
+            frames[i] = detected
+            if progress:
+                progress(len(frames))
+        ordered = [frames[i] for i in range(len(scenes))]
+        result = {"ap": ap_at(ordered), "frames": len(ordered),
+                  "without_collaborators": sum(not s.collaborators for s in scenes)}
     result["fusion"] = fusion
     result["set"] = set_name
     return result

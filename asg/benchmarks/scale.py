@@ -1,0 +1,64 @@
+"""``asg bench scale``: scenes per hour of the generator benchmark (AttFuse + ACS-A + BO) run four
+ways in one run, and the speedups between them:
+
+- ``local_1``: one worker, one thread;
+- ``local_1_all``: one worker using every core's thread (one process, as ``asg generate`` ran
+  before executors);
+- ``local_2``: two worker processes, one thread each;
+- ``ray_2``: two Ray actors, one thread each (a local Ray instance, started before the clock).
+
+Every way generates the same scenes into its own run folder under OUT (started over each time)
+and, but for ``local_1_all`` (more threads change torch's sums in the last bits), ends with the same
+summary numbers: the benchmark checks it. Wall time includes each way's workers loading the models.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from ..executors import build_executor
+from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+from ..pipeline import load_generate_config
+from .paper import pick_scenes
+
+#: (name, executor, workers, threads per worker)
+WAYS = (("local_1", "local", 1, 1), ("local_1_all", "local", 1, None), ("local_2", "local", 2, 1),
+        ("ray_2", "ray", 2, 1))
+
+
+def _numbers(out: Path) -> list:
+    """The scenes' AP and loss, without timings."""
+    summary = json.loads((out / "summary.json").read_text())
+    return [(e["scene_id"], e["ap_final"], e["loss_final"]) for e in summary["scenes"]]
+
+
+def bench_scale(out: Path, scenes: int = 8, budget: int = 50, seed: int = 1, ways: tuple = WAYS) -> dict:
+    cfg = load_generate_config(fusion="attfuse", search="bo", acs="attention", budget=budget)
+    scene_dir = pick_scenes(out / f"scenes-{scenes}", scenes)
+    source = SceneSource(scenes=scene_dir)
+    result: dict = {"scenes": scenes, "budget": budget, "cpu_count": os.cpu_count()}
+    numbers = {}
+    for name, executor_name, workers, threads in ways:
+        run_dir = out / name
+        prepare_run(run_dir, run_settings(cfg, seed, scenes, source.describe()), force=True)
+        picked = load_scenes(source, scenes, seed, run_dir)
+        with build_executor(executor_name, workers, threads or (os.cpu_count() or 1)) as executor:
+            if executor_name == "ray":
+                executor._connect()  # Ray's own start-up is not the generator's cost
+            t0 = time.perf_counter()
+            generate(cfg, picked, run_dir, seed=seed, executor=executor)
+            wall = time.perf_counter() - t0
+        result[name] = {"wall_s": round(wall, 1), "scenes_per_hour": round(3600 * scenes / wall, 1)}
+        numbers[name] = _numbers(run_dir)
+    rate = {k: result[k]["scenes_per_hour"] for k, *_ in ways}
+    for a, b in (("local_2", "local_1"), ("local_2", "local_1_all"), ("ray_2", "local_1"),
+                 ("ray_2", "local_1_all"), ("local_1_all", "local_1")):
+        if a in rate and b in rate:
+            result[f"speedup_{a}_over_{b}"] = round(rate[a] / rate[b], 3)
+    one_thread = [numbers[k] for k in numbers if k != "local_1_all"]
+    result["same_numbers_one_thread_ways"] = all(n == one_thread[0] for n in one_thread)
+    result["goal_speedup_2_workers_over_local_1"] = 1.8
+    result["goal_speedup_2_workers_over_local_1_all"] = 1.25
+    return result
