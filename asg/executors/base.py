@@ -66,15 +66,18 @@ class Executor(ABC):
 
 
 def apply_threads(threads: int) -> None:
-    """Limit this process to ``threads`` threads for torch and the LiDAR casts."""
+    """Limit this process to ``threads`` threads: torch's, the LiDAR casts', and the BLAS and
+    OpenMP pools that numpy, scipy and scikit-optimize's GP use (two workers whose BLAS each take
+    every core slow each other down by half)."""
+    from threadpoolctl import threadpool_limits
+
     from ..sensors.world import set_cast_threads
 
+    import torch
+
     set_cast_threads(threads)
-    try:
-        import torch
-    except ImportError:  # a job without a detector
-        return
     torch.set_num_threads(threads)
+    threadpool_limits(limits=threads)
 
 
 def default_workers(items: int) -> int:

@@ -58,18 +58,20 @@ class LocalExecutor(Executor):
 
     def _in_process(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
         import torch
+        from threadpoolctl import threadpool_limits
 
         from ..sensors import world
 
         before = (torch.get_num_threads(), world._CAST_THREADS)
-        apply_threads(self.threads)
-        try:
-            state = job.setup(*job.setup_args)
-            for item in items:
-                yield item, job.run(state, item)
-        finally:
-            torch.set_num_threads(before[0])
-            world.set_cast_threads(before[1])
+        with threadpool_limits(limits=self.threads):  # restores the BLAS and OpenMP pools after
+            apply_threads(self.threads)
+            try:
+                state = job.setup(*job.setup_args)
+                for item in items:
+                    yield item, job.run(state, item)
+            finally:
+                torch.set_num_threads(before[0])
+                world.set_cast_threads(before[1])
 
     def _one_pool(self, job: Job, pending: dict[int, Any]):
         """Run ``pending`` on a new pool; yields results; returns (indices finished, pool broke)."""
