@@ -30,5 +30,5 @@ def bench_detect(frames: int = 10, repeats: int = 3) -> dict:
                 det.detect(f)
                 times.append(time.perf_counter() - t)
         out[f"{name}_ms_median"] = round(statistics.median(times) * 1e3, 1)
-    out["goal_attfuse_ms"] = 150.0
+    out["goal_attfuse_ms"] = 60.0
     return out

@@ -34,5 +34,5 @@ def bench_simulate(town: str = "grid_small", minutes: float = 10.0, repeats: int
         "steps_per_s": round(steps / statistics.median(sim_walls), 1),
         "vehicles_median": stats.get("vehicles_median"),
         "near_rsu_median": stats.get("near_rsu_median"),
-        "goal_wall_s": 30.0,
+        "goal_wall_s": 10.0,
     }
