@@ -216,16 +216,16 @@ def evaluate(args: argparse.Namespace) -> int:
 
     if args.fusion not in names("fusion"):
         raise InputError(f"unknown fusion '{args.fusion}'; known: {', '.join(names('fusion'))}")
-    executor = None
-    if args.workers is not None or args.executor != "local":
-        from .executors import build_executor
+    import contextlib
 
-        executor = build_executor(args.executor, args.workers or 1, threads=1, address=args.address)
-    with progress_bar() as bar:
+    from .executors import build_executor
+
+    # without --workers or --executor: this process on every thread; else workers of one thread
+    spread = args.workers is not None or args.executor != "local"
+    with progress_bar() as bar, (build_executor(args.executor, args.workers or 1, threads=1, address=args.address)
+                                 if spread else contextlib.nullcontext()) as executor:
         task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
         result = run(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n), executor=executor)
-    if executor is not None:
-        executor.close()
     if result["without_collaborators"]:
         console.print(f"[yellow]note: {result['without_collaborators']} of {result['frames']} scenes name no "
                       "collaborator, so cooperation is off there (every model scores as single-agent); "

@@ -178,6 +178,7 @@ def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
     folder; if it records other settings the run is refused (``force``: start it over). Removes
     stale partial files left by an interrupted run."""
     out = Path(out)
+    settings = json.loads(json.dumps(settings))  # as run.json will hold them (tuples become lists)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out} is a file; give a folder")
     try:
