@@ -126,10 +126,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pcd-dir", type=Path, default=None, help="also write each agent's cloud as PCD and .npy here")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the LiDAR noise (if the preset has any)")
 
-    ds = sub.add_parser("dataset", help="build the detector data sets (detector-train, normal)", description="Data sets.")
+    ds = sub.add_parser("dataset", help="build the data sets (detector-train, normal, challenging)", description="Data sets.")
     dsub = ds.add_subparsers(dest="dataset_command", metavar="ACTION", parser_class=_Parser)
-    p = _add(dsub, "build", "simulate and extract a data set from configs/datasets.yaml", commands.dataset_build)
-    p.add_argument("name", help="detector-train or normal")
+    p = _add(dsub, "build", "simulate and extract a data set from configs/datasets.yaml, or generate a "
+             "challenging set", commands.dataset_build)
+    p.add_argument("name", help="detector-train, normal, or challenging (with --fusion and --split)")
+    p.add_argument("--fusion", default=None, help="challenging: the shipped model attacked")
+    p.add_argument("--split", default=None, help="challenging: train or val (of the normal set)")
+    p.add_argument("--count", type=COUNT, default=None, help="challenging: only the first N scenes of the split")
     _executor_args(p)
     ds.set_defaults(func=lambda a: (ds.print_help(), 2)[1])
 

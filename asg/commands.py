@@ -171,12 +171,35 @@ def dataset_build(args: argparse.Namespace) -> int:
 
     from .generate_cmd import executor_from_args
 
+    if args.name == "challenging":
+        return _build_challenging(args)
+    if args.fusion or args.split or args.count:
+        raise InputError("--fusion, --split and --count apply to 'asg dataset build challenging' only")
+
     spec = load_spec(args.name)
     logs = len(spec.towns) * len(spec.densities) * len(spec.seeds)
     with progress_bar() as bar, executor_from_args(args, logs) as executor:
         task = bar.add_task(f"building {args.name}", total=logs)
         out = build_dataset(args.name, lambda done, total: bar.update(task, completed=done), executor)
     console.print(f"wrote {out}")
+    return 0
+
+
+def _build_challenging(args: argparse.Namespace) -> int:
+    from .challenging import build_challenging
+    from .generate_cmd import executor_from_args
+
+    if not args.fusion or not args.split:
+        raise InputError("give --fusion NAME and --split train|val, e.g. 'asg dataset build challenging "
+                         "--fusion attfuse --split val'")
+    with progress_bar() as bar, executor_from_args(args, args.count or 219) as executor:
+        task = bar.add_task(f"challenging {args.fusion} {args.split}", total=None)
+        out = build_challenging(args.fusion, args.split, executor, args.count,
+                                on_scene=lambda done, total, sid: bar.update(task, completed=done, total=total))
+    index = json.loads((out / "index.json").read_text())
+    fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7"))
+    console.print(f"wrote {out}: {index['frames']} scenes; AP normal {fmt(index['ap_normal'])} -> "
+                  f"challenging {fmt(index['ap_challenging'])}")
     return 0
 
 

@@ -65,7 +65,8 @@ StepProgress = Callable[[int], None]
 
 def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: int = 1,
              detector_factory: str | None = None, executor: Executor | None = None,
-             on_scene: SceneProgress | None = None, on_step: StepProgress | None = None) -> GenerateRun:
+             on_scene: SceneProgress | None = None, on_step: StepProgress | None = None,
+             artifacts: bool = True) -> GenerateRun:
     """Generate a challenging scene from each of ``scenes`` into run folder ``out`` (prepared by
     :func:`prepare_run`); finished scenes of an earlier run with the same settings are kept.
 
@@ -73,7 +74,8 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
     per worker (default: the shipped ``cfg.fusion`` and AttFuse). ``executor``: where the scenes run
     (default: this process, one thread). A scene's result depends only on the scene, ``cfg`` and
     ``seed``, so any executor and worker count gives the same summary (timings aside).
-    ``on_step`` reports evaluations only when the scenes run in this process."""
+    ``on_step`` reports evaluations only when the scenes run in this process. ``artifacts``: write
+    each scene's final clouds and pictures too (off for data sets of challenging scenes)."""
     from .io.run import load_done, previous_wall_s, write_summary
 
     _refuse_duplicates(scenes)
@@ -88,7 +90,7 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
     order = [s.scene_id for s in scenes]
     in_order = lambda: [entries[i] for i in order if i in entries]
     skipped: list[tuple[str, str]] = []
-    job = Job(_worker_setup, _worker_run, (cfg, detector_factory, str(out), seed))
+    job = Job(_worker_setup, _worker_run, (cfg, detector_factory, str(out), seed, artifacts))
     global _ON_STEP
     _ON_STEP = on_step
     try:
@@ -115,10 +117,10 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
 _ON_STEP: StepProgress | None = None
 
 
-def _worker_setup(cfg: GenerateConfig, detector_factory: str | None, out: str, seed: int):
-    """A worker's state: the generator with its detectors, where to write, the seed."""
+def _worker_setup(cfg: GenerateConfig, detector_factory: str | None, out: str, seed: int, artifacts: bool):
+    """A worker's state: the generator with its detectors, where to write, the seed, what to write."""
     target, acs_model = load_factory(detector_factory)(cfg) if detector_factory else _shipped_models(cfg)
-    return Generator(cfg, target, acs_model), Path(out), seed
+    return Generator(cfg, target, acs_model), Path(out), seed, artifacts
 
 
 def _worker_run(state, scene_dict: dict) -> tuple[str, object]:
@@ -126,14 +128,14 @@ def _worker_run(state, scene_dict: dict) -> tuple[str, object]:
     why) when the scene cannot be attacked (too few vehicles, nothing plausible to move)."""
     from .io.run import write_scene
 
-    gen, out, seed = state
+    gen, out, seed, artifacts = state
     scene = Scene.from_dict(scene_dict)
     on_step = _ON_STEP
     try:
         result = gen.generate(scene, seed, on_step=(lambda e: on_step(e.step)) if on_step else None)
     except InputError as exc:
         return "skipped", str(exc)
-    return "done", write_scene(out, result)
+    return "done", write_scene(out, result, artifacts)
 
 
 def load_factory(spec: str):

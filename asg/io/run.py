@@ -43,9 +43,10 @@ def scene_entry(r: SceneResult) -> dict:
     }
 
 
-def write_scene(out_dir: Path, r: SceneResult) -> dict:
+def write_scene(out_dir: Path, r: SceneResult, artifacts: bool = True) -> dict:
     """Write scene folder ``OUT/scenes/SCENE_ID`` atomically (its id must be a safe name) and
-    return its summary entry."""
+    return its summary entry. ``artifacts``: also the final clouds and the pictures (a data set of
+    challenging scenes keeps only the scenes, history and detections)."""
     entry = scene_entry(r)
     m_ids = list(r.perturbed)
     with atomic_dir(inside(out_dir / "scenes", out_dir / "scenes" / r.scene_id)) as work:
@@ -61,21 +62,25 @@ def write_scene(out_dir: Path, r: SceneResult) -> dict:
             w.writerow([e.step, *[round(float(v), 4) for v in e.x * scale], round(e.loss, 6),
                         *[round(e.ap.get(k, 0.0), 6) for k in ("0.3", "0.5", "0.7")]])
         (work / "history.csv").write_text(buf.getvalue())
-        frame = r.frames["final"]
-        for aid, cloud in frame.clouds.items():
-            inside(work / "clouds", work / "clouds" / aid)
-            write_pcd(work / "clouds" / f"{aid}.pcd", cloud)
-            with atomic_path(work / "clouds" / f"{aid}.npy") as tmp:
-                np.save(tmp, cloud)
-        for key, scene in (("initial", r.initial), ("after_acs", r.after_acs), ("final", r.final)):
-            ap = {"initial": r.ap_normal, "after_acs": r.ap_after_acs, "final": r.ap_final}[key]
-            bev_figure(scene, r.frames[key], work / f"{key}.png",
-                       title=f"{r.scene_id} {key}: AP@0.7 {ap.get('0.7', 0):.2f}",
-                       marked_ids=r.perturbed if key == "final" else ())
+        if artifacts:
+            _write_artifacts(work, r)
         arrays = {f"{k}_{n}": a for k, det in r.detections.items() for n, a in zip(("boxes", "scores", "gt"), det)}
         np.savez_compressed(work / "detections.npz", **arrays)
         (work / "result.json").write_text(json.dumps(entry, indent=1))
     return entry
+
+
+def _write_artifacts(work: Path, r: SceneResult) -> None:
+    """The final per-agent clouds (PCD and .npy, sensor frames) and the three bird's-eye pictures."""
+    for aid, cloud in r.frames["final"].clouds.items():
+        inside(work / "clouds", work / "clouds" / aid)
+        write_pcd(work / "clouds" / f"{aid}.pcd", cloud)
+        with atomic_path(work / "clouds" / f"{aid}.npy") as tmp:
+            np.save(tmp, cloud)
+    for key, scene in (("initial", r.initial), ("after_acs", r.after_acs), ("final", r.final)):
+        ap = {"initial": r.ap_normal, "after_acs": r.ap_after_acs, "final": r.ap_final}[key]
+        bev_figure(scene, r.frames[key], work / f"{key}.png", title=f"{r.scene_id} {key}: AP@0.7 {ap.get('0.7', 0):.2f}",
+                   marked_ids=r.perturbed if key == "final" else ())
 
 
 def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:

@@ -26,6 +26,10 @@ def scenes_of(set_name: str) -> Iterator[Scene]:
 
             build_dataset(name)
         return iter_frames(name, split)
+    if set_name.startswith("challenging-"):
+        from ..challenging import challenging_scenes
+
+        return challenging_scenes(set_name)
     p = Path(set_name)
     if (p / "index.json").is_file():
         return iter_frames(p)
@@ -34,7 +38,7 @@ def scenes_of(set_name: str) -> Iterator[Scene]:
         if not files:
             raise InputError(f"{p}: no scene yaml files; give a folder written by 'asg scenes extract' or 'asg generate'")
         return (load_scene(f) for f in files)
-    raise InputError(f"unknown set '{set_name}'; use {', '.join(SETS)} or a folder of scenes")
+    raise InputError(f"unknown set '{set_name}'; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
 
 
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:

@@ -1,0 +1,80 @@
+"""Challenging data sets: ``asg dataset build challenging --fusion NAME --split train|val``.
+
+The paper's protocol (the generator's defaults: ACS-A + BO, budget 50, m = 3; ``configs/generate.yaml``)
+run once over a split of the ``normal`` set against a shipped model, stored as a data set that
+every table reuses and that ``asg evaluate --set challenging-NAME-SPLIT`` reads like any other::
+
+    DATA/challenging-NAME-SPLIT/frames.jsonl.gz   the final scenes (collaborators after ACS), one per line
+    DATA/challenging-NAME-SPLIT/index.json        {"name", "frames", "splits": {SPLIT: ids}, "source": {...}}
+    DATA/challenging-NAME-SPLIT/run/              the generator's run folder (resumable; no clouds or pictures)
+
+A stopped build resumes with the same command (the run folder keeps every finished scene).
+"""
+from __future__ import annotations
+
+import gzip
+import json
+from pathlib import Path
+
+from sumo_scenarios.atomic import atomic_path, write_text_atomic
+from sumo_scenarios.errors import InputError
+
+from .datasets import data_root, iter_frames
+from .scene import load_scene
+
+#: the split of the normal set each challenging set is generated from
+SPLITS = ("train", "val")
+#: the seed of the generator for every challenging set
+SEED = 1
+
+
+def set_name(fusion: str, split: str) -> str:
+    return f"challenging-{fusion}-{split}"
+
+
+def build_challenging(fusion: str, split: str, executor=None, count: int | None = None,
+                      detector_factory: str | None = None, on_scene=None) -> Path:
+    """Generate (or resume) the challenging set of ``fusion`` on the ``split`` of ``normal``;
+    ``count``: only the first scenes (a quick build). Returns the data set's folder."""
+    from .generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+    from .pipeline import load_generate_config
+    from .registry import names
+    from . import perception  # noqa: F401  (fill the registry)
+
+    if split not in SPLITS:
+        raise InputError(f"--split must be one of {', '.join(SPLITS)}, got {split!r}")
+    if detector_factory is None and fusion not in names("fusion"):
+        raise InputError(f"unknown fusion '{fusion}'; known: {', '.join(names('fusion'))}")
+    cfg = load_generate_config(fusion=fusion)
+    source = SceneSource(scenes=Path("normal-val" if split == "val" else "normal"))
+    out = data_root() / set_name(fusion, split)
+    every = load_scenes(source, 10**6, SEED, out / ".work")
+    scenes = every[:count] if count else every
+    run_dir = out / "run"
+    # the split's size, not --count, is the setting: a later build with a larger --count resumes
+    prepare_run(run_dir, run_settings(cfg, SEED, len(every), source.describe() | {"detector": detector_factory}))
+    run = generate(cfg, scenes, run_dir, seed=SEED, detector_factory=detector_factory, executor=executor,
+                   on_scene=on_scene, artifacts=False)
+    ids = [e["scene_id"] for e in run.summary["scenes"]]
+    with atomic_path(out / "frames.jsonl.gz") as tmp:
+        with gzip.open(tmp, "wt", encoding="utf-8") as fh:
+            for scene_id in ids:
+                final = load_scene(run_dir / "scenes" / scene_id / "final.yaml")
+                fh.write(json.dumps(final.to_dict(), separators=(",", ":")) + "\n")
+    agg = run.summary["aggregate"]
+    index = {"name": out.name, "frames": len(ids), "splits": {split: ids},
+             "source": {"set": "normal", "split": split, "fusion": fusion, "seed": SEED,
+                        "skipped": [sid for sid, _ in run.skipped]},
+             "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"]}
+    write_text_atomic(out / "index.json", json.dumps(index, indent=1))
+    return out
+
+
+def challenging_scenes(name: str):
+    """The scenes of a built challenging set, by its name (``challenging-NAME-SPLIT``)."""
+    if not (data_root() / name / "index.json").is_file():
+        parts = name.split("-")
+        hint = (f"asg dataset build challenging --fusion {'-'.join(parts[1:-1])} --split {parts[-1]}"
+                if len(parts) >= 3 else "asg dataset build challenging --fusion NAME --split val")
+        raise InputError(f"challenging set '{name}' is not built; run '{hint}'")
+    return iter_frames(data_root() / name)
