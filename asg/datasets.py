@@ -44,6 +44,15 @@ class DatasetSpec:
     frames_per_log: int | None = None
     total: int | None = None
     val: int | None = None
+    #: only the first this many (town, density, seed) logs
+    max_logs: int | None = None
+    #: the split that holds every frame of a set without ``total`` (a test-only set: "test")
+    split: str = "train"
+    #: keep frames with this many vehicles (ego aside) within the evaluation range, inclusive
+    vehicles_in_range: tuple[int, int] | None = None
+    #: keep this share of the frames (those passing the other filters) whose vehicles in range hold
+    #: the fewest fused LiDAR points on average: the most occluded ones
+    fewest_points_share: float | None = None
 
 
 def data_root() -> Path:
@@ -76,11 +85,34 @@ def _log_frames(spec: DatasetSpec, town: str, density: str, seed: int, workdir: 
     out = []
     for scene in extract_scenes(log, ExtractParams(every=spec.every, min_vehicles=3)):
         chosen = _choose_agents(scene, rng, bool(rng.random() < spec.ego_rsu_share), spec.collaborators)
-        if chosen is not None:
+        if chosen is not None and _kept(spec, chosen):
             out.append(replace(chosen, log=log.name))  # the log's name, not its temporary path
         if spec.frames_per_log and len(out) >= spec.frames_per_log:
             break
     return out
+
+
+def _kept(spec: DatasetSpec, scene: Scene) -> bool:
+    """The spec's frame filters: vehicles in the evaluation range, mean LiDAR points per box."""
+    from .scene.feasibility import in_eval_range
+
+    if spec.vehicles_in_range is not None:
+        others = [a for a in scene.vehicles if a.agent_id != scene.ego_id]
+        n = int(in_eval_range(scene.ego, others).sum())
+        if not spec.vehicles_in_range[0] <= n <= spec.vehicles_in_range[1]:
+            return False
+    return True
+
+
+def mean_points_in_box(scene: Scene) -> float:
+    """Mean number of fused LiDAR points (v2xp) inside the ground-truth boxes within range."""
+    from .perception.data import in_range
+    from .sensors import load_lidar_spec, simulate_frame
+
+    frame = simulate_frame(scene, load_lidar_spec("v2xp"))
+    keep = in_range(frame.ego_boxes)
+    counts = frame.points_in_boxes()["fused"][keep] if len(keep) else np.zeros(0)
+    return float(counts.mean()) if len(counts) else 0.0
 
 
 def build_dataset(name: str, progress: Callable[[int, int], None] | None = None, executor=None) -> Path:
@@ -91,21 +123,24 @@ def build_dataset(name: str, progress: Callable[[int, int], None] | None = None,
     from .executors.local import LocalExecutor
 
     spec = load_spec(name)
-    runs = [(t, d, s) for t in spec.towns for d in spec.densities for s in spec.seeds]
+    runs = [(t, d, s) for t in spec.towns for d in spec.densities for s in spec.seeds][: spec.max_logs]
     out = data_root() / name
     logs_dir = out.parent / f".work-{name}"  # the simulated logs: beside the set, removed when done
     shutil.rmtree(logs_dir, ignore_errors=True)  # what a killed build left
     remove_stale_partials_of(out)
-    scenes_of_log: dict[tuple, list[Scene]] = {}
+    dicts_of_log: dict[tuple, list[dict]] = {}
     try:
         job = Job(_worker_setup, _worker_run, (spec, str(logs_dir)))
         for run, dicts in (executor or LocalExecutor()).map_unordered(job, runs):
-            scenes_of_log[run] = [Scene.from_dict(d) for d in dicts]
+            dicts_of_log[run] = dicts
             if progress:
-                progress(len(scenes_of_log), len(runs))
+                progress(len(dicts_of_log), len(runs))
     finally:
         shutil.rmtree(logs_dir, ignore_errors=True)
-    logs = [(f"{t}_{d}_{s}", scenes_of_log[(t, d, s)]) for t, d, s in runs]
+    candidates = [(f"{t}_{d}_{s}", dicts_of_log[(t, d, s)]) for t, d, s in runs]
+    kept = _fewest_points(spec, candidates)
+    logs = [(name, [Scene.from_dict({k: v for k, v in d.items() if k != "mean_points_in_box"}) for d in dicts])
+            for name, dicts in kept]
     splits = _split(spec, logs)
     with atomic_dir(out) as work:
         with gzip.open(work / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
@@ -114,7 +149,8 @@ def build_dataset(name: str, progress: Callable[[int, int], None] | None = None,
                     if any(s.scene_id in ids for ids in splits.values()):
                         fh.write(json.dumps(s.to_dict(), separators=(",", ":")) + "\n")
         index = {"name": name, "frames": sum(len(v) for v in splits.values()), "splits": splits,
-                 "logs": {k: [s.scene_id for s in v] for k, v in logs}}
+                 "logs": {k: [s.scene_id for s in v] for k, v in logs},
+                 "frames_passing_filters": sum(len(v) for _, v in candidates)}
         (work / "index.json").write_text(json.dumps(index, indent=1))
     return out
 
@@ -124,15 +160,29 @@ def _worker_setup(spec: DatasetSpec, logs_dir: str) -> tuple[DatasetSpec, Path]:
 
 
 def _worker_run(state: tuple[DatasetSpec, Path], run: tuple[str, str, int]) -> list[dict]:
-    """One log of the set: simulated, its frames extracted and their agents chosen (as dicts)."""
+    """One log of the set: simulated, its frames extracted and their agents chosen (as dicts, each
+    with its mean points per box when the spec selects by them)."""
     spec, logs_dir = state
-    return [s.to_dict() for s in _log_frames(spec, *run, logs_dir)]
+    scenes = _log_frames(spec, *run, logs_dir)
+    if spec.fewest_points_share is None:
+        return [s.to_dict() for s in scenes]
+    return [s.to_dict() | {"mean_points_in_box": mean_points_in_box(s)} for s in scenes]
+
+
+def _fewest_points(spec: DatasetSpec, logs: list[tuple[str, list[dict]]]) -> list[tuple[str, list[dict]]]:
+    """Keep ``spec.fewest_points_share`` of all frames, those with the fewest mean points per box
+    (ties by scene id), in their logs' order."""
+    if spec.fewest_points_share is None:
+        return logs
+    ranked = sorted((d["mean_points_in_box"], d["scene_id"]) for _, dicts in logs for d in dicts)
+    keep = {sid for _, sid in ranked[: int(round(spec.fewest_points_share * len(ranked)))]}
+    return [(name, [d for d in dicts if d["scene_id"] in keep]) for name, dicts in logs]
 
 
 def _split(spec: DatasetSpec, logs: list[tuple[str, list[Scene]]]) -> dict[str, list[str]]:
     """All frames in 'train', or, with ``total``/``val``: whole logs to val first, trimmed to size."""
     if spec.total is None:
-        return {"train": [s.scene_id for _, scenes in logs for s in scenes]}
+        return {spec.split: [s.scene_id for _, scenes in logs for s in scenes]}
     val, train = [], []
     for _, scenes in logs:
         ids = [s.scene_id for s in scenes]
