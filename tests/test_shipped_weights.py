@@ -24,7 +24,7 @@ def held_out_samples(tmp_path_factory):
 
 
 #: floors of AP@0.3 and AP@0.7 on 3 held-out frames (random weights score 0), about 0.15 below what
-#: the shipped weights score there (AP@0.3 / AP@0.7, session 15: none 0.84 / 0.46, late 0.95 /
+#: the shipped weights scored there when the floors were set (AP@0.3 / AP@0.7: none 0.84 / 0.46, late 0.95 /
 #: 0.78, early 0.95 / 0.84, attfuse 0.95 / 0.82); quality on the whole validation split is in the
 #: model cards
 FLOOR = {"none": (0.65, 0.26), "late": (0.8, 0.65), "early": (0.8, 0.68), "attfuse": (0.8, 0.7)}

@@ -31,7 +31,7 @@ def run_search(optimizer: Optimizer, feasible: FeasibleSet, objective: Objective
     Each step evaluates a member of Q (``feasible.members``, (K, D)) not evaluated before: the one
     nearest to the optimiser's ask among the fresh members, which the optimiser also gets as its
     candidates. The detector is deterministic, so a repeated member would spend an evaluation on a
-    known loss (in session 10's benchmark 7-21% of the asks projected onto a member already seen).
+    known loss (on the 30-scene benchmark, 7-21% of the asks once projected onto a member already seen).
     Once every member has been evaluated, members may repeat."""
     members = np.asarray(feasible.members, dtype=float)
     fresh = np.ones(len(members), dtype=bool)
