@@ -64,8 +64,6 @@ def _real(lo: float, hi: float, what: str, lo_open: bool = False) -> Callable[[s
 SEED = _whole(0, 2**31 - 1, "a seed")
 #: counts of scenes, frames, repeats
 COUNT = _whole(1, 1_000_000, "a count")
-#: seconds of simulated traffic (a day at most)
-SECONDS = _real(0.0, 86_400.0, "seconds", lo_open=True)
 
 
 def _add(sub, name: str, help_text: str, func: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:

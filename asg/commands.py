@@ -140,13 +140,12 @@ def render(args: argparse.Namespace) -> int:
     from .io.pcd import write_pcd
     from .scene import load_scene
     from .scene.neighbours import with_nearest_collaborators
-    from .perception.data import in_range as eval_range
+    from .perception.data import points_in_range_boxes
     from .sensors import load_lidar_spec, simulate_frame
 
     spec = load_lidar_spec(args.lidar)
     scene = with_nearest_collaborators(load_scene(args.scene), args.collaborators)
     frame = simulate_frame(scene, spec, seed=args.seed)
-    counts = frame.points_in_boxes()
     bev_figure(scene, frame, args.out, title=f"{scene.scene_id} ({spec.name})")
     if args.pcd_dir is not None:
         from sumo_scenarios.atomic import atomic_path
@@ -158,8 +157,8 @@ def render(args: argparse.Namespace) -> int:
             write_pcd(Path(args.pcd_dir) / f"{aid}.pcd", cloud)
             with atomic_path(Path(args.pcd_dir) / f"{aid}.npy") as tmp:
                 np.save(tmp, cloud)
-    in_range = counts["fused"][eval_range(frame.ego_boxes)] if len(frame.ego_boxes) else []
-    mean_pts = float(sum(in_range)) / len(in_range) if len(in_range) else 0.0
+    in_range = points_in_range_boxes(frame)
+    mean_pts = float(in_range.mean()) if len(in_range) else 0.0
     console.print(f"wrote {args.out}: agents {', '.join(frame.sensing_ids)}; "
                   f"{sum(len(c) for c in frame.clouds.values())} points; {len(in_range)} vehicles in range, "
                   f"{mean_pts:.1f} points per box on average")

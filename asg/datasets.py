@@ -106,12 +106,10 @@ def _kept(spec: DatasetSpec, scene: Scene) -> bool:
 
 def mean_points_in_box(scene: Scene) -> float:
     """Mean number of fused LiDAR points (v2xp) inside the ground-truth boxes within range."""
-    from .perception.data import in_range
+    from .perception.data import points_in_range_boxes
     from .sensors import load_lidar_spec, simulate_frame
 
-    frame = simulate_frame(scene, load_lidar_spec("v2xp"))
-    keep = in_range(frame.ego_boxes)
-    counts = frame.points_in_boxes()["fused"][keep] if len(keep) else np.zeros(0)
+    counts = points_in_range_boxes(simulate_frame(scene, load_lidar_spec("v2xp")))
     return float(counts.mean()) if len(counts) else 0.0
 
 

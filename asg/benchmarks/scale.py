@@ -48,7 +48,7 @@ def bench_scale(out: Path, scenes: int = 8, budget: int = 50, seed: int = 1, way
         picked = load_scenes(source, scenes, seed, run_dir)
         with build_executor(executor_name, workers, threads or (os.cpu_count() or 1)) as executor:
             if executor_name == "ray":
-                executor._connect()  # Ray's own start-up is not the generator's cost
+                executor.connect()  # Ray's own start-up is not the generator's cost
             first: list = []
             t0 = time.perf_counter()
             run = generate(cfg, picked, run_dir, seed=seed, executor=executor,

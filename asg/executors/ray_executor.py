@@ -67,7 +67,8 @@ class RayExecutor(Executor):
         self.ray = _import_ray()
         self._started = False
 
-    def _connect(self) -> None:
+    def connect(self) -> None:
+        """Join the cluster (or start the local instance) now; map_unordered does it when needed."""
         ray = self.ray
         if ray.is_initialized():
             return
@@ -88,7 +89,7 @@ class RayExecutor(Executor):
 
     def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
         ray = self.ray
-        self._connect()
+        self.connect()
         actor_cls = ray.remote(num_cpus=self.threads, max_restarts=MAX_ATTEMPTS,
                                max_task_retries=MAX_ATTEMPTS)(_Worker)
         actors = [actor_cls.remote(self.threads, job) for _ in range(min(self.workers, len(items)))]

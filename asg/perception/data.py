@@ -20,6 +20,12 @@ def in_range(boxes: np.ndarray, range_m: float = EVAL_RANGE_M) -> np.ndarray:
     return (np.abs(boxes[:, 0]) <= range_m) & (np.abs(boxes[:, 1]) <= range_m) if len(boxes) else np.zeros(0, bool)
 
 
+def points_in_range_boxes(frame: CooperativeFrame) -> np.ndarray:
+    """(M,) fused LiDAR points inside each ground-truth box within the evaluation range."""
+    boxes = frame.ego_boxes
+    return frame.points_in_boxes()["fused"][in_range(boxes)] if len(boxes) else np.zeros(0, dtype=int)
+
+
 @dataclass
 class Sample:
     """One frame for the detectors. ``clouds`` are in each agent's own sensor frame, ego first."""

@@ -9,7 +9,7 @@ from sumo_scenarios.errors import InputError
 from ..datasets import dataset_path, iter_frames
 from ..objective.ap import ap_at
 from ..scene import Scene, load_scene
-from ..sensors import load_lidar_spec, simulate_frame
+from ..sensors import LidarSpec, load_lidar_spec, simulate_frame
 from .data import Sample
 from .fusion import V2XDetector, build_detector
 
@@ -45,29 +45,30 @@ def scenes_of(set_name: str) -> Iterator[Scene]:
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "frames": N, "without_collaborators": M} with ground truth =
     every vehicle in range; M counts the scenes that name no collaborator (scored single-agent)."""
+    spec = load_lidar_spec("v2xp")
     frames = []
     alone = 0
     for i, scene in enumerate(scenes):
         alone += not scene.collaborators
-        frames.append(_detect(detector, scene))
+        frames.append(_detect(detector, spec, scene))
         if progress:
             progress(i + 1)
     return {"ap": ap_at(frames), "frames": len(frames), "without_collaborators": alone}
 
 
-def _detect(detector: V2XDetector, scene: Scene) -> tuple:
+def _detect(detector: V2XDetector, spec: LidarSpec, scene: Scene) -> tuple:
     """(boxes (K, 7), scores (K,), ground truth in range (M, 7)) of ``detector`` on ``scene``, ego frame."""
-    sample = Sample(scene.scene_id, simulate_frame(scene, load_lidar_spec("v2xp")))
+    sample = Sample(scene.scene_id, simulate_frame(scene, spec))
     boxes, scores = detector.detect(sample.frame)
     return boxes, scores, sample.gt_eval()
 
 
-def _worker_setup(fusion: str, weights_file: str | None) -> V2XDetector:
-    return build_detector(fusion, weights_file=weights_file)
+def _worker_setup(fusion: str, weights_file: str | None) -> tuple[V2XDetector, LidarSpec]:
+    return build_detector(fusion, weights_file=weights_file), load_lidar_spec("v2xp")
 
 
-def _worker_run(detector: V2XDetector, item: tuple[int, dict]) -> tuple:
-    return _detect(detector, Scene.from_dict(item[1]))
+def _worker_run(state: tuple[V2XDetector, LidarSpec], item: tuple[int, dict]) -> tuple:
+    return _detect(*state, Scene.from_dict(item[1]))
 
 
 def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None,

@@ -119,16 +119,8 @@ class FeasibilityChecker:
         return self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
 
     def check(self, moved: Mapping[str, Agent]) -> Plausibility:
-        """Independent check of a final scene's moved vehicles."""
+        """Collisions, off-road and out-of-range counts of the ``moved`` vehicles (by id) at their poses."""
         agents = [moved[i] for i in self.movable_ids if i in moved]
         if not agents:
             return Plausibility(0, 0, 0)
         return Plausibility(self.collides(agents), int((~self.on_road(agents)).sum()), int((~self.in_range(agents)).sum()))
-
-
-def check_scene(initial: Scene, final: Scene) -> Plausibility:
-    """Plausibility of every vehicle that differs between ``initial`` and ``final``."""
-    before = {a.agent_id: a for a in initial.agents}
-    moved = {a.agent_id: a for a in final.agents
-             if a.agent_id in before and (a.x_m, a.y_m, a.yaw_rad) != (before[a.agent_id].x_m, before[a.agent_id].y_m, before[a.agent_id].yaw_rad)}
-    return FeasibilityChecker(initial, list(moved)).check(moved)

@@ -42,11 +42,10 @@ class ExtractParams:
     def validate(self) -> None:
         if self.every < 1:
             raise InputError(f"--every must be a positive whole number, got {self.every}")
-        if self.radius_m <= NEAR_RADIUS_M:
-            raise InputError(f"--radius must exceed {NEAR_RADIUS_M:g} m (the evaluation range), got {self.radius_m:g}")
         if self.ego not in ("rsu", "vehicle"):
             raise InputError(f"--ego must be rsu or vehicle, got {self.ego!r}")
-        checks.number(self.radius_m, "--radius (m)", NEAR_RADIUS_M, 10_000.0)
+        checks.number(self.radius_m, f"--radius (m; beyond the {NEAR_RADIUS_M:g} m evaluation range)", NEAR_RADIUS_M,
+                      10_000.0, lo_open=True)
         checks.number(self.collaborators, "--collaborators", 0, 16)
 
 

@@ -15,6 +15,7 @@ Schema (every key required unless marked optional)::
 """
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
@@ -110,10 +111,10 @@ class Scene:
             raise InputError(f"{where}: malformed scene ({type(exc).__name__}: {exc}); re-extract it") from None
         if scene.source not in SOURCES:
             raise InputError(f"{where}: source {scene.source!r} is not one of {', '.join(SOURCES)}")
-        ids = [a.agent_id for a in agents]
+        ids = Counter(a.agent_id for a in agents)
         if not agents:
             raise InputError(f"{where}: the scene has no agents; pick a frame with traffic")
-        dup = next((i for i in ids if ids.count(i) > 1), None)
+        dup = next((i for i, n in ids.items() if n > 1), None)
         if dup is not None:
             raise InputError(f"{where}: agent id '{dup}' appears twice; ids must be unique")
         for needed in scene.sensing_ids:
