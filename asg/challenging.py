@@ -33,9 +33,12 @@ def set_name(fusion: str, split: str) -> str:
 
 
 def build_challenging(fusion: str, split: str, executor=None, count: int | None = None,
-                      detector_factory: str | None = None, on_scene=None) -> Path:
+                      detector_factory: str | None = None, on_scene=None, weights_file: str | None = None,
+                      out: Path | None = None) -> Path:
     """Generate (or resume) the challenging set of ``fusion`` on the ``split`` of ``normal``;
-    ``count``: only the first scenes (a quick build). Returns the data set's folder."""
+    ``count``: only the first scenes (a quick build); ``weights_file``: attack these weights of
+    ``fusion`` instead of the shipped ones (then give ``out``: the set is not the shipped model's).
+    Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT)."""
     from .generate import SceneSource, generate, load_scenes, prepare_run, run_settings
     from .pipeline import load_generate_config
     from .registry import names
@@ -45,9 +48,11 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
         raise InputError(f"--split must be one of {', '.join(SPLITS)}, got {split!r}")
     if detector_factory is None and fusion not in names("fusion"):
         raise InputError(f"unknown fusion '{fusion}'; known: {', '.join(names('fusion'))}")
-    cfg = load_generate_config(fusion=fusion)
+    if weights_file and out is None:
+        raise InputError("a challenging set of other weights needs its own folder (out)")
+    cfg = load_generate_config(fusion=fusion, weights=None if weights_file is None else str(weights_file))
     source = SceneSource(scenes=Path("normal-val" if split == "val" else "normal"))
-    out = data_root() / set_name(fusion, split)
+    out = Path(out) if out is not None else data_root() / set_name(fusion, split)
     every = load_scenes(source, 10**6, SEED, out / ".work")
     scenes = every[:count] if count else every
     run_dir = out / "run"
@@ -63,7 +68,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
                 fh.write(json.dumps(final.to_dict(), separators=(",", ":")) + "\n")
     agg = run.summary["aggregate"]
     index = {"name": out.name, "frames": len(ids), "splits": {split: ids},
-             "source": {"set": "normal", "split": split, "fusion": fusion, "seed": SEED,
+             "source": {"set": "normal", "split": split, "fusion": fusion, "weights": cfg.weights, "seed": SEED,
                         "skipped": [sid for sid, _ in run.skipped]},
              "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"]}
     write_text_atomic(out / "index.json", json.dumps(index, indent=1))

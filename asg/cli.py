@@ -149,10 +149,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fit only the IoU and box-refinement branches on the frozen shipped weights "
                         "(train.yaml's iou_branch block; about 10 minutes)")
 
+    p = _add(sub, "finetune", "train a detector further on its challenging scenes, then evaluate it before and "
+             "after and attack it again (runs/finetune/FUSION-ft/)", commands.finetune)
+    p.add_argument("--fusion", required=True, help="the model to fine-tune: attfuse, early, none or late")
+    p.add_argument("--on", default=None, metavar="SET",
+                   help="challenging set to train on (default challenging-FUSION-train)")
+    p.add_argument("--steps", type=COUNT, default=None, help="override train.yaml's finetune steps")
+    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
+                   help="start from this weights file instead of the shipped ones")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/finetune/FUSION-ft)")
+    p.add_argument("--stages", default="train,evaluate,reattack",
+                   help="comma-separated subset of train, evaluate, reattack (default all three)")
+    p.add_argument("--threads", type=_whole(1, 256, "--threads"), default=2, help="training threads")
+    p.add_argument("--force", action="store_true", help="start the output folder over")
+    _executor_args(p)
+
     p = _add(sub, "evaluate", "AP of a detector on a scene set", commands.evaluate)
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse")
     p.add_argument("--set", default="normal", help="normal (train split), normal-val, normal-all, or a folder of scenes")
     p.add_argument("--limit", type=COUNT, default=None, help="only the first N scenes")
+    _weights_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON only")
     _executor_args(p)
 
@@ -210,8 +226,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start the run folder over when it holds a run made with other settings")
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="your own target: a function (config) -> (detector, ACS model or None); default the shipped --fusion")
+    _weights_arg(p)
     _executor_args(p)
     return parser
+
+
+def _weights_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
+                   help="weights file (.pt) of --fusion's model to use instead of the shipped ones "
+                        "(e.g. runs/finetune/attfuse-ft/attfuse-ft.pt)")
 
 
 def _executor_args(p: argparse.ArgumentParser) -> None:

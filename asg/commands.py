@@ -231,6 +231,45 @@ def train(args: argparse.Namespace) -> int:
     return 0
 
 
+def finetune(args: argparse.Namespace) -> int:
+    from .executors import build_executor
+    from .perception.finetune import finetune as run
+    from .perception.train_config import weights_for
+
+    weights_for(args.fusion)  # one line for an unknown fusion
+    stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
+    unknown = sorted(set(stages) - {"train", "evaluate", "reattack"})
+    if unknown or not stages:
+        raise InputError(f"--stages takes train, evaluate and reattack, got {args.stages!r}")
+    if args.weights is not None:
+        from .perception.weights_io import check_weights_file
+
+        check_weights_file(args.fusion, args.weights)
+    on = args.on or f"challenging-{args.fusion}-train"
+    with progress_bar() as bar, build_executor(args.executor, args.workers or 2, threads=1,
+                                               address=args.address) as executor:
+        task = bar.add_task(f"fine-tuning {args.fusion}", total=None)
+
+        def report(step: int, total: int, loss: float) -> None:
+            bar.update(task, completed=step, total=total, description=f"fine-tuning {args.fusion} loss {loss:.3f}")
+
+        card = run(args.fusion, on, args.out, steps=args.steps, weights=args.weights, threads=args.threads,
+                   force=args.force, executor=executor, stages=stages, log=console.print, progress=report)
+    table = Table(title=f"asg finetune --fusion {args.fusion} --on {on}: AP@0.3 / 0.5 / 0.7")
+    for col in ("set", "frames", "before", "after"):
+        table.add_column(col, justify="left" if col == "set" else "right")
+    fmt = lambda ap: " / ".join(f"{100 * ap[k]:.1f}" for k in ("0.3", "0.5", "0.7"))
+    for set_name, row in card.get("evaluation", {}).items():
+        table.add_row(set_name, str(row["frames"]), fmt(row["before"]), fmt(row["after"]))
+    if "reattack" in card:
+        r = card["reattack"]
+        table.add_row("own attack on normal-val", str(r["frames"]), fmt(r["original"]["challenging"]),
+                      fmt(r["finetuned"]["challenging"]))
+    stdout.print(table)
+    console.print(f"weights and card: {card.get('weights')} in {args.out or 'runs/finetune/' + args.fusion + '-ft'}")
+    return 0
+
+
 def evaluate(args: argparse.Namespace) -> int:
     from .perception.evaluate import evaluate as run
     from .registry import names
@@ -242,12 +281,19 @@ def evaluate(args: argparse.Namespace) -> int:
 
     from .executors import build_executor
 
+    weights = None if args.weights is None else str(args.weights)
+    if weights:
+        from .perception.weights_io import check_weights_file
+
+        check_weights_file(args.fusion, weights)
+
     # without --workers or --executor: this process on every thread; else workers of one thread
     spread = args.workers is not None or args.executor != "local"
     with progress_bar() as bar, (build_executor(args.executor, args.workers or 1, threads=1, address=args.address)
                                  if spread else contextlib.nullcontext()) as executor:
         task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
-        result = run(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n), executor=executor)
+        result = run(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n),
+                     weights_file=weights, executor=executor)
     if result["without_collaborators"]:
         console.print(f"[yellow]note: {result['without_collaborators']} of {result['frames']} scenes name no "
                       "collaborator, so cooperation is off there (every model scores as single-agent); "

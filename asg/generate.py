@@ -153,11 +153,12 @@ def load_factory(spec: str):
 
 def _shipped_models(cfg: GenerateConfig):
     from .perception import build_detector
+    from .perception.fusion.attfuse import AttFuseDetector
 
-    target = build_detector(cfg.fusion)
+    target = build_detector(cfg.fusion, weights_file=cfg.weights)
     acs_model = None
-    if cfg.acs == "attention":
-        acs_model = target if cfg.fusion == "attfuse" else build_detector("attfuse")
+    if cfg.acs == "attention":  # the target's own attention when it has one, else the shipped AttFuse's
+        acs_model = target if isinstance(target, AttFuseDetector) else build_detector("attfuse")
     return target, acs_model
 
 
@@ -171,8 +172,22 @@ def _refuse_duplicates(scenes: Sequence[Scene]) -> None:
 
 # ---- the run folder ----------------------------------------------------------------------------
 def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> dict:
-    """What run.json records: every setting that changes the run's scenes or numbers."""
-    return {"config": asdict(cfg), "seed": seed, "count": count, "source": source}
+    """What run.json records: every setting that changes the run's scenes or numbers (with the
+    digest of the target's weights file, so that other weights at the same path are noticed)."""
+    settings = {"config": asdict(cfg), "seed": seed, "count": count, "source": source}
+    if cfg.weights:
+        settings["weights_sha256"] = file_digest(Path(cfg.weights))
+    return settings
+
+
+def file_digest(path: Path) -> str:
+    """sha256 of a file the user gave; InputError if it cannot be read."""
+    import hashlib
+
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the weights file ({exc.strerror}); check --weights") from None
 
 
 def prepare_run(out: Path, settings: dict, force: bool = False) -> None:

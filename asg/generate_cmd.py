@@ -7,6 +7,8 @@ from pathlib import Path
 
 from rich.table import Table
 
+from sumo_scenarios.errors import InputError
+
 from .executors import Executor, build_executor, default_workers
 from .generate import SceneSource, WORK_DIR, generate, load_scenes, prepare_run, run_settings
 from .pipeline import load_generate_config
@@ -29,8 +31,15 @@ def run_generate(args: argparse.Namespace) -> int:
     count = args.count if args.count is not None else (DEMO["count"] if demo else DEFAULT_COUNT)
     budget = args.budget if args.budget is not None else (DEMO["budget"] if demo else None)
     fusion = args.fusion or (DEMO["fusion"] if demo else None)
+    if args.weights is not None and args.detector:
+        raise InputError("--weights picks the weights of a shipped --fusion; your --detector factory loads its own")
     cfg = load_generate_config(args.config, fusion=fusion, search=args.search, acs=args.acs,
-                               aps=None if args.aps is None else args.aps == "on", budget=budget)
+                               aps=None if args.aps is None else args.aps == "on", budget=budget,
+                               weights=None if args.weights is None else str(args.weights))
+    if cfg.weights and not args.detector:
+        from .perception.weights_io import check_weights_file
+
+        check_weights_file(cfg.fusion, cfg.weights)
     executor = executor_from_args(args, count)  # checked before anything is written
     out = Path(args.out)
     fresh = not out.exists()

@@ -38,6 +38,8 @@ class GenerateConfig:
     """The generator's settings; configs/generate.yaml mirrors these defaults (a test checks it)."""
 
     fusion: str = "attfuse"
+    #: the target's weights file (.pt) instead of the fusion's shipped weights (e.g. a fine-tuned model)
+    weights: str | None = None
     search: str = "bo"
     acs: Literal["attention", "random", "off"] = "attention"
     aps: bool = True

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import time
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -64,18 +65,22 @@ class _Batches:
         """A batch: clouds (per sample, a list of (N, 4) tensors), labels (B, A), residual targets
         (B, A, 7), direction bins (B, A) and the augmented boxes (per sample, (M, 7))."""
         picks = rng.integers(len(self.items), size=batch)
-        clouds, labels, targets, dirs, gt = [], [], [], [], []
-        for k in picks:
-            cl, boxes = self.items[int(k)]
-            cl, boxes = augment(cl, boxes, rng)
-            lab, res, d = assign_targets(anchors, boxes, cfg)
-            clouds.append([torch.from_numpy(c) for c in cl])
-            labels.append(lab)
-            targets.append(res)
-            dirs.append(d)
-            gt.append(boxes)
-        return (clouds, torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
-                torch.from_numpy(np.stack(dirs)), gt)
+        return draw_examples([self.items[int(k)] for k in picks], rng, anchors, cfg)
+
+
+def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray, cfg):
+    """A batch of (clouds, boxes) examples, augmented with ``rng``: see :meth:`_Batches.draw`."""
+    clouds, labels, targets, dirs, gt = [], [], [], [], []
+    for cl, boxes in examples:
+        cl, boxes = augment(cl, boxes, rng)
+        lab, res, d = assign_targets(anchors, boxes, cfg)
+        clouds.append([torch.from_numpy(c) for c in cl])
+        labels.append(lab)
+        targets.append(res)
+        dirs.append(d)
+        gt.append(boxes)
+    return (clouds, torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
+            torch.from_numpy(np.stack(dirs)), gt)
 
 
 def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, log: Callable[[str], None] = print,
@@ -146,13 +151,50 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     samples = render_samples(tcfg.dataset, "train")
     batches = _Batches(name, samples, tcfg.views)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
+    wall = run_steps(model, opt, sched, batches, rng, Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every),
+                     cfg, ckpt, wall, previous, log, progress)
+    weights = weights_dir / f"{name}.pt"
+    with atomic_path(weights) as tmp:
+        torch.save(model.state_dict(), tmp)
+    chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
+                                            "seed": [tcfg.seed, chunk], "views": tcfg.views,
+                                            "wall_s": round(wall, 1), "part": "all"}]
+    write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
+                examples=len(batches.items), batch_size=tcfg.batch_size)
+    ckpt.unlink(missing_ok=True)  # the chunk is complete: the next run starts a new one from these weights
+    (run_dir / CACHE_NAME).unlink(missing_ok=True)  # candidates of an unfinished branch fit belong to the old weights
+    log(f"wrote {weights} after {total} steps, {wall / 60:.1f} min of training")
+    if validate:
+        card_validation(name, log, weights_dir=weights_dir)
+    return weights
+
+
+@dataclass(frozen=True)
+class Steps:
+    """Where a chunk stands: steps done, steps in the chunk, examples a step, steps between checkpoints."""
+
+    done: int
+    total: int
+    batch_size: int
+    checkpoint_every: int
+
+
+def run_steps(model: torch.nn.Module, opt, sched, batches, rng: np.random.Generator, steps: Steps, cfg,
+              ckpt: Path, wall_s: float, previous: dict, log: Callable[[str], None],
+              progress: Callable[[int, int, float], None] | None) -> float:
+    """Train ``model`` from ``steps.done`` to ``steps.total`` on batches drawn from ``batches``
+    (anything with ``draw(rng, batch, anchors, cfg)``), checkpointing to ``ckpt``; returns the
+    chunk's wall time so far (``wall_s`` plus this run's). Leaves the model in eval mode."""
+    params = list(model.parameters())
     anchors = model.anchors.numpy()
+    attention = isinstance(model, AttFuse)
     model.train()
     started = time.perf_counter()
     losses: list[float] = []
+    step, total = steps.done, steps.total
     while step < total:
-        clouds, labels, targets, dirs, gt = batches.draw(rng, tcfg.batch_size, anchors, cfg)
-        cls, box, d, features = model(clouds if name == "attfuse" else [c[0] for c in clouds])
+        clouds, labels, targets, dirs, gt = batches.draw(rng, steps.batch_size, anchors, cfg)
+        cls, box, d, features = model(clouds if attention else [c[0] for c in clouds])
         loss = detection_loss(cls, box, d, labels, targets, dirs)
         loss.update(_branch_losses(model, cls, box, features, labels, gt))
         loss["total"] = loss["total"] + loss["iou"] + loss["refine"]
@@ -168,24 +210,10 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         if step % 50 == 0:
             parts = " ".join(f"{k} {float(v.detach()):.3f}" for k, v in loss.items() if k != "total")
             log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} ({parts})")
-        if step % tcfg.checkpoint_every == 0 or step == total:
-            save_checkpoint(ckpt, model, opt, sched, step, wall + time.perf_counter() - started, rng, previous)
-    wall += time.perf_counter() - started
+        if step % steps.checkpoint_every == 0 or step == total:
+            save_checkpoint(ckpt, model, opt, sched, step, wall_s + time.perf_counter() - started, rng, previous)
     model.eval()
-    weights = weights_dir / f"{name}.pt"
-    with atomic_path(weights) as tmp:
-        torch.save(model.state_dict(), tmp)
-    chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
-                                            "seed": [tcfg.seed, chunk], "views": tcfg.views,
-                                            "wall_s": round(wall, 1), "part": "all"}]
-    write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
-                examples=len(batches.items), batch_size=tcfg.batch_size)
-    ckpt.unlink(missing_ok=True)  # the chunk is complete: the next run starts a new one from these weights
-    (run_dir / CACHE_NAME).unlink(missing_ok=True)  # candidates of an unfinished branch fit belong to the old weights
-    log(f"wrote {weights} after {step} steps, {wall / 60:.1f} min of training")
-    if validate:
-        card_validation(name, log, weights_dir=weights_dir)
-    return weights
+    return wall_s + time.perf_counter() - started
 
 
 def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[str], None] = print,

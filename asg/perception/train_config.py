@@ -11,7 +11,10 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 
 from .branch_fit import BranchFitConfig
 
-FUSION_TO_WEIGHTS = {"none": "single", "late": "single", "early": "early", "attfuse": "attfuse"}
+FUSION_TO_WEIGHTS = {"none": "single", "late": "single", "early": "early", "attfuse": "attfuse",
+                     "attfuse-ft": "attfuse-ft"}
+#: the network behind each weights file (what ``asg train`` and ``asg finetune`` build and feed)
+NETWORK_OF_WEIGHTS = {"single": "single", "early": "early", "attfuse": "attfuse", "attfuse-ft": "attfuse"}
 
 
 def weights_for(fusion: str) -> str:
@@ -41,13 +44,39 @@ class TrainConfig:
     views: Literal["ego", "all"] = "ego"
 
 
+@dataclass(frozen=True)
+class FinetuneConfig(TrainConfig):
+    """``asg finetune``: a chunk from trained weights on a challenging set mixed with normal frames
+    (train.yaml's ``finetune`` block). ``dataset`` is unused: the challenging set is ``--on``."""
+
+    #: share of each batch's examples drawn from the challenging set; the rest come from
+    #: ``mix_with`` (the train split of each, in equal shares)
+    challenging_share: float = 0.5
+    mix_with: tuple[str, ...] = ("normal", "detector-train")
+    #: evaluated before and after (with the challenging val set of the attacked model)
+    eval_sets: tuple[str, ...] = ("normal-val", "heuristic")
+
+
 #: the train.yaml block of the branch fit (any weights): ``asg train --fusion F --iou-branch``
 IOU_BLOCK = "iou_branch"
+#: the train.yaml block of ``asg finetune``
+FINETUNE_BLOCK = "finetune"
 
 
 def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
     """The training settings of ``weights`` (its train.yaml block)."""
     return from_mapping(TrainConfig, _block(weights, path), f"train.yaml:{weights}")
+
+
+def load_finetune_config(path: Path | None = None) -> FinetuneConfig:
+    """The fine-tuning settings (train.yaml's ``finetune`` block), share checked in [0, 1]."""
+    from sumo_scenarios import checks
+
+    cfg = from_mapping(FinetuneConfig, _block(FINETUNE_BLOCK, path), f"train.yaml:{FINETUNE_BLOCK}")
+    checks.number(cfg.challenging_share, "train.yaml:finetune.challenging_share", 0.0, 1.0)
+    if cfg.challenging_share < 1.0 and not cfg.mix_with:
+        raise InputError("train.yaml:finetune: challenging_share below 1 needs sets in mix_with")
+    return cfg
 
 
 def load_branch_config(path: Path | None = None) -> BranchFitConfig:

@@ -47,3 +47,11 @@ class AttFuseDetector(V2XDetector):
             if 0 <= ix < n and 0 <= iy < n:
                 mask[iy, ix] = True
         return mask
+
+
+@register("fusion", "attfuse-ft")
+class AttFuseFinetunedDetector(AttFuseDetector):
+    """AttFuse fine-tuned on its own challenging scenes (``asg finetune``); what it was tuned on
+    and its table numbers are in its card, asg/perception/weights/attfuse-ft.json."""
+
+    weights = "attfuse-ft"

@@ -1,0 +1,240 @@
+"""``asg finetune --fusion attfuse --on challenging-attfuse-train``: train a detector further on the
+challenging scenes generated against it, then measure what that bought (the paper's Table II).
+
+Stages, each resumable and recorded in the output folder ``OUT`` (default runs/finetune/FUSION-ft/):
+
+1. **train**: one chunk from the model's weights (shipped, or ``--weights``) on batches mixing the
+   challenging set with normal frames (train.yaml's ``finetune`` block: ``challenging_share`` of
+   each batch from the challenging set, the rest from the train split of the ``mix_with`` sets);
+   checkpoints in ``OUT/last.pt``; writes ``OUT/FUSION-ft.pt`` and its card ``OUT/FUSION-ft.json``.
+2. **evaluate**: the model before and after on ``eval_sets`` and on ``challenging-FUSION-val`` (the
+   val split attacked against the original model; built if missing), cached in ``OUT/eval/``.
+3. **re-attack**: the paper's protocol run again on normal-val against the fine-tuned weights
+   (``OUT/reattack/``, a challenging set of its own), beside the original model under its own attack.
+
+``OUT/run.json`` records the settings: a rerun with other settings is refused (``force`` starts
+over). The shipped weights are never written.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from sumo_scenarios.atomic import atomic_path, write_text_atomic
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import runs_dir
+
+from ..datasets import iter_frames
+from ..sensors import load_lidar_spec
+from .checkpoint import load_checkpoint
+from .config import load_detector_config
+from .data import make_sample
+from .model import AttFuse, PointPillars
+from .train import BRANCH_KEYS, Steps, _Batches, _scheduler, draw_examples, run_steps
+from .train_config import NETWORK_OF_WEIGHTS, FinetuneConfig, load_finetune_config, weights_for
+from .weights_io import WEIGHTS_DIR, load_state
+
+#: the file in OUT that records the settings of the fine-tuning run
+RUN_RECORD = "run.json"
+
+
+class MixedBatches:
+    """Batches whose examples come from several sources: each example's source drawn with
+    ``shares`` (summing to 1), then an example of that source uniformly."""
+
+    def __init__(self, sources: list[_Batches], shares: list[float]):
+        if any(not s.items for s in sources):
+            raise InputError("a fine-tuning source holds no training example")
+        self.sources = sources
+        self.shares = np.asarray(shares, dtype=float) / float(np.sum(shares))
+
+    def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg):
+        which = rng.choice(len(self.sources), size=batch, p=self.shares)
+        examples = [self.sources[int(s)].items[int(rng.integers(len(self.sources[int(s)].items)))] for s in which]
+        return draw_examples(examples, rng, anchors, cfg)
+
+
+def finetuned_name(fusion: str) -> str:
+    return f"{fusion}-ft"
+
+
+def default_out(fusion: str) -> Path:
+    return runs_dir() / "finetune" / finetuned_name(fusion)
+
+
+def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None = None,
+             weights: Path | None = None, threads: int = 2, force: bool = False, executor=None,
+             stages: tuple[str, ...] = ("train", "evaluate", "reattack"), config: FinetuneConfig | None = None,
+             log: Callable[[str], None] = print, progress: Callable[[int, int, float], None] | None = None) -> dict:
+    """Run (or resume) the fine-tuning of ``fusion`` on challenging set ``on``; returns its card.
+
+    ``weights``: start from this file instead of the shipped weights. ``executor``: where the
+    evaluations and the re-attack run (default this process). ``stages``: a subset of train,
+    evaluate, reattack (the later ones need the trained weights)."""
+    from ..challenging import challenging_scenes
+
+    name = weights_for(fusion)
+    fcfg = config or load_finetune_config()
+    total = steps or fcfg.steps
+    out = Path(out) if out is not None else default_out(fusion)
+    start = Path(weights) if weights is not None else WEIGHTS_DIR / f"{name}.pt"
+    challenging_scenes(on)  # one clear line if the set is not built
+    from ..generate import file_digest
+
+    settings = {"fusion": fusion, "on": on, "start_weights": str(start), "start_sha256": file_digest(start),
+                "steps": total, "config": asdict(fcfg)}
+    claim(out, settings, force)
+    ft_weights = out / f"{finetuned_name(fusion)}.pt"
+    card_path = out / f"{finetuned_name(fusion)}.json"
+    card = json.loads(card_path.read_text()) if card_path.is_file() else {}
+    if "train" in stages and not card.get("trained"):
+        card = {"weights": ft_weights.name, "fusion": fusion, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
+                "trained": train_chunk(name, on, start, ft_weights, out / "last.pt", fcfg, total, threads, log, progress)}
+        write_text_atomic(card_path, json.dumps(card, indent=1))
+    if not card.get("trained") and set(stages) - {"train"}:
+        raise InputError(f"{out}: no fine-tuned weights yet; run the train stage first")
+    if "evaluate" in stages:
+        card["evaluation"] = evaluate_before_after(fusion, start, ft_weights, on, fcfg, out / "eval", executor, log)
+        write_text_atomic(card_path, json.dumps(card, indent=1))
+    if "reattack" in stages:
+        card["reattack"] = reattack(fusion, ft_weights, out / "reattack", executor, log)
+        write_text_atomic(card_path, json.dumps(card, indent=1))
+    return card
+
+
+def claim(out: Path, settings: dict, force: bool) -> None:
+    """Make ``out`` the folder of this run: refused if it records other settings (``force``
+    empties it first)."""
+    from ..generate import _first_difference
+
+    settings = json.loads(json.dumps(settings))
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file; give a folder")
+    record = out / RUN_RECORD
+    if force and out.is_dir():
+        shutil.rmtree(out)
+    elif record.is_file():
+        try:
+            earlier = json.loads(record.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            raise InputError(f"{record} is unreadable; give another --out, or --force to start over") from None
+        diff = _first_difference(earlier, settings)
+        if diff:
+            raise InputError(f"{out} holds a fine-tuning run with other settings ({diff}); give another --out, "
+                             "or --force to start it over")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(record, json.dumps(settings, indent=1, sort_keys=True))
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"--out {out}: a part of the path is a file; give a folder") from None
+
+
+def training_sources(name: str, on: str, fcfg: FinetuneConfig, log: Callable[[str], None]) -> MixedBatches:
+    """The challenging set and the train split of each ``mix_with`` set, rendered, as mixed batches."""
+    from ..challenging import challenging_scenes
+    from ..datasets import build_dataset, dataset_path
+
+    spec = load_lidar_spec("v2xp")
+    network = NETWORK_OF_WEIGHTS[name]
+    t0 = time.perf_counter()
+    sources = [_Batches(network, [make_sample(s, spec) for s in challenging_scenes(on)], fcfg.views)]
+    for mix in fcfg.mix_with:
+        if not (dataset_path(mix) / "index.json").is_file():
+            log(f"building data set {mix} ...")
+            build_dataset(mix)
+        sources.append(_Batches(network, [make_sample(s, spec) for s in iter_frames(mix, "train")], fcfg.views))
+    rest = (1.0 - fcfg.challenging_share) / max(len(fcfg.mix_with), 1)
+    shares = [fcfg.challenging_share] + [rest] * len(fcfg.mix_with)
+    counts = ", ".join(f"{n} {len(b.items)}" for n, b in zip((on, *fcfg.mix_with), sources))
+    log(f"training examples: {counts} ({time.perf_counter() - t0:.0f} s to render)")
+    return MixedBatches(sources, shares)
+
+
+def train_chunk(name: str, on: str, start: Path, weights_out: Path, ckpt: Path, fcfg: FinetuneConfig, total: int,
+                threads: int, log: Callable[[str], None], progress) -> dict:
+    """Train ``total`` steps from ``start`` (resuming ``ckpt``), write ``weights_out``; the record
+    of the chunk for the card."""
+    cfg = load_detector_config()
+    torch.set_num_threads(threads)
+    torch.manual_seed(fcfg.seed)
+    rng = np.random.default_rng([fcfg.seed, 0])
+    model = AttFuse(cfg) if NETWORK_OF_WEIGHTS[name] == "attfuse" else PointPillars(cfg)
+    load_state(model, start, allow_missing=BRANCH_KEYS)
+    opt = torch.optim.Adam(model.parameters(), lr=fcfg.lr, weight_decay=fcfg.weight_decay)
+    sched = _scheduler(opt, fcfg, total)
+    step, wall_s = 0, 0.0
+    state = load_checkpoint(ckpt)
+    if state is not None:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        step, wall_s = int(state["step"]), float(state["wall_s"])
+        rng.bit_generator.state = json.loads(state["rng"])
+        torch.set_rng_state(state["torch_rng"])
+        log(f"resumed fine-tuning at step {step}")
+    batches = training_sources(name, on, fcfg, log)
+    wall_s = run_steps(model, opt, sched, batches, rng, Steps(step, total, fcfg.batch_size, fcfg.checkpoint_every),
+                       cfg, ckpt, wall_s, {}, log, progress)
+    with atomic_path(weights_out) as tmp:
+        torch.save(model.state_dict(), tmp)
+    ckpt.unlink(missing_ok=True)
+    log(f"wrote {weights_out} after {total} steps, {wall_s / 60:.1f} min of training")
+    return {"on": on, "mix_with": list(fcfg.mix_with), "challenging_share": fcfg.challenging_share,
+            "examples": {n: len(b.items) for n, b in zip((on, *fcfg.mix_with), batches.sources)},
+            "steps": total, "batch_size": fcfg.batch_size, "lr": fcfg.lr, "schedule": fcfg.schedule,
+            "seed": fcfg.seed, "views": fcfg.views, "threads": threads, "wall_s": round(wall_s, 1)}
+
+
+def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, on: str, fcfg: FinetuneConfig, cache: Path,
+                          executor, log: Callable[[str], None]) -> dict:
+    """{set: {"before": AP, "after": AP, "frames": N}} on each eval set and the original model's
+    challenging val set (built if missing); each result cached in ``cache``."""
+    from ..challenging import build_challenging, set_name
+    from ..datasets import data_root
+    from .evaluate import evaluate
+
+    own_val = set_name(fusion, "val")
+    if not (data_root() / own_val / "index.json").is_file():
+        log(f"building {own_val} (the original model attacked on normal-val) ...")
+        build_challenging(fusion, "val", executor=executor)
+    table = {}
+    for set_name_ in (*fcfg.eval_sets, own_val):
+        row = {}
+        for when, path in (("before", start), ("after", ft_weights)):
+            hit = cache / f"{when}-{set_name_}.json"
+            if hit.is_file():
+                result = json.loads(hit.read_text())
+            else:
+                result = evaluate(fusion, set_name_, weights_file=str(path), executor=executor)
+                result = {"ap": result["ap"], "frames": result["frames"]}
+                cache.mkdir(parents=True, exist_ok=True)
+                write_text_atomic(hit, json.dumps(result))
+            row[when] = {k: round(v, 4) for k, v in result["ap"].items()}
+            row["frames"] = result["frames"]
+        log(f"{set_name_}: AP@0.7 {row['before']['0.7']:.3f} -> {row['after']['0.7']:.3f}")
+        table[set_name_] = row
+    return table
+
+
+def reattack(fusion: str, ft_weights: Path, out: Path, executor, log: Callable[[str], None]) -> dict:
+    """The paper's protocol on normal-val against the fine-tuned weights (a challenging set in
+    ``out``), beside the original model under its own attack (challenging-FUSION-val)."""
+    from ..challenging import build_challenging, set_name
+    from ..datasets import data_root
+
+    log("re-attacking the fine-tuned model on normal-val ...")
+    built = build_challenging(fusion, "val", executor=executor, weights_file=str(ft_weights), out=out)
+    mine = json.loads((built / "index.json").read_text())
+    original = json.loads((data_root() / set_name(fusion, "val") / "index.json").read_text())
+    return {"frames": mine["frames"],
+            "finetuned": {"normal": mine["ap_normal"], "challenging": mine["ap_challenging"]},
+            # the original model's own attack: the challenging val set made against its shipped weights
+            "original": {"weights": original["source"].get("weights") or "shipped",
+                         "normal": original["ap_normal"], "challenging": original["ap_challenging"]}}

@@ -1,0 +1,114 @@
+"""``asg finetune``: a few steps on a tiny challenging set change the weights, write a card with the
+before/after table, resume after an interruption to the same weights, and never touch the shipped
+weights; ``--weights`` on evaluate and generate refuses a missing, corrupt or foreign file."""
+import gzip
+import hashlib
+import json
+from dataclasses import replace
+
+import pytest
+import torch
+
+from asg.challenging import build_challenging
+from asg.perception.finetune import finetune
+from asg.perception.train_config import load_finetune_config
+from asg.perception.weights_io import WEIGHTS_DIR
+from sumo_scenarios.errors import InputError
+
+from test_cli import assert_one_line_error, run
+from test_robustness import _scene_dict
+
+#: two steps of one example, mixed with the normal set only, evaluated on normal-val only
+TINY = replace(load_finetune_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
+               eval_sets=("normal-val",))
+
+
+@pytest.fixture
+def data_root(tmp_path, monkeypatch):
+    """ASG_DATA with a 'normal' set (train n0, n1; val n2) and its challenging sets made against
+    the fake oracle (so that they build in seconds)."""
+    root = tmp_path / "data"
+    normal = root / "normal"
+    normal.mkdir(parents=True)
+    ids = [f"n{i}" for i in range(3)]
+    with gzip.open(normal / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
+        for sid in ids:
+            fh.write(json.dumps(_scene_dict(sid)) + "\n")
+    (normal / "index.json").write_text(json.dumps({"name": "normal", "frames": 3,
+                                                   "splits": {"train": ids[:2], "val": ids[2:]}}))
+    monkeypatch.setenv("ASG_DATA", str(root))
+    for split in ("train", "val"):
+        build_challenging("attfuse", split, detector_factory="fakes:oracle_factory")
+    return root
+
+
+def _sha(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_finetune_trains_evaluates_and_keeps_the_shipped_weights(tmp_path, data_root):
+    shipped = _sha(WEIGHTS_DIR / "attfuse.pt")
+    out = tmp_path / "ft"
+    card = finetune("attfuse", "challenging-attfuse-train", out, config=TINY, stages=("train", "evaluate"),
+                    log=lambda m: None)
+    assert _sha(WEIGHTS_DIR / "attfuse.pt") == shipped
+    before = torch.load(WEIGHTS_DIR / "attfuse.pt", weights_only=True)
+    after = torch.load(out / "attfuse-ft.pt", weights_only=True)
+    assert before.keys() == after.keys()
+    assert any(not torch.equal(before[k], after[k]) for k in before if before[k].is_floating_point())
+    written = json.loads((out / "attfuse-ft.json").read_text())
+    assert written == card
+    assert card["trained"]["steps"] == 2 and card["trained"]["examples"] == {"challenging-attfuse-train": 6, "normal": 6}
+    assert set(card["evaluation"]) == {"normal-val", "challenging-attfuse-val"}
+    for row in card["evaluation"].values():
+        assert row["frames"] == 1 and set(row["before"]) == set(row["after"]) == {"0.3", "0.5", "0.7"}
+    assert not (out / "last.pt").exists()
+    # a rerun finds everything done and changes nothing; other settings are refused
+    assert finetune("attfuse", "challenging-attfuse-train", out, config=TINY, stages=("train", "evaluate"),
+                    log=lambda m: None) == card
+    with pytest.raises(InputError, match="other settings"):
+        finetune("attfuse", "challenging-attfuse-train", out, config=replace(TINY, lr=0.001), log=lambda m: None)
+
+
+def test_an_interrupted_finetune_resumes_to_the_same_weights(tmp_path, data_root):
+    whole = tmp_path / "whole"
+    finetune("attfuse", "challenging-attfuse-train", whole, config=TINY, stages=("train",), log=lambda m: None)
+
+    def stop_after_first(step, total, loss):  # called after each step, before its checkpoint
+        if step == 2:
+            raise KeyboardInterrupt
+
+    part = tmp_path / "part"
+    with pytest.raises(KeyboardInterrupt):
+        finetune("attfuse", "challenging-attfuse-train", part, config=TINY, stages=("train",), log=lambda m: None,
+                 progress=stop_after_first)
+    assert (part / "last.pt").is_file() and not (part / "attfuse-ft.pt").exists()
+    finetune("attfuse", "challenging-attfuse-train", part, config=TINY, stages=("train",), log=lambda m: None)
+    a = torch.load(whole / "attfuse-ft.pt", weights_only=True)
+    b = torch.load(part / "attfuse-ft.pt", weights_only=True)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_bad_weights_are_one_line(capsys, tmp_path, data_root):
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"not a torch file")
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    (scenes / "a.yaml").write_text(json.dumps(_scene_dict("a")))
+    cases = [
+        (["evaluate", "--fusion", "attfuse", "--set", "normal-val", "--weights", str(tmp_path / "missing.pt")], "not found"),
+        (["evaluate", "--fusion", "attfuse", "--set", "normal-val", "--weights", str(corrupt)], "not a readable weights"),
+        # Early Fusion's weights are not AttFuse's
+        (["evaluate", "--fusion", "attfuse", "--set", "normal-val", "--weights", str(WEIGHTS_DIR / "early.pt")],
+         "do not match"),
+        (["generate", "--scenes", str(scenes), "--out", str(tmp_path / "g"), "--weights", str(corrupt)],
+         "not a readable weights"),
+        (["finetune", "--fusion", "attfuse", "--weights", str(corrupt)], "not a readable weights"),
+        (["finetune", "--fusion", "attfuse", "--on", "challenging-late-train"], "is not built"),
+        (["finetune", "--fusion", "attfuse", "--stages", "train,fly"], "--stages"),
+    ]
+    for argv, needle in cases:
+        code, err = run(capsys, *argv)
+        assert code == 2, argv
+        assert_one_line_error(err, needle)
+    assert not (tmp_path / "g").exists()
