@@ -40,6 +40,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     ``fusion`` instead of the shipped ones (then give ``out``: the set is not the shipped model's).
     Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT)."""
     from .generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+    from .io.run import load_done
     from .pipeline import load_generate_config
     from .registry import names
     from . import perception  # noqa: F401  (fill the registry)
@@ -54,8 +55,10 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     source = SceneSource(scenes=Path("normal-val" if split == "val" else "normal"))
     out = Path(out) if out is not None else data_root() / set_name(fusion, split)
     every = load_scenes(source, 10**6, SEED, out / ".work")
-    scenes = every[:count] if count else every
     run_dir = out / "run"
+    # the first ``count`` scenes, and every scene an earlier, larger build finished (kept in the set)
+    wanted = {s.scene_id for s in (every[:count] if count else every)} | set(load_done(run_dir))
+    scenes = [s for s in every if s.scene_id in wanted]
     # the split's size, not --count, is the setting: a later build with a larger --count resumes
     prepare_run(run_dir, run_settings(cfg, SEED, len(every), source.describe() | {"detector": detector_factory}))
     run = generate(cfg, scenes, run_dir, seed=SEED, detector_factory=detector_factory, executor=executor,
@@ -73,6 +76,17 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
              "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"]}
     write_text_atomic(out / "index.json", json.dumps(index, indent=1))
     return out
+
+
+def first_scenes_ap(out: Path, count: int | None) -> dict[str, dict[str, float]]:
+    """Pooled AP (normal and challenging) over the first ``count`` scenes of a built challenging
+    set (all when None), from the detections its run folder stored."""
+    from .io.run import load_detections, pooled_ap
+
+    index = json.loads((out / "index.json").read_text())
+    ids = [i for ids in index["splits"].values() for i in ids][:count]
+    per_scene = [load_detections(out / "run", i) for i in ids]
+    return {"scenes": len(ids), "normal": pooled_ap(per_scene, "initial"), "challenging": pooled_ap(per_scene, "final")}
 
 
 def challenging_scenes(name: str):

@@ -196,11 +196,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget", type=COUNT, default=50)
     p.add_argument("--out", type=Path, default=Path("runs/bench-scale"))
     p.add_argument("--json", action="store_true", help="print JSON only")
-    p = _add(bsub, "paper", "the generator's targets: AttFuse with ACS-A/BO, GA, RS and ACS-R/BO on normal scenes",
-             commands.bench_paper)
-    p.add_argument("--scenes", type=COUNT, default=30)
-    p.add_argument("--budget", type=COUNT, default=50)
-    p.add_argument("--fusion", default="attfuse")
+    p = _add(bsub, "paper", "the paper's tables (--table), or the generator's targets: AttFuse with ACS-A/BO, GA, "
+             "RS and ACS-R/BO on 30 normal scenes", commands.bench_paper)
+    p.add_argument("--table", default=None, metavar="NAME[,NAME]",
+                   help="main, finetune, transfer, acs, ablation, blackbox or all: write OUT/NAME.json, .csv, .md "
+                        "(default: the generator's targets table)")
+    p.add_argument("--scenes", type=COUNT, default=None,
+                   help="scenes per split (tables: default the whole split, as the paper; targets: default 30)")
+    p.add_argument("--budget", type=COUNT, default=None,
+                   help="targets table only (default the generator's, 50; the tables use configs/generate.yaml)")
+    p.add_argument("--fusion", default=None, help="targets table only (default attfuse)")
+    p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
+                   help="tables: a factory standing in for every model (as 'asg generate --detector')")
     p.add_argument("--out", type=Path, default=Path("runs/bench-paper"))
     _executor_args(p)
     p.add_argument("--jobs", type=_whole(1, 64, "--jobs"), default=None, dest="workers", help=argparse.SUPPRESS)
@@ -261,6 +268,7 @@ _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.ED
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as typed, for result files
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -8,6 +8,7 @@ if no item finishes between MAX_ATTEMPTS breaks in a row, the batch stops with W
 from __future__ import annotations
 
 import multiprocessing
+import os
 import signal
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -17,6 +18,8 @@ from ..registry import register
 from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads
 
 _STATE: Any = None
+#: is this worker inside an item (which may hold temporary files) rather than starting or idle?
+_BUSY = False
 
 
 def _worker_init(threads: int, job: Job) -> None:
@@ -28,11 +31,18 @@ def _worker_init(threads: int, job: Job) -> None:
 
 
 def _exit_on_sigterm(signum, frame) -> None:
-    raise SystemExit(143)  # unwinds: context managers remove temporary files
+    if _BUSY:
+        raise SystemExit(143)  # unwinds: context managers remove the item's temporary files
+    os._exit(143)  # starting or idle: nothing to clean up, and no traceback from the pool's machinery
 
 
 def _worker_run(job: Job, item: Any) -> Any:
-    return job.run(_STATE, item)
+    global _BUSY
+    _BUSY = True
+    try:
+        return job.run(_STATE, item)
+    finally:
+        _BUSY = False
 
 
 @register("executor", "local")

@@ -63,8 +63,19 @@ def _detect(detector: V2XDetector, spec: LidarSpec, scene: Scene) -> tuple:
     return boxes, scores, sample.gt_eval()
 
 
-def _worker_setup(fusion: str, weights_file: str | None) -> tuple[V2XDetector, LidarSpec]:
-    return build_detector(fusion, weights_file=weights_file), load_lidar_spec("v2xp")
+def target_detector(fusion: str, weights_file: str | None = None, detector_factory: str | None = None) -> V2XDetector:
+    """The detector scored as ``fusion``: its shipped weights (or ``weights_file``), or the target
+    that ``detector_factory`` ("module:function", as for ``asg generate --detector``) returns for it."""
+    if detector_factory:
+        from ..generate import load_factory
+        from ..pipeline import GenerateConfig
+
+        return load_factory(detector_factory)(GenerateConfig(fusion=fusion))[0]
+    return build_detector(fusion, weights_file=weights_file)
+
+
+def _worker_setup(fusion: str, weights_file: str | None, detector_factory: str | None) -> tuple[V2XDetector, LidarSpec]:
+    return target_detector(fusion, weights_file, detector_factory), load_lidar_spec("v2xp")
 
 
 def _worker_run(state: tuple[V2XDetector, LidarSpec], item: tuple[int, dict]) -> tuple:
@@ -72,19 +83,20 @@ def _worker_run(state: tuple[V2XDetector, LidarSpec], item: tuple[int, dict]) ->
 
 
 def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None,
-             weights_file: str | None = None, executor=None) -> dict:
-    """AP of detector ``fusion`` (its shipped weights, or ``weights_file``) on a set (see scenes_of),
-    its scenes on ``executor`` (default: this process); the frames are pooled in the set's order."""
+             weights_file: str | None = None, executor=None, detector_factory: str | None = None) -> dict:
+    """AP of detector ``fusion`` (its shipped weights, or ``weights_file``, or what
+    ``detector_factory`` returns) on a set (see scenes_of), its scenes on ``executor`` (default:
+    this process); the frames are pooled in the set's order."""
     import itertools
 
     from ..executors import Job
 
     scenes = list(itertools.islice(scenes_of(set_name), limit))
     if executor is None:
-        result = evaluate_detector(build_detector(fusion, weights_file=weights_file), scenes, progress)
+        result = evaluate_detector(target_detector(fusion, weights_file, detector_factory), scenes, progress)
     else:
         frames: dict[int, tuple] = {}
-        job = Job(_worker_setup, _worker_run, (fusion, weights_file))
+        job = Job(_worker_setup, _worker_run, (fusion, weights_file, detector_factory))
         for (i, _), detected in executor.map_unordered(job, [(i, s.to_dict()) for i, s in enumerate(scenes)]):
             frames[i] = detected
             if progress:

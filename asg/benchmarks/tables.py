@@ -1,0 +1,298 @@
+"""``asg bench paper --table main|finetune|transfer|acs|ablation|blackbox|all``: the paper's tables.
+
+Every table is measured at the paper's sizes by default (the 219 scenes of normal's train split;
+fine-tuning on the 112 of its val split) or on the first ``scenes`` of each split for a quick run,
+and written as ``OUT/TABLE.json``, ``.csv`` and ``.md`` with our numbers beside the paper's. What
+they share is computed once and reused: the challenging sets (``asg dataset build challenging``,
+in the data folder) and the generator runs of the collaborator-search and black-box tables
+(``OUT/runs/...``, resumable ``asg generate`` folders). JSON schema: docs/results/tables.md.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import platform
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from sumo_scenarios.atomic import write_text_atomic
+from sumo_scenarios.errors import InputError
+
+from . import paper_figures as paper
+
+TABLES = ("main", "finetune", "transfer", "acs", "ablation", "blackbox")
+#: the four shipped models of the paper, in its order
+MODELS = ("none", "late", "early", "attfuse")
+THRESHOLDS = ("0.3", "0.5", "0.7")
+
+
+@dataclass(frozen=True)
+class TableRun:
+    """How the tables are measured: where they go, on how many scenes (None: the paper's sizes),
+    on which executor, against which detectors (``detector_factory``: "module:function" standing in
+    for every model, as ``asg generate --detector``; None: the shipped weights)."""
+
+    out: Path
+    scenes: int | None = None
+    executor: object | None = None
+    detector_factory: str | None = None
+    seed: int = 1
+    command: str = "asg bench paper"
+
+
+def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None] = print) -> dict[str, dict]:
+    """Measure and write each table of ``names``; returns {name: its JSON}."""
+    unknown = [n for n in names if n not in TABLES]
+    if unknown:
+        raise InputError(f"unknown table '{unknown[0]}'; choose {', '.join(TABLES)} or all")
+    run.out.mkdir(parents=True, exist_ok=True)
+    return {name: run_table(name, run, log) for name in names}
+
+
+def run_table(name: str, run: TableRun, log: Callable[[str], None] = print) -> dict:
+    log(f"table {name} ...")
+    started = time.perf_counter()
+    rows, scenes = _BUILDERS[name](run)
+    result = {"table": name, "command": run.command, "scenes": scenes, "seconds": round(time.perf_counter() - started, 1),
+              "commit": _commit(), "machine": _machine(), "detector": run.detector_factory or "shipped", "rows": rows}
+    write_text_atomic(run.out / f"{name}.json", json.dumps(result, indent=1))
+    write_text_atomic(run.out / f"{name}.csv", to_csv(rows))
+    write_text_atomic(run.out / f"{name}.md", to_markdown(result))
+    return result
+
+
+# ---- the tables --------------------------------------------------------------------------------------
+def main_table(run: TableRun) -> tuple[list[dict], int]:
+    """Table I: each model on normal (train split) and on its own challenging scenes."""
+    rows, counts = [], set()
+    for model in MODELS:
+        ap = _challenging(model, "train", run)
+        counts.add(ap["scenes"])
+        rows.append({"model": model, "normal": ap["normal"], "challenging": ap["challenging"],
+                     "paper": paper.MAIN[model]})
+    return rows, min(counts)
+
+
+def finetune_table(run: TableRun) -> tuple[list[dict], int]:
+    """Table II: AttFuse and AttFuse-FT on normal-val, heuristic and challenging-val (the val split
+    attacked against AttFuse) and, beyond the paper, each under its own attack on normal-val."""
+    from ..challenging import build_challenging, first_scenes_ap, set_name
+
+    _challenging("attfuse", "val", run)
+    rows = []
+    for model in ("attfuse", "attfuse-ft"):
+        for set_, key in (("normal-val", "normal-val"), ("heuristic", "heuristic"),
+                          (set_name("attfuse", "val"), "challenging-val")):
+            res = _evaluate(model, set_, run)
+            rows.append({"model": model, "set": key, "scenes_from": set_, "ap": res["ap"], "frames": res["frames"],
+                         "paper": paper.FINETUNE.get((model, key))})
+        own = build_challenging(model, "val", run.executor, count=run.scenes, detector_factory=run.detector_factory)
+        ap = first_scenes_ap(own, run.scenes)
+        rows.append({"model": model, "set": "own-attack-val", "scenes_from": set_name(model, "val"),
+                     "ap": ap["challenging"], "frames": ap["scenes"], "paper": None})
+    return rows, min(r["frames"] for r in rows if r["set"] != "heuristic")
+
+
+def transfer_table(run: TableRun) -> tuple[list[dict], int]:
+    """Table III: each model scored on the challenging scenes generated against each model (train
+    split), and on the normal scenes they came from."""
+    rows, counts = [], set()
+    for source in MODELS:
+        _challenging(source, "train", run)
+    for target in MODELS:
+        normal = _evaluate(target, "normal", run)
+        rows.append({"source": "normal", "target": target, "ap": normal["ap"], "paper": None})
+        for source in MODELS:
+            res = _evaluate(target, f"challenging-{source}-train", run)
+            counts.add(res["frames"])
+            rows.append({"source": source, "target": target, "ap": res["ap"],
+                         "paper": paper.TRANSFER.get((source, target))})
+    return rows, min(counts)
+
+
+def acs_table(run: TableRun) -> tuple[list[dict], int]:
+    """Table IV: collaborator search alone (no perturbation): random (ACS-R) against attention (ACS-A)."""
+    rows, counts = [], set()
+    for model in MODELS:
+        random_ = _generator_run(run, model, acs="random", search="bo", aps=False)
+        attention = _generator_run(run, model, acs="attention", search="bo", aps=False)
+        counts.add(attention["scenes"])
+        rows.append({"model": model, "normal": attention["normal"], "acs_random": random_["challenging"],
+                     "acs_attention": attention["challenging"],
+                     "paper": None if model not in paper.ACS else
+                     dict(zip(("normal", "acs_random", "acs_attention"),
+                              ({"0.3": None, "0.5": None, "0.7": round(v / 100, 4)} for v in paper.ACS[model])))})
+    return rows, min(counts)
+
+
+def ablation_table(run: TableRun) -> tuple[list[dict], int]:
+    """Table V: AttFuse with neither, either or both of ACS and APS (BO)."""
+    acs_only = _generator_run(run, "attfuse", acs="attention", search="bo", aps=False)
+    aps_only = _generator_run(run, "attfuse", acs="off", search="bo", aps=True)
+    both = _challenging("attfuse", "train", run)
+    rows = [{"acs": False, "aps": False, "ap": acs_only["normal"]},
+            {"acs": True, "aps": False, "ap": acs_only["challenging"]},
+            {"acs": False, "aps": True, "ap": aps_only["challenging"]},
+            {"acs": True, "aps": True, "ap": both["challenging"]}]
+    for row in rows:
+        row["paper"] = {"0.3": None, "0.5": None, "0.7": round(paper.ABLATION[(row["acs"], row["aps"])] / 100, 4)}
+    return rows, min(acs_only["scenes"], aps_only["scenes"], both["scenes"])
+
+
+def blackbox_table(run: TableRun) -> tuple[list[dict], int]:
+    """Table VI: the black-box searches alone (APS without ACS) on AttFuse, same scenes and budget."""
+    runs = {search: _generator_run(run, "attfuse", acs="off", search=search, aps=True) for search in ("rs", "ga", "bo")}
+    rows = [{"search": "normal", "ap": runs["bo"]["normal"], "paper": paper.BLACKBOX["normal"]}]
+    rows += [{"search": s, "ap": r["challenging"], "paper": paper.BLACKBOX[s]} for s, r in runs.items()]
+    return rows, min(r["scenes"] for r in runs.values())
+
+
+_BUILDERS = {"main": main_table, "finetune": finetune_table, "transfer": transfer_table, "acs": acs_table,
+             "ablation": ablation_table, "blackbox": blackbox_table}
+
+
+# ---- shared measurements -------------------------------------------------------------------------------
+def _challenging(model: str, split: str, run: TableRun) -> dict:
+    """{"scenes", "normal", "challenging"}: the model's challenging set of ``split`` (built or
+    resumed), pooled over its first ``run.scenes`` scenes."""
+    from ..challenging import build_challenging, first_scenes_ap
+
+    out = build_challenging(model, split, run.executor, count=run.scenes, detector_factory=run.detector_factory)
+    return first_scenes_ap(out, run.scenes)
+
+
+def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
+    from ..perception.evaluate import evaluate
+
+    res = evaluate(model, set_name, limit=run.scenes, executor=run.executor, detector_factory=run.detector_factory)
+    return {"ap": {k: round(v, 6) for k, v in res["ap"].items()}, "frames": res["frames"]}
+
+
+def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: bool) -> dict:
+    """{"scenes", "normal", "challenging"} of one generator configuration on the first scenes of
+    normal's train split (an ``asg generate`` folder under OUT/runs/, resumed if there)."""
+    from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+    from ..pipeline import load_generate_config
+
+    cfg = load_generate_config(fusion=model, acs=acs, search=search, aps=aps)
+    source = SceneSource(scenes=Path("normal"))
+    run_dir = run.out / "runs" / f"{model}-acs_{acs}-{search if aps else 'no_aps'}"
+    scenes = load_scenes(source, run.scenes or 10**6, run.seed, run_dir / ".work")
+    settings = run_settings(cfg, run.seed, len(scenes), source.describe() | {"detector": run.detector_factory})
+    prepare_run(run_dir, settings)
+    agg = generate(cfg, scenes, run_dir, seed=run.seed, detector_factory=run.detector_factory,
+                   executor=run.executor, artifacts=False).summary["aggregate"]
+    return {"scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
+
+
+# ---- output ---------------------------------------------------------------------------------------------
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
+                              cwd=Path(__file__).resolve().parent, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        from .. import __version__
+
+        return f"asg {__version__} (not a git checkout)"
+
+
+def _machine() -> str:
+    return f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}"
+
+
+def _flat(row: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in row.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}_"))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def to_csv(rows: list[dict]) -> str:
+    """One line a row; nested AP columns flattened (``normal_0.7``, ``paper_challenging_0.7``)."""
+    flat = [_flat(r) for r in rows]
+    columns = list(dict.fromkeys(k for r in flat for k in r))
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(flat)
+    return buf.getvalue()
+
+
+def _pct(ap: dict | None, key: str = "0.7") -> str:
+    return "" if not ap or ap.get(key) is None else f"{100 * ap[key]:.1f}"
+
+
+def _triple(ap: dict | None) -> str:
+    if not ap:
+        return ""
+    if all(ap.get(t) is not None for t in THRESHOLDS):
+        return " / ".join(_pct(ap, t) for t in THRESHOLDS)
+    return _pct(ap)
+
+
+def to_markdown(result: dict) -> str:
+    """The table as markdown (AP in %, ours beside the paper's) under the command that made it."""
+    head = (f"`{result['command']}`: {result['scenes']} scenes, {result['seconds']:.0f} s, commit {result['commit']}, "
+            f"{result['machine']}; detector {result['detector']}. AP@0.3 / 0.5 / 0.7 in %.\n\n")
+    return head + _MD[result["table"]](result["rows"]) + "\n"
+
+
+def _md_table(header: list[str], lines: list[list[str]]) -> str:
+    return "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] +
+                     ["| " + " | ".join(line) + " |" for line in lines])
+
+
+def _md_main(rows):
+    return _md_table(["model", "normal", "challenging", "drop @0.7", "paper normal", "paper challenging", "paper drop @0.7"],
+                     [[r["model"], _triple(r["normal"]), _triple(r["challenging"]),
+                       f"{100 * (r['normal']['0.7'] - r['challenging']['0.7']):.1f}", _triple(r["paper"]["normal"]),
+                       _triple(r["paper"]["challenging"]),
+                       f"{100 * (r['paper']['normal']['0.7'] - r['paper']['challenging']['0.7']):.1f}"] for r in rows])
+
+
+def _md_finetune(rows):
+    return _md_table(["model", "set", "frames", "AP", "paper AP@0.7"],
+                     [[r["model"], r["set"], str(r["frames"]), _triple(r["ap"]), _pct(r["paper"])] for r in rows])
+
+
+def _md_transfer(rows):
+    sources = list(dict.fromkeys(r["source"] for r in rows))
+    targets = list(dict.fromkeys(r["target"] for r in rows))
+    cell = {(r["source"], r["target"]): r for r in rows}
+
+    def show(s, t):
+        r = cell[(s, t)]
+        text = _pct(r["ap"]) + (f" ({_pct(r['paper'])})" if r["paper"] else "")
+        return f"**{text}**" if s == t else text
+    return ("AP@0.7 of each target (row) on the scenes generated against each source (column); the paper's in "
+            "parentheses.\n\n" + _md_table(["target \\ source", *sources], [[t, *[show(s, t) for s in sources]] for t in targets]))
+
+
+def _md_acs(rows):
+    def cell(r, k):
+        return _pct(r[k]) + (f" ({_pct(r['paper'][k])})" if r["paper"] else "")
+    return ("AP@0.7; the paper's in parentheses.\n\n" +
+            _md_table(["model", "normal", "ACS-R", "ACS-A"],
+                      [[r["model"], cell(r, "normal"), cell(r, "acs_random"), cell(r, "acs_attention")] for r in rows]))
+
+
+def _md_ablation(rows):
+    mark = lambda b: "yes" if b else ""
+    return _md_table(["ACS", "APS", "AP", "paper AP@0.7"],
+                     [[mark(r["acs"]), mark(r["aps"]), _triple(r["ap"]), _pct(r["paper"])] for r in rows])
+
+
+def _md_blackbox(rows):
+    return _md_table(["search", "AP", "paper"], [[r["search"], _triple(r["ap"]), _triple(r["paper"])] for r in rows])
+
+
+_MD = {"main": _md_main, "finetune": _md_finetune, "transfer": _md_transfer, "acs": _md_acs, "ablation": _md_ablation,
+       "blackbox": _md_blackbox}

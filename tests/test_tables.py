@@ -1,0 +1,90 @@
+"""``asg bench paper --table ...``: every table end to end on 2 scenes with the fake detector, in
+the documented schema (docs/results/tables.md), with the paper's numbers beside ours."""
+import csv
+import gzip
+import io
+import json
+
+import pytest
+
+from asg.benchmarks.tables import TABLES
+from asg.cli import main
+
+from test_cli import assert_one_line_error, run
+from test_robustness import _scene_dict
+
+AP_KEYS = {"0.3", "0.5", "0.7"}
+
+
+def _write_set(root, name, splits):
+    folder = root / name
+    folder.mkdir(parents=True)
+    ids = [i for ids in splits.values() for i in ids]
+    with gzip.open(folder / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
+        for sid in ids:
+            fh.write(json.dumps(_scene_dict(sid)) + "\n")
+    (folder / "index.json").write_text(json.dumps({"name": name, "frames": len(ids), "splits": splits}))
+
+
+@pytest.fixture
+def data_root(tmp_path, monkeypatch):
+    """A tiny 'normal' set (3 train, 3 val scenes) and 'heuristic' set (2 scenes)."""
+    root = tmp_path / "data"
+    _write_set(root, "normal", {"train": ["t0", "t1", "t2"], "val": ["v0", "v1", "v2"]})
+    _write_set(root, "heuristic", {"test": ["h0", "h1"]})
+    monkeypatch.setenv("ASG_DATA", str(root))
+    return root
+
+
+def _is_ap(d):
+    return isinstance(d, dict) and set(d) == AP_KEYS and all(0.0 <= v <= 1.0 for v in d.values())
+
+
+def test_every_table_end_to_end(capsys, tmp_path, data_root):
+    out = tmp_path / "tables"
+    argv = ["bench", "paper", "--table", "all", "--scenes", "2", "--detector", "fakes:oracle_factory",
+            "--workers", "1", "--out", str(out), "--json"]
+    assert main(argv) == 0
+    printed = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.strip()]
+    assert [p["table"] for p in printed] == list(TABLES)
+    for name in TABLES:
+        result = json.loads((out / f"{name}.json").read_text())
+        assert {"command", "scenes", "seconds", "commit", "rows"} <= set(result)
+        assert result["command"] == "asg " + " ".join(argv) and result["scenes"] == 2
+        rows = list(csv.DictReader(io.StringIO((out / f"{name}.csv").read_text())))
+        assert len(rows) == len(result["rows"]) > 0
+        md = (out / f"{name}.md").read_text()
+        assert result["command"] in md and md.count("\n|") >= 3
+    tables = {name: json.loads((out / f"{name}.json").read_text())["rows"] for name in TABLES}
+    main_rows = tables["main"]
+    assert [r["model"] for r in main_rows] == ["none", "late", "early", "attfuse"]
+    assert all(_is_ap(r["normal"]) and _is_ap(r["challenging"]) for r in main_rows)
+    assert main_rows[3]["paper"]["challenging"]["0.7"] == pytest.approx(0.405)
+    ft = tables["finetune"]
+    assert {(r["model"], r["set"]) for r in ft} == {(m, s) for m in ("attfuse", "attfuse-ft")
+                                                    for s in ("normal-val", "heuristic", "challenging-val", "own-attack-val")}
+    assert all(_is_ap(r["ap"]) for r in ft)
+    transfer = tables["transfer"]
+    assert {(r["source"], r["target"]) for r in transfer} == {(s, t) for s in ("normal", "none", "late", "early", "attfuse")
+                                                              for t in ("none", "late", "early", "attfuse")}
+    # the target scored on its own challenging scenes is what the generator measured on them
+    own = {r["target"]: r["ap"] for r in transfer if r["source"] == r["target"]}
+    assert all(own[r["model"]] == pytest.approx(r["challenging"], abs=1e-6) for r in main_rows)
+    assert all({"model", "normal", "acs_random", "acs_attention"} <= set(r) for r in tables["acs"])
+    assert [(r["acs"], r["aps"]) for r in tables["ablation"]] == [(False, False), (True, False), (False, True), (True, True)]
+    assert [r["search"] for r in tables["blackbox"]] == ["normal", "rs", "ga", "bo"]
+    # a rerun reuses every challenging set and generator run: the same numbers
+    assert main(argv) == 0
+    capsys.readouterr()
+    again = {name: json.loads((out / f"{name}.json").read_text())["rows"] for name in TABLES}
+    assert again == tables
+
+
+def test_bad_table_requests_are_one_line(capsys, tmp_path, data_root):
+    for argv, needle in ((["bench", "paper", "--table", "mian"], "unknown table"),
+                         (["bench", "paper", "--table", "main", "--budget", "5"], "--budget"),
+                         (["bench", "paper", "--table", "main", "--detector", "nowhere:f"], "cannot be loaded"),
+                         (["bench", "paper", "--detector", "fakes:oracle_factory"], "--table")):
+        code, err = run(capsys, *argv, "--out", str(tmp_path / "o"))
+        assert code == 2, argv
+        assert_one_line_error(err, needle)
