@@ -26,3 +26,14 @@ def test_heuristic_spec_is_held_out_and_never_trains():
     heuristic, train, normal = load_spec("heuristic"), load_spec("detector-train"), load_spec("normal")
     assert not set(heuristic.towns) & set(train.towns) and len(heuristic.towns) >= 4
     assert "suburb" not in normal.towns and heuristic.split == "test" and heuristic.max_logs == 14
+
+
+def test_holdout_town_is_in_no_other_set():
+    import yaml
+
+    from sumo_scenarios.paths import configs_dir
+
+    names = list(yaml.safe_load((configs_dir() / "datasets.yaml").read_text()))
+    holdout = load_spec("holdout")
+    others = {t for name in names if name != "holdout" for t in load_spec(name).towns}
+    assert holdout.towns and not set(holdout.towns) & others and holdout.split == "test"

@@ -15,7 +15,7 @@ from .fusion import V2XDetector, build_detector
 
 #: --set names: the normal set's splits (the paper attacks its train split, reports fine-tuning on val)
 SETS = {"normal": ("normal", "train"), "normal-val": ("normal", "val"), "normal-all": ("normal", None),
-        "heuristic": ("heuristic", None)}
+        "heuristic": ("heuristic", None), "holdout": ("holdout", None)}
 
 
 def scenes_of(set_name: str) -> Iterator[Scene]:
