@@ -149,6 +149,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fit only the IoU and box-refinement branches on the frozen shipped weights "
                         "(train.yaml's iou_branch block; about 10 minutes)")
 
+    p = _add(sub, "export", "write scenes for other tools: OPV2V (OpenCOOD), KITTI (OpenPCDet), OpenSCENARIO "
+             "1.2 + OpenDRIVE, SUMO routes", commands.export)
+    p.add_argument("source", help="a run folder of 'asg generate', a data set (name or folder) or a folder of scene yaml")
+    p.add_argument("--format", required=True, choices=["opv2v", "kitti", "openscenario", "sumo"])
+    p.add_argument("--out", type=Path, required=True, help="folder to write (nothing is written outside it)")
+    p.add_argument("--net", type=Path, default=None,
+                   help="openscenario, sumo: the SUMO net of scenes from a net that is not a bundled town")
+
     p = _add(sub, "finetune", "train a detector further on its challenging scenes, then evaluate it before and "
              "after and attack it again (runs/finetune/FUSION-ft/)", commands.finetune)
     p.add_argument("--fusion", required=True, help="the model to fine-tune: attfuse, early, none or late")

@@ -231,6 +231,16 @@ def train(args: argparse.Namespace) -> int:
     return 0
 
 
+def export(args: argparse.Namespace) -> int:
+    from .io.export import export as run
+
+    with progress_bar() as bar:
+        task = bar.add_task(f"exporting {args.format}", total=None)
+        n = run(args.source, args.format, args.out, net=args.net, progress=lambda i: bar.update(task, completed=i))
+    console.print(f"wrote {n} scenes as {args.format} to {args.out}")
+    return 0
+
+
 def finetune(args: argparse.Namespace) -> int:
     from .executors import build_executor
     from .perception.finetune import finetune as run

@@ -47,3 +47,22 @@ def read_pcd(path: str | Path) -> np.ndarray:
         raise InputError(f"{path}: only binary PCD with fields {' '.join(FIELDS)} is supported")
     n = int(header["POINTS"])
     return np.frombuffer(data[pos:pos + 16 * n], dtype=np.float32).reshape(n, 4).copy()
+
+
+def write_pcd_rgb_intensity(path: str | Path, points: np.ndarray) -> None:
+    """Write (N, 4) x, y, z, intensity as binary PCD with fields x y z rgb, the intensity (clipped to
+    [0, 1]) in every colour channel: OpenCOOD's OPV2V loader reads intensity from Open3D's first
+    colour channel and ignores an ``intensity`` field. Written atomically."""
+    pts = np.asarray(points, dtype=np.float32).reshape(-1, 4)
+    level = np.round(np.clip(pts[:, 3], 0.0, 1.0) * 255.0).astype(np.uint32)
+    packed = ((level << 16) | (level << 8) | level).view(np.float32)
+    data = np.column_stack([pts[:, :3], packed]).astype(np.float32)
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\n"
+        "VERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+        f"WIDTH {len(data)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(data)}\nDATA binary\n"
+    )
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(header.encode("ascii"))
+            fh.write(np.ascontiguousarray(data).tobytes())

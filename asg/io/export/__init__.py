@@ -1,0 +1,70 @@
+"""``asg export SOURCE --format opv2v|kitti|openscenario|sumo --out DIR``: scenes other tools read.
+
+SOURCE is an ``asg generate`` run folder (its final scenes), a data set (a name such as
+``challenging-attfuse-val`` or a folder with index.json) or a folder of scene yaml. Every scene is
+rendered with the v2xp LiDAR (what the detectors saw) where the format holds point clouds. File
+names come from scene ids, which are checked safe on load; nothing is written outside DIR, and
+each file is written atomically. Formats and their conventions: docs/export.md.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Iterator
+
+from sumo_scenarios.errors import InputError
+
+from ...scene import Scene, load_scene
+
+FORMATS = ("opv2v", "kitti", "openscenario", "sumo")
+
+
+def source_scenes(source: Path | str) -> Iterator[Scene]:
+    """The scenes of ``source``: a run folder's final scenes, a data set, or scene yaml files."""
+    p = Path(source)
+    if (p / "scenes").is_dir() and (p / "run.json").is_file():
+        finals = sorted(p.glob("scenes/*/final.yaml"))
+        if not finals:
+            raise InputError(f"{p}: a run folder with no finished scene; run 'asg generate' into it first")
+        return (load_scene(f) for f in finals)
+    from ...perception.evaluate import scenes_of
+
+    return scenes_of(str(source))
+
+
+def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
+           progress: Callable[[int], None] | None = None) -> int:
+    """Write every scene of ``source`` in format ``fmt`` under ``out``; returns the scene count."""
+    if fmt not in FORMATS:
+        raise InputError(f"unknown format '{fmt}'; choose one of {', '.join(FORMATS)}")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file; give a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    from . import kitti, openscenario, opv2v, sumo
+
+    writer = {"opv2v": opv2v.ScenarioWriter, "kitti": kitti.KittiWriter, "openscenario": openscenario.XoscWriter,
+              "sumo": sumo.RoutesWriter}[fmt](out, net)
+    n = 0
+    for n, scene in enumerate(source_scenes(source), start=1):
+        writer.write(scene)
+        if progress:
+            progress(n)
+    writer.close()
+    if n == 0:
+        raise InputError(f"{source}: no scenes to export")
+    return n
+
+
+def net_of(scene: Scene, net: Path | None) -> Path:
+    """The SUMO net a scene was taken from: ``net`` if given, else the bundled town of that name."""
+    from sumo_scenarios.paths import nets_dir
+
+    if net is not None:
+        if not Path(net).is_file():
+            raise InputError(f"--net {net}: file not found")
+        return Path(net)
+    bundled = nets_dir() / f"{scene.town}.net.xml"
+    if not bundled.is_file():
+        raise InputError(f"scene {scene.scene_id} comes from '{scene.town}', which is not a bundled town; "
+                         "give its SUMO net with --net PATH")
+    return bundled

@@ -1,0 +1,107 @@
+"""KITTI object layout (as OpenPCDet reads it) of each scene's ego view with every sensing agent's
+cloud fused: ``DIR/training/{velodyne,label_2,calib}/NNNNNN.*`` and ``DIR/ImageSets/val.txt``.
+
+- ``velodyne/NNNNNN.bin``: float32 x, y, z, intensity of the fused cloud in the ego's sensor frame
+  (x forward, y left, z up: KITTI's velodyne frame), 360 degrees.
+- ``label_2/NNNNNN.txt``: every vehicle within the evaluation range (the ground truth the AP of
+  asg counts), class ``Car`` (``Truck`` for truck and bus types), in the rectified camera frame of
+  ``calib`` (x right, y down, z forward): dimensions h w l, location = the box's bottom centre,
+  rotation_y = -yaw - pi/2 (OpenPCDet's conversion). There is no camera: the 2D box is the
+  projection with KITTI's P2 clipped to its 1242 x 375 image, or 0 0 0 0 outside it; truncation 0;
+  occlusion from the fused points in the box (0: 50 or more, 1: 10 to 49, 2: 1 to 9, 3: none).
+  Labels cover 360 degrees: turn OpenPCDet's FOV_POINTS_ONLY off.
+- ``calib/NNNNNN.txt``: KITTI's P0-P3, R0_rect = I, Tr_velo_to_cam the axis swap velo -> camera.
+``DIR/ids.yaml`` maps each NNNNNN to its scene id.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from sumo_scenarios.atomic import atomic_path, write_text_atomic
+
+from ...perception.data import in_range
+from ...scene import Scene
+from ...sensors import load_lidar_spec, simulate_frame
+
+#: KITTI's left colour camera intrinsics (sequence 0000 of the object benchmark) and image size
+P2 = np.array([[721.5377, 0.0, 609.5593, 44.85728], [0.0, 721.5377, 172.854, 0.2163791], [0.0, 0.0, 1.0, 0.002745884]])
+IMAGE_WH = (1242, 375)
+#: velodyne (x forward, y left, z up) -> camera (x right, y down, z forward)
+TR_VELO_TO_CAM = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0]])
+#: fused points in a box -> KITTI occlusion level: at least 50, 10, 1 points, or none
+OCCLUSION_POINTS = (50, 10, 1)
+
+
+class KittiWriter:
+    def __init__(self, out: Path, net: Path | None = None):
+        self.out = out
+        self.spec = load_lidar_spec("v2xp")
+        for sub in ("velodyne", "label_2", "calib"):
+            (out / "training" / sub).mkdir(parents=True, exist_ok=True)
+        (out / "ImageSets").mkdir(exist_ok=True)
+        self.ids: dict[str, str] = {}
+
+    def write(self, scene: Scene) -> None:
+        name = f"{len(self.ids):06d}"
+        frame = simulate_frame(scene, self.spec)
+        fused = np.vstack(frame.clouds_in_frame_of(frame.ego_id)).astype(np.float32)
+        with atomic_path(self.out / "training" / "velodyne" / f"{name}.bin") as tmp:
+            fused.tofile(tmp)
+        boxes = frame.ego_boxes
+        keep = in_range(boxes)
+        points = frame.points_in_boxes()["fused"][keep] if len(boxes) else np.zeros(0, int)
+        types = [scene.agent(i).type_id for i, k in zip(frame.gt_ids, keep) if k]
+        lines = [label_line(b, t, int(n)) for b, t, n in zip(boxes[keep], types, points)]
+        write_text_atomic(self.out / "training" / "label_2" / f"{name}.txt", "".join(lines))
+        write_text_atomic(self.out / "training" / "calib" / f"{name}.txt", calib_text())
+        self.ids[name] = scene.scene_id
+
+    def close(self) -> None:
+        write_text_atomic(self.out / "ImageSets" / "val.txt", "".join(f"{n}\n" for n in self.ids))
+        write_text_atomic(self.out / "ids.yaml", yaml.safe_dump(self.ids))
+
+
+def label_line(box: np.ndarray, type_id: str, points: int) -> str:
+    """One KITTI label line for ``box`` (x, y, z, l, w, h, yaw; velodyne frame, z the centre)."""
+    x, y, z, length, width, height, yaw = (float(v) for v in box)
+    bottom_cam = TR_VELO_TO_CAM @ np.array([x, y, z - height / 2, 1.0])
+    rotation_y = _wrap(-yaw - math.pi / 2)
+    alpha = _wrap(rotation_y - math.atan2(bottom_cam[0], bottom_cam[2]))
+    cls = "Truck" if any(k in type_id.lower() for k in ("truck", "bus")) else "Car"
+    occluded = next((level for level, n in enumerate(OCCLUSION_POINTS) if points >= n), 3)
+    left, top, right, bottom = image_box(box)
+    return (f"{cls} 0.00 {occluded} {alpha:.2f} {left:.2f} {top:.2f} {right:.2f} {bottom:.2f} "
+            f"{height:.2f} {width:.2f} {length:.2f} {bottom_cam[0]:.2f} {bottom_cam[1]:.2f} {bottom_cam[2]:.2f} "
+            f"{rotation_y:.2f}\n")
+
+
+def image_box(box: np.ndarray) -> tuple[float, float, float, float]:
+    """The box's 8 corners projected with P2 and clipped to the image; zeros if any corner is
+    behind the camera or the box is outside the image."""
+    x, y, z, length, width, height, yaw = (float(v) for v in box)
+    dx, dy, dz = np.meshgrid([-length / 2, length / 2], [-width / 2, width / 2], [-height / 2, height / 2])
+    c, s = math.cos(yaw), math.sin(yaw)
+    corners = np.stack([x + c * dx.ravel() - s * dy.ravel(), y + s * dx.ravel() + c * dy.ravel(), z + dz.ravel(),
+                        np.ones(8)])
+    cam = TR_VELO_TO_CAM @ corners
+    if np.any(cam[2] <= 0.1):
+        return 0.0, 0.0, 0.0, 0.0
+    uvw = P2 @ np.vstack([cam, np.ones(8)])
+    u, v = uvw[0] / uvw[2], uvw[1] / uvw[2]
+    left, right = np.clip([u.min(), u.max()], 0, IMAGE_WH[0] - 1)
+    top, bottom = np.clip([v.min(), v.max()], 0, IMAGE_WH[1] - 1)
+    return (0.0, 0.0, 0.0, 0.0) if right <= left or bottom <= top else (left, top, right, bottom)
+
+
+def calib_text() -> str:
+    row = lambda m: " ".join(f"{v:.12e}" for v in np.asarray(m).ravel())
+    return "".join([f"P{i}: {row(P2)}\n" for i in range(4)] + [f"R0_rect: {row(np.eye(3))}\n",
+                   f"Tr_velo_to_cam: {row(TR_VELO_TO_CAM)}\n", f"Tr_imu_to_velo: {row(np.eye(4)[:3])}\n"])
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi

@@ -1,0 +1,107 @@
+"""SUMO route files that continue the traffic from each final scene: ``DIR/SCENE.rou.xml`` and
+``DIR/SCENE.sumocfg`` (net: the scene's town, referenced by absolute path).
+
+Every vehicle departs at time 0 on the lane it stands on (the nearest normal lane when it stands
+inside a junction or off its recorded lane after a move), at its position along that lane (SUMO's
+``departPos`` is the vehicle's front), with its speed and without SUMO's insertion checks (the scene
+is plausible already: the vehicles stand where the scene has them), on a route that starts with that edge and
+follows the first permitted connection onward for up to ``ROUTE_EDGES`` edges; its vType carries
+its length, width and height. Roadside units are not traffic and are left out. Read the files with
+sumolib or run them: ``sumo -c DIR/SCENE.sumocfg``.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from sumo_scenarios.atomic import write_text_atomic
+from sumo_scenarios.checks import inside
+from sumo_scenarios.errors import InputError
+
+from ...scene import Scene
+from . import net_of
+
+#: edges on each vehicle's route (its own, then the first permitted successors)
+ROUTE_EDGES = 12
+#: search radius for a vehicle's lane, metres
+LANE_SEARCH_M = 10.0
+
+
+class RoutesWriter:
+    def __init__(self, out: Path, net: Path | None = None):
+        self.out = out
+        self.net = net
+        self.nets: dict[str, object] = {}
+
+    def write(self, scene: Scene) -> None:
+        net_path = net_of(scene, self.net)
+        net = self._net(net_path)
+        types, vehicles = {}, []
+        for agent in sorted(scene.vehicles, key=lambda a: a.agent_id):
+            lane, pos = _place(net, agent)
+            types.setdefault(agent.type_id, agent)
+            edges = _route(lane.getEdge())
+            vehicles.append(
+                f'    <vehicle id={quoteattr(agent.agent_id)} type={quoteattr(agent.type_id)} depart="0.00" '
+                f'departLane="{lane.getIndex()}" departPos="{pos:.2f}" departSpeed="{max(agent.speed_mps, 0.0):.2f}" '
+                f'insertionChecks="none">\n'
+                f'        <route edges={quoteattr(" ".join(e.getID() for e in edges))}/>\n    </vehicle>')
+        vtypes = [f'    <vType id={quoteattr(t)} length="{a.length_m:.2f}" width="{a.width_m:.2f}" '
+                  f'height="{a.height_m:.2f}"/>' for t, a in sorted(types.items())]
+        routes = inside(self.out, self.out / f"{scene.scene_id}.rou.xml")
+        write_text_atomic(routes, "<routes>\n" + "\n".join(vtypes + vehicles) + "\n</routes>\n")
+        write_text_atomic(inside(self.out, self.out / f"{scene.scene_id}.sumocfg"), (
+            "<configuration>\n    <input>\n"
+            f"        <net-file value={quoteattr(str(net_path.resolve()))}/>\n"
+            f"        <route-files value={quoteattr(routes.name)}/>\n"
+            "    </input>\n    <time>\n        <begin value=\"0\"/>\n    </time>\n</configuration>\n"))
+
+    def _net(self, path: Path):
+        import sumolib
+
+        key = str(path.resolve())
+        if key not in self.nets:
+            try:
+                self.nets[key] = sumolib.net.readNet(str(path))
+            except Exception as exc:  # sumolib raises several types for broken nets
+                raise InputError(f"{path}: not a readable SUMO net ({type(exc).__name__}); check --net") from None
+        return self.nets[key]
+
+    def close(self) -> None:
+        pass
+
+
+def _place(net, agent):
+    """(lane, departPos) for ``agent``: its recorded lane if it is a normal lane within reach, else
+    the nearest normal lane that allows passenger cars; departPos = front of the vehicle."""
+    front_xy = (agent.x_m + math.cos(agent.yaw_rad) * agent.length_m / 2,
+                agent.y_m + math.sin(agent.yaw_rad) * agent.length_m / 2)
+    candidates = [(lane, d) for lane, d in net.getNeighboringLanes(agent.x_m, agent.y_m, LANE_SEARCH_M)
+                  if lane.allows("passenger")]
+    if not candidates:
+        raise InputError(f"vehicle {agent.agent_id}: no lane within {LANE_SEARCH_M:g} m in the net; "
+                         "give the scene's own net with --net")
+    own = [c for c in candidates if c[0].getID() == agent.lane_id]
+    lane = (own or sorted(candidates, key=lambda c: (c[1], _heading_gap(c[0], agent))))[0][0]
+    pos, _ = lane.getClosestLanePosAndDist(front_xy)
+    return lane, min(max(pos, agent.length_m), lane.getLength())
+
+
+def _heading_gap(lane, agent) -> float:
+    shape = lane.getShape()
+    (x0, y0), (x1, y1) = shape[0], shape[-1]
+    gap = math.atan2(y1 - y0, x1 - x0) - agent.yaw_rad
+    return abs((gap + math.pi) % (2 * math.pi) - math.pi)
+
+
+def _route(edge) -> list:
+    """``edge`` then the first permitted successor of each, up to ROUTE_EDGES edges, no repeats."""
+    edges = [edge]
+    while len(edges) < ROUTE_EDGES:
+        onward = [e for e in edge.getOutgoing() if e not in edges and e.allows("passenger")]
+        if not onward:
+            break
+        edge = sorted(onward, key=lambda e: e.getID())[0]
+        edges.append(edge)
+    return edges

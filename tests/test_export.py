@@ -1,0 +1,161 @@
+"""``asg export``: each format read back by a reader that is not ours (Open3D as OpenCOOD reads PCD,
+OpenCOOD's box projection for the OPV2V yaml, numpy and OpenPCDet's conversion for KITTI, the
+ASAM XML schema for OpenSCENARIO, sumolib and SUMO itself for the routes); unsafe input refused."""
+import math
+from itertools import islice
+
+import numpy as np
+import pytest
+import yaml
+
+from asg.cli import main
+from asg.io.export import export
+from asg.io.export.kitti import TR_VELO_TO_CAM
+from asg.io.export.opv2v import opv2v_ids
+from asg.perception.data import in_range
+from asg.scene import save_scene
+from asg.scene.from_log import ExtractParams, extract_scenes
+from asg.sensors import load_lidar_spec, simulate_frame
+
+from opencood_reader import boxes_from_opv2v_yaml, pcd_to_np
+from test_cli import assert_one_line_error, run
+
+
+@pytest.fixture(scope="module")
+def scenes_dir(sumo_log, tmp_path_factory):
+    """Two scenes of grid_small: one with an RSU ego, one with a vehicle ego, 2 collaborators each."""
+    out = tmp_path_factory.mktemp("export_scenes")
+    rsu = next(extract_scenes(sumo_log, ExtractParams(every=20, ego="rsu", min_vehicles=5, collaborators=2)))
+    veh = next(islice(extract_scenes(sumo_log, ExtractParams(every=20, ego="vehicle", min_vehicles=5, collaborators=2)), 1, None))
+    for scene in (rsu, veh):
+        save_scene(scene, out / f"{scene.scene_id}.yaml")
+    return out, (rsu, veh)
+
+
+def _wrap(a):
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _assert_same_boxes(got, want, atol):
+    """Each box of ``want`` (M, 7) has its own box in ``got`` at its centre, equal within ``atol``."""
+    got, want = np.asarray(got, float), np.asarray(want, float)
+    assert got.shape == want.shape and len(want) > 0
+    for b in want:
+        a = got[np.argmin(np.hypot(got[:, 0] - b[0], got[:, 1] - b[1]))]
+        assert np.allclose(a[:6], b[:6], atol=atol) and abs(_wrap(a[6] - b[6])) < atol, (a, b)
+
+
+def test_opv2v_reads_back_as_opencood_reads_it(scenes_dir, tmp_path):
+    folder, scenes = scenes_dir
+    assert export(folder, "opv2v", tmp_path) == 2
+    spec = load_lidar_spec("v2xp")
+    for scene in scenes:
+        frame = simulate_frame(scene, spec)
+        ids = opv2v_ids(scene)
+        scenario = tmp_path / scene.scene_id
+        agents = sorted(p.name for p in scenario.iterdir() if p.is_dir())
+        assert sorted(agents) == sorted(str(ids[a]) for a in frame.sensing_ids)
+        if scene.ego.kind == "vehicle":  # OpenCOOD's ego: the first folder once an RSU is moved last
+            order = agents[1:] + agents[:1] if int(agents[0]) < 0 else agents
+            assert order[0] == str(ids[scene.ego_id])
+        for agent_id in frame.sensing_ids:
+            meta = yaml.safe_load((scenario / str(ids[agent_id]) / "000000.yaml").read_text())
+            cloud = pcd_to_np(scenario / str(ids[agent_id]) / "000000.pcd")
+            ours = frame.clouds[agent_id]
+            assert cloud.shape == ours.shape
+            assert np.allclose(cloud[:, 0], ours[:, 0], atol=1e-4) and np.allclose(cloud[:, 1], -ours[:, 1], atol=1e-4)
+            assert np.allclose(cloud[:, 3], np.clip(ours[:, 3], 0, 1), atol=1 / 255 + 1e-6)
+            # OpenCOOD's projection of the yaml's vehicles into this agent's lidar frame = our
+            # ground truth in that frame, mirrored (y -> -y, yaw -> -yaw)
+            boxes = boxes_from_opv2v_yaml(meta["vehicles"], meta["lidar_pose"])
+            truth = frame.boxes_in(agent_id)
+            truth = truth[np.asarray(frame.gt_ids) != agent_id]
+            if frame.ego_box_world is not None and agent_id != frame.ego_id:
+                from asg.sensors.frame import boxes_to_sensor
+
+                truth = np.vstack([truth, boxes_to_sensor(frame.ego_box_world[None], frame.poses[agent_id])])
+            mirrored = truth.copy()
+            mirrored[:, 1] *= -1
+            mirrored[:, 6] *= -1
+            _assert_same_boxes(boxes, mirrored, atol=1e-3)
+
+
+def test_kitti_labels_convert_back_to_the_ego_ground_truth(scenes_dir, tmp_path):
+    folder, scenes = scenes_dir
+    export(folder, "kitti", tmp_path)
+    ids = yaml.safe_load((tmp_path / "ids.yaml").read_text())
+    assert (tmp_path / "ImageSets" / "val.txt").read_text().split() == sorted(ids)
+    spec = load_lidar_spec("v2xp")
+    for name, scene_id in ids.items():
+        scene = next(s for s in scenes if s.scene_id == scene_id)
+        frame = simulate_frame(scene, spec)
+        points = np.fromfile(tmp_path / "training" / "velodyne" / f"{name}.bin", dtype=np.float32).reshape(-1, 4)
+        assert len(points) == sum(len(c) for c in frame.clouds.values())
+        # OpenPCDet: location (bottom centre, camera) -> lidar, z to the centre, yaw = -(ry + pi/2)
+        back = []
+        for line in (tmp_path / "training" / "label_2" / f"{name}.txt").read_text().splitlines():
+            f = line.split()
+            assert f[0] in ("Car", "Truck") and len(f) == 15
+            h, w, l_, x, y, z, ry = map(float, f[8:15])
+            velo = np.linalg.lstsq(TR_VELO_TO_CAM[:, :3], np.array([x, y, z]), rcond=None)[0]
+            back.append([velo[0], velo[1], velo[2] + h / 2, l_, w, h, -(ry + math.pi / 2)])
+        _assert_same_boxes(back, frame.ego_boxes[in_range(frame.ego_boxes)], atol=0.011)
+
+
+def test_openscenario_validates_against_the_schema(scenes_dir, tmp_path):
+    import xmlschema
+    import scenariogeneration
+    from pathlib import Path
+
+    folder, scenes = scenes_dir
+    export(folder, "openscenario", tmp_path)
+    schema = xmlschema.XMLSchema(str(Path(scenariogeneration.__file__).parents[1] / "schemas" / "OpenSCENARIO_1_2.xsd"))
+    for scene in scenes:
+        path = tmp_path / f"{scene.scene_id}.xosc"
+        schema.validate(str(path))
+        text = path.read_text()
+        assert f'name="ego_{scene.ego_id}"' in text and all(f'name="collaborator_{c}"' in text for c in scene.collaborators)
+        assert 'filepath="grid_small.xodr"' in text
+    assert (tmp_path / "grid_small.xodr").read_text().lstrip().startswith("<?xml")
+
+
+def test_sumo_routes_continue_in_sumo(scenes_dir, tmp_path):
+    import sumolib
+
+    folder, scenes = scenes_dir
+    export(folder, "sumo", tmp_path)
+    scene = scenes[1]
+    vehicles = list(sumolib.xml.parse(str(tmp_path / f"{scene.scene_id}.rou.xml"), "vehicle"))
+    assert sorted(v.id for v in vehicles) == sorted(a.agent_id for a in scene.vehicles)
+    import libsumo
+
+    libsumo.start(["sumo", "-c", str(tmp_path / f"{scene.scene_id}.sumocfg"), "--no-step-log", "--no-warnings"])
+    try:
+        libsumo.simulationStep()
+        running = set(libsumo.vehicle.getIDList())
+        near = 0
+        for a in scene.vehicles:
+            if a.agent_id in running:
+                x, y = libsumo.vehicle.getPosition(a.agent_id)  # the front of the vehicle
+                fx, fy = a.x_m + math.cos(a.yaw_rad) * a.length_m / 2, a.y_m + math.sin(a.yaw_rad) * a.length_m / 2
+                near += math.hypot(x - fx, y - fy) < 2.0 + a.speed_mps * 1.0
+    finally:
+        libsumo.close()
+    assert len(running) >= 0.8 * len(scene.vehicles) and near >= 0.8 * len(running)
+
+
+def test_unsafe_or_bad_export_input_is_one_line(capsys, scenes_dir, tmp_path):
+    folder, _ = scenes_dir
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    text = next(folder.glob("*.yaml")).read_text()
+    (bad / "x.yaml").write_text(text.replace(text.split("scene_id: ")[1].split("\n")[0], "../../escape"))
+    for argv, needle in ((["export", str(bad), "--format", "opv2v", "--out", str(tmp_path / "o")], "scene_id"),
+                         (["export", str(folder), "--format", "nope", "--out", str(tmp_path / "o")], "--format"),
+                         (["export", str(tmp_path / "missing"), "--format", "kitti", "--out", str(tmp_path / "o")], "unknown set"),
+                         (["export", str(folder), "--format", "sumo", "--out", str(tmp_path / "o"),
+                           "--net", str(tmp_path / "none.net.xml")], "not found")):
+        code, err = run(capsys, *argv)
+        assert code == 2, argv
+        assert_one_line_error(err, needle)
+    assert not list(tmp_path.parent.glob("escape*"))
