@@ -42,13 +42,12 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     from .generate import SceneSource, generate, load_scenes, prepare_run, run_settings
     from .io.run import load_done
     from .pipeline import load_generate_config
-    from .registry import names
-    from . import perception  # noqa: F401  (fill the registry)
+    from .perception import detector_names
 
     if split not in SPLITS:
         raise InputError(f"--split must be one of {', '.join(SPLITS)}, got {split!r}")
-    if detector_factory is None and fusion not in names("fusion"):
-        raise InputError(f"unknown fusion '{fusion}'; known: {', '.join(names('fusion'))}")
+    if detector_factory is None and fusion not in detector_names():
+        raise InputError(f"unknown fusion '{fusion}'; known: {', '.join(detector_names())}")
     if weights_file and out is None:
         raise InputError("a challenging set of other weights needs its own folder (out)")
     cfg = load_generate_config(fusion=fusion, weights=None if weights_file is None else str(weights_file))

@@ -282,11 +282,10 @@ def finetune(args: argparse.Namespace) -> int:
 
 def evaluate(args: argparse.Namespace) -> int:
     from .perception.evaluate import evaluate as run
-    from .registry import names
-    from . import perception  # noqa: F401  (fill the registry)
+    from .perception import detector_names
 
-    if args.fusion not in names("fusion"):
-        raise InputError(f"unknown fusion '{args.fusion}'; known: {', '.join(names('fusion'))}")
+    if args.fusion not in detector_names():
+        raise InputError(f"unknown fusion '{args.fusion}'; known: {', '.join(detector_names())}")
     import contextlib
 
     from .executors import build_executor

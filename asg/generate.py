@@ -158,7 +158,8 @@ def _shipped_models(cfg: GenerateConfig):
     target = build_detector(cfg.fusion, weights_file=cfg.weights)
     acs_model = None
     if cfg.acs == "attention":  # the target's own attention when it has one, else the shipped AttFuse's
-        acs_model = target if isinstance(target, AttFuseDetector) else build_detector("attfuse")
+        own = isinstance(target, AttFuseDetector) or getattr(target, "has_attention", False)
+        acs_model = target if own else build_detector("attfuse")
     return target, acs_model
 
 

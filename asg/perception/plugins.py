@@ -1,0 +1,137 @@
+"""Your detector as the target: the plugin protocol and the ``asg.detectors`` entry point group.
+
+A detector plugin is a factory, registered under a name in the ``asg.detectors`` entry point group
+of its package (``[project.entry-points."asg.detectors"] mynet = "mypkg.detector:make"``), that
+returns an object with
+
+    detect(frame: CooperativeInput) -> (boxes, scores)
+        boxes (K, 7) x, y, z, l, w, h, yaw in the ego's sensor frame (x forward, y left, z up,
+        metres, yaw in radians from x), (x, y, z) the box centre; scores (K,) in [0, 1]
+
+and optionally ``attention(frame) -> {agent_id: weight}`` (weights summing to 1), which the
+collaborator search then uses instead of the shipped AttFuse's attention. ``asg generate``,
+``asg evaluate``, ``asg dataset build challenging`` and the benchmarks take the name as
+``--fusion NAME``. The five shipped models are registered in the same group by asg itself.
+Worked example: docs/plugins.md; a bad plugin (import error, wrong shapes, non-finite numbers)
+is one line naming it, exit 2.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import metadata
+
+import numpy as np
+
+from sumo_scenarios.errors import InputError
+
+from ..sensors.frame import CooperativeFrame
+from .data import in_range
+
+ENTRY_POINT_GROUP = "asg.detectors"
+
+
+@dataclass(frozen=True)
+class CooperativeInput:
+    """One cooperative frame as a plugin sees it (no ground truth).
+
+    ``agent_ids``: the sensing agents, the ego first. ``clouds[a]``: (N, 4) float32 x, y, z,
+    intensity in agent ``a``'s sensor frame. ``poses[a]``: (4, 4) float64 transform from ``a``'s
+    sensor frame to the world (the town's network frame, x east, y north, z up, metres)."""
+
+    ego_id: str
+    agent_ids: tuple[str, ...]
+    clouds: dict[str, np.ndarray]
+    poses: dict[str, np.ndarray]
+
+
+def cooperative_input(frame: CooperativeFrame) -> CooperativeInput:
+    poses = {}
+    for a in frame.sensing_ids:
+        p = frame.poses[a]
+        m = np.eye(4)
+        m[:3, :3] = p.rotation()
+        m[:3, 3] = p.origin
+        poses[a] = m
+    order = (frame.ego_id, *[a for a in frame.sensing_ids if a != frame.ego_id])
+    return CooperativeInput(frame.ego_id, order, {a: frame.clouds[a] for a in order}, poses)
+
+
+def plugin_names() -> list[str]:
+    return sorted({ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)})
+
+
+def load_plugin(name: str) -> "PluginDetector | None":
+    """The detector plugin registered as ``name``, built and wrapped (None if no plugin has that
+    name); InputError if it cannot be imported or built."""
+    found = [ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
+    if not found:
+        return None
+    ep = found[0]
+    try:
+        factory = ep.load()
+        plugin = factory()
+    except Exception as exc:  # a plugin may fail in any way: name it, say how
+        raise InputError(f"detector plugin '{name}' ({ep.value}) could not be loaded: "
+                         f"{type(exc).__name__}: {exc}".splitlines()[0]) from None
+    if isinstance(plugin, PluginDetector) or _is_shipped(plugin):
+        return plugin
+    if not callable(getattr(plugin, "detect", None)):
+        raise InputError(f"detector plugin '{name}' ({ep.value}) returned {type(plugin).__name__}, which has no "
+                         "detect(frame) method; see docs/plugins.md")
+    return PluginDetector(name, plugin)
+
+
+def _is_shipped(obj) -> bool:
+    from .fusion.base import V2XDetector
+
+    return isinstance(obj, V2XDetector)
+
+
+class PluginDetector:
+    """Adapter: a plugin behind the interface the generator uses (``detect(frame)`` on a
+    CooperativeFrame, ``attention_weights``), its outputs checked."""
+
+    def __init__(self, name: str, plugin):
+        self.registry_name = name
+        self.plugin = plugin
+        self.has_attention = callable(getattr(plugin, "attention", None))
+
+    def detect(self, frame: CooperativeFrame) -> tuple[np.ndarray, np.ndarray]:
+        out = self.plugin.detect(cooperative_input(frame))
+        boxes, scores = check_detections(self.registry_name, out)
+        keep = in_range(boxes)
+        return boxes[keep], scores[keep]
+
+    def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float] | None:
+        if not self.has_attention:
+            return None
+        weights = self.plugin.attention(cooperative_input(frame))
+        if not isinstance(weights, dict) or set(weights) != set(frame.sensing_ids) or \
+                not all(np.isfinite(float(v)) and float(v) >= 0 for v in weights.values()):
+            raise InputError(f"detector plugin '{self.registry_name}': attention() must return a finite, non-negative "
+                             f"weight for each of {', '.join(frame.sensing_ids)}")
+        return {k: float(v) for k, v in weights.items()}
+
+
+def check_detections(name: str, out) -> tuple[np.ndarray, np.ndarray]:
+    """(boxes (K, 7) float64, scores (K,) float64) from a plugin's return value, or one InputError
+    naming the plugin and what is wrong."""
+    where = f"detector plugin '{name}'"
+    if not isinstance(out, (tuple, list)) or len(out) != 2:
+        raise InputError(f"{where}: detect() must return (boxes, scores), got {type(out).__name__}")
+    try:
+        boxes = np.asarray(out[0], dtype=np.float64)
+        scores = np.asarray(out[1], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: detect() returned boxes or scores that are not numbers") from None
+    if boxes.size == 0 and scores.size == 0:
+        return np.zeros((0, 7)), np.zeros(0)
+    if boxes.ndim != 2 or boxes.shape[1] != 7:
+        raise InputError(f"{where}: boxes must have shape (K, 7) (x, y, z, l, w, h, yaw), got {boxes.shape}")
+    if scores.shape != (len(boxes),):
+        raise InputError(f"{where}: scores must have shape ({len(boxes)},) to match the boxes, got {scores.shape}")
+    if not (np.isfinite(boxes).all() and np.isfinite(scores).all()):
+        raise InputError(f"{where}: detect() returned non-finite (NaN or inf) boxes or scores")
+    if (boxes[:, 3:6] <= 0).any() or (scores < 0).any() or (scores > 1).any():
+        raise InputError(f"{where}: box sizes must be positive and scores within [0, 1]")
+    return boxes, scores

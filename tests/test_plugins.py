@@ -1,0 +1,67 @@
+"""Your detector as the target: a tiny external package (tests/plugin_pkg) installed with pip
+registers detectors in the ``asg.detectors`` entry point group; asg evaluates and attacks it by
+name, and names a broken plugin in one line (exit 2)."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from asg.cli import main
+from asg.perception import detector_names
+
+from test_cli import assert_one_line_error, run
+from test_robustness import _scene_dict, _write
+
+PLUGIN_PKG = Path(__file__).parent / "plugin_pkg"
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """The toy package pip-installed into a folder put on sys.path (entry points are found there)."""
+    target = tmp_path_factory.mktemp("site")
+    subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
+                    "--target", str(target), str(PLUGIN_PKG)], check=True, capture_output=True)
+    sys.path.insert(0, str(target))
+    yield target
+    sys.path.remove(str(target))
+    for name in [m for m in sys.modules if m.startswith("toy_detector")]:
+        del sys.modules[name]
+
+
+@pytest.fixture
+def scenes(tmp_path):
+    folder = tmp_path / "scenes"
+    for i in range(2):
+        _write(folder, _scene_dict(f"s{i}"))
+    return folder
+
+
+def test_shipped_and_plugin_detectors_are_listed(installed):
+    from asg.perception.plugins import plugin_names
+
+    shipped = {"none", "late", "early", "attfuse", "attfuse-ft"}
+    assert shipped <= set(plugin_names())  # the shipped models register through the same entry point group
+    assert shipped | {"toy"} <= set(detector_names())
+
+
+def test_a_plugin_is_evaluated_and_attacked_by_name(capsys, installed, scenes, tmp_path):
+    assert main(["evaluate", "--fusion", "toy", "--set", str(scenes), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["frames"] == 2 and set(result["ap"]) == {"0.3", "0.5", "0.7"}
+    out = tmp_path / "gen"
+    assert main(["generate", "--scenes", str(scenes), "--fusion", "toy", "--budget", "3", "--count", "2",
+                 "--workers", "1", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["config"]["fusion"] == "toy" and summary["aggregate"]["scenes"] == 2
+
+
+def test_bad_plugins_are_one_line_naming_them(capsys, installed, scenes, tmp_path):
+    for name, needle in (("toy-broken", "could not be loaded"), ("toy-bad-shape", "(K, 7)"), ("toy-nan", "non-finite")):
+        code, err = run(capsys, "evaluate", "--fusion", name, "--set", str(scenes))
+        assert code == 2, name
+        assert_one_line_error(err, f"detector plugin '{name}'", needle)
+    code, err = run(capsys, "evaluate", "--fusion", "toy", "--set", str(scenes), "--weights", str(tmp_path / "w.pt"))
+    assert code == 2
+    assert_one_line_error(err, "--weights applies to the shipped models")
