@@ -10,6 +10,10 @@ $(VENV)/.installed: pyproject.toml
 	@ldconfig -p | grep -q libusb-1.0 || (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || \
 	  (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1) || \
 	  echo "warning: could not install libusb-1.0-0 (Debian); Open3D tests will fail")
+	# headless Chromium (Debian's chromium package) opens the HTML report in its test
+	@command -v chromium >/dev/null 2>&1 || (apt-get install -y -q chromium >/dev/null 2>&1 || \
+	  (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q chromium >/dev/null 2>&1) || \
+	  echo "warning: could not install chromium (Debian); the report test will fail")
 	$(PYTHON) -m venv $(VENV)
 	# torch first, pinned: this machine's CPU wheel (a plain "torch" could pull a multi-GB CUDA build)
 	$(VENV)/bin/pip install --quiet torch==2.13.0

@@ -157,6 +157,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--net", type=Path, default=None,
                    help="openscenario, sumo: the SUMO net of scenes from a net that is not a bundled town")
 
+    p = _add(sub, "report", "one self-contained HTML page of a run folder or an 'asg bench paper' folder", commands.report)
+    p.add_argument("run_dir", type=Path, help="a folder written by 'asg generate' or 'asg bench paper'")
+    p.add_argument("--out", type=Path, default=None, help="HTML file to write (default RUN_DIR/report.html)")
+    p.add_argument("--scenes", type=_whole(0, 10_000, "--scenes"), default=6,
+                   help="scenes drawn as bird's-eye views per run (default 6; the tables list all)")
+
     p = _add(sub, "finetune", "train a detector further on its challenging scenes, then evaluate it before and "
              "after and attack it again (runs/finetune/FUSION-ft/)", commands.finetune)
     p.add_argument("--fusion", required=True, help="the model to fine-tune: attfuse, early, none or late")

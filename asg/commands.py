@@ -231,6 +231,15 @@ def train(args: argparse.Namespace) -> int:
     return 0
 
 
+def report(args: argparse.Namespace) -> int:
+    from .io.report import write_report
+
+    if not args.run_dir.is_dir():
+        raise InputError(f"{args.run_dir}: not a folder; give a folder written by 'asg generate' or 'asg bench paper'")
+    console.print(f"wrote {write_report(args.run_dir, args.out, args.scenes)}")
+    return 0
+
+
 def export(args: argparse.Namespace) -> int:
     from .io.export import export as run
 

@@ -1,0 +1,226 @@
+"""``asg report RUN_DIR``: one self-contained HTML page (images inline as PNG data, no network).
+
+RUN_DIR is an ``asg generate`` run folder, or any folder holding such run folders (the output of
+``asg bench paper``: its configuration runs, and its tables ``TABLE.json`` when present). The page
+holds, per run: the configuration, the before/after AP table (pooled and per scene), plausibility
+(collisions, off the drivable area, out of range, as re-checked when written), the best loss so far
+against the evaluation count, and bird's-eye views of the first scenes at each stage (initial,
+after ACS, final) with the ground truth and the detections in distinct colours; then the paper's
+tables beside ours. Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
+"""
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import io
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from sumo_scenarios.atomic import write_text_atomic  # noqa: E402
+from sumo_scenarios.errors import InputError  # noqa: E402
+
+from ..scene import footprint_xy, load_scene  # noqa: E402
+from .run import load_detections  # noqa: E402
+
+STAGES = (("initial", "initial"), ("after_acs", "after ACS"), ("final", "final"))
+#: colours: ground truth, detections, moved vehicles
+GT_COLOUR, DET_COLOUR, MOVED_COLOUR = "#1a9850", "#d73027", "#4575b4"
+EXTENT_M = 50.0
+
+
+def run_folders(root: Path) -> list[Path]:
+    """``root`` if it is a run folder, else its sub-folders that are (sorted)."""
+    if (root / "summary.json").is_file():
+        return [root]
+    return sorted(p.parent for p in root.glob("*/summary.json"))
+
+
+def write_report(root: Path, out: Path | None = None, scenes_shown: int = 6) -> Path:
+    root = Path(root)
+    runs = run_folders(root)
+    tables = sorted(p for p in root.glob("*.json") if _is_table(p))
+    if not runs and not tables:
+        raise InputError(f"{root}: no run folder (summary.json) or table (TABLE.json) to report; "
+                         "give a folder written by 'asg generate' or 'asg bench paper'")
+    parts = [f"<h1>asg report: {html.escape(str(root))}</h1>"]
+    parts += [_run_section(r, scenes_shown) for r in runs]
+    parts += [_table_section(p) for p in tables]
+    out = Path(out) if out is not None else root / "report.html"
+    write_text_atomic(out, _PAGE.format(body="\n".join(parts)))
+    return out
+
+
+def _is_table(path: Path) -> bool:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and {"table", "rows", "command"} <= set(data)
+
+
+def _run_section(run: Path, scenes_shown: int) -> str:
+    summary = json.loads((run / "summary.json").read_text())
+    cfg, agg, entries = summary["config"], summary["aggregate"], summary["scenes"]
+    fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7")) if ap else "-"
+    rows = [["pooled", fmt(agg["ap_normal"]), fmt(agg.get("ap_after_acs")), fmt(agg["ap_challenging"]), "", ""]]
+    for e in entries:
+        p = e.get("plausibility", {})
+        rows.append([e["scene_id"], fmt(e["ap_normal"]), fmt(e["ap_after_acs"]), fmt(e["ap_final"]),
+                     str(len(e.get("moved", []))),
+                     f"{p.get('collisions', '-')} / {p.get('off_road', '-')} / {p.get('out_of_range', '-')}"])
+    implausible = sum(any(v for v in e.get("plausibility", {}).values()) for e in entries)
+    config = ", ".join(f"{k}: {html.escape(json.dumps(v))}" for k, v in cfg.items() if k not in ("objective", "space"))
+    views = "".join(_scene_views(run, e) for e in entries[:scenes_shown])
+    return (f"<section><h2>{html.escape(run.name)}</h2><p class=config>{config}</p>"
+            f"<p>{agg['scenes']} scenes, median {agg['seconds_per_scene_median']} s a scene; "
+            f"plausibility: {len(entries) - implausible} of {len(entries)} scenes with no collision, nothing off "
+            f"the drivable area, nothing out of range.</p>"
+            + _html_table(["scene", "normal AP@0.3/0.5/0.7 (%)", "after ACS", "final", "moved",
+                           "collisions / off road / out of range"], rows)
+            + f"<h3>Best loss so far against evaluations</h3>{_img(_loss_chart(run, entries))}"
+            f"<h3>Bird's-eye views (first {min(scenes_shown, len(entries))} scenes; ego frame, metres)</h3>"
+            f"<p><span style='color:{GT_COLOUR}'>&#9632; ground truth</span> "
+            f"<span style='color:{DET_COLOUR}'>&#9632; detections</span> "
+            f"<span style='color:{MOVED_COLOUR}'>&#9675; moved vehicles</span></p>{views}</section>")
+
+
+def _scene_views(run: Path, entry: dict) -> str:
+    folder = run / "scenes" / entry["scene_id"]
+    dets = load_detections(run, entry["scene_id"])
+    fig, axes = plt.subplots(1, 3, figsize=(13.5, 4.8), dpi=80)
+    for ax, (key, label) in zip(axes, STAGES):
+        scene_file = folder / f"{key}.yaml"
+        if key in dets and scene_file.is_file():
+            ap = entry[{"initial": "ap_normal", "after_acs": "ap_after_acs", "final": "ap_final"}[key]]
+            _bev(ax, load_scene(scene_file), dets[key], entry.get("moved", []) if key == "final" else [])
+            ax.set_title(f"{label}: AP@0.7 {100 * ap['0.7']:.1f}", fontsize=10)
+        else:
+            ax.set_axis_off()
+    fig.suptitle(entry["scene_id"], fontsize=10)
+    fig.tight_layout()
+    return f"<figure>{_img(fig)}</figure>"
+
+
+def _bev(ax, scene, detections: tuple, moved: list[str]) -> None:
+    """Buildings, ground truth (green), detections (red, dashed, with score) and the sensing
+    agents, all in the ego's frame (the frame the detections are in)."""
+    boxes, scores, gt = detections
+    ego = scene.ego
+    c, s = np.cos(ego.yaw_rad), np.sin(ego.yaw_rad)
+    to_ego = lambda xy: np.stack([c * (xy[:, 0] - ego.x_m) + s * (xy[:, 1] - ego.y_m),
+                                  -s * (xy[:, 0] - ego.x_m) + c * (xy[:, 1] - ego.y_m)], axis=1)
+    for b in scene.buildings:
+        xy = to_ego(np.asarray(b.footprint_xy))
+        ax.fill(xy[:, 0], xy[:, 1], color="0.88", zorder=0)
+    for box in gt:
+        _outline(ax, box, GT_COLOUR, "-")
+    for box, score in zip(boxes, scores):
+        _outline(ax, box, DET_COLOUR, "--")
+    for aid in moved:
+        if any(a.agent_id == aid for a in scene.agents):
+            p = to_ego(np.array([[scene.agent(aid).x_m, scene.agent(aid).y_m]]))[0]
+            ax.add_patch(plt.Circle(p, 3.2, fill=False, color=MOVED_COLOUR, lw=1.5, zorder=4))
+    for aid in scene.sensing_ids:
+        p = to_ego(np.array([[scene.agent(aid).x_m, scene.agent(aid).y_m]]))[0]
+        ax.plot(*p, marker="^", color="k" if aid == scene.ego_id else "0.4", markersize=8, zorder=5)
+    ax.set_xlim(-EXTENT_M, EXTENT_M)
+    ax.set_ylim(-EXTENT_M, EXTENT_M)
+    ax.set_aspect("equal")
+    ax.tick_params(labelsize=7)
+
+
+def _outline(ax, box: np.ndarray, colour: str, style: str) -> None:
+    fp = footprint_xy(box[0], box[1], box[6], box[3], box[4])
+    loop = np.vstack([fp, fp[:1]])
+    ax.plot(loop[:, 0], loop[:, 1], color=colour, ls=style, lw=1.1, zorder=3)
+
+
+def _loss_chart(run: Path, entries: list[dict]):
+    fig, ax = plt.subplots(figsize=(7, 3.2), dpi=80)
+    curves = []
+    for e in entries:
+        path = run / "scenes" / e["scene_id"] / "history.csv"
+        if not path.is_file():
+            continue
+        losses = [float(r["loss"]) for r in csv.DictReader(io.StringIO(path.read_text()))]
+        if losses:
+            best = np.minimum.accumulate(losses)
+            curves.append(best)
+            ax.plot(np.arange(1, len(best) + 1), best, color="0.75", lw=0.7)
+    if curves:
+        n = min(len(c) for c in curves)
+        ax.plot(np.arange(1, n + 1), np.median([c[:n] for c in curves], axis=0), color=DET_COLOUR, lw=2,
+                label="median over scenes")
+        ax.legend(fontsize=8)
+    ax.set_xlabel("evaluation")
+    ax.set_ylabel("best loss so far")
+    fig.tight_layout()
+    return fig
+
+
+def _table_section(path: Path) -> str:
+    data = json.loads(path.read_text())
+    md = path.with_suffix(".md")
+    body = _markdown_table_html(md.read_text()) if md.is_file() else ""
+    return (f"<section><h2>Table {html.escape(data['table'])}</h2><p><code>{html.escape(data['command'])}</code>: "
+            f"{data['scenes']} scenes, {data['seconds']:.0f} s, commit {html.escape(str(data['commit']))}</p>{body}</section>")
+
+
+def _markdown_table_html(text: str) -> str:
+    """The markdown tables of a TABLE.md as HTML (pipes to cells), other lines as paragraphs."""
+    out, rows = [], []
+    for line in text.splitlines() + [""]:
+        if line.startswith("|"):
+            if not set(line) <= set("|-: "):
+                rows.append([c.strip().replace("**", "") for c in line.strip("|").split("|")])
+            continue
+        if rows:
+            out.append(_html_table(rows[0], rows[1:]))
+            rows = []
+        if line.strip():
+            out.append(f"<p>{html.escape(line)}</p>")
+    return "".join(out)
+
+
+def _html_table(header: list[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _img(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    return f"<img alt='chart' src='data:image/png;base64,{base64.b64encode(buf.getvalue()).decode('ascii')}'>"
+
+
+_PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>asg report</title>
+<style>
+body {{ font-family: sans-serif; margin: 1.5em; color: #222; }}
+table {{ border-collapse: collapse; margin: 0.6em 0; font-size: 0.85em; }}
+td, th {{ border: 1px solid #bbb; padding: 2px 7px; text-align: right; }}
+th {{ background: #eee; }} td:first-child {{ text-align: left; }}
+img {{ max-width: 100%; }} .config {{ font-size: 0.8em; color: #555; }}
+section {{ border-top: 2px solid #ccc; margin-top: 1.2em; }}
+</style></head>
+<body>
+{body}
+<script>
+// for automated checks: how many inline images decoded (data-images-ok) of how many (data-images)
+window.addEventListener("load", function () {{
+  var imgs = Array.prototype.slice.call(document.images);
+  document.body.setAttribute("data-images", imgs.length);
+  document.body.setAttribute("data-images-ok", imgs.filter(function (i) {{ return i.complete && i.naturalWidth > 0; }}).length);
+}});
+</script>
+</body></html>
+"""
