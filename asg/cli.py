@@ -172,6 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--weights", type=Path, default=None, metavar="PATH",
                    help="start from this weights file instead of the shipped ones")
     p.add_argument("--out", type=Path, default=None, help="output folder (default runs/finetune/FUSION-ft)")
+    p.add_argument("--config", type=Path, default=None,
+                   help="a yaml with a 'finetune' block (default configs/detectors/train.yaml's)")
     p.add_argument("--stages", default="train,evaluate,reattack",
                    help="comma-separated subset of train, evaluate, reattack (default all three)")
     p.add_argument("--threads", type=_whole(1, 256, "--threads"), default=2, help="training threads")

@@ -264,6 +264,9 @@ def finetune(args: argparse.Namespace) -> int:
         from .perception.weights_io import check_weights_file
 
         check_weights_file(args.fusion, args.weights)
+    from .perception.train_config import load_finetune_config
+
+    config = load_finetune_config(args.config)
     on = args.on or f"challenging-{args.fusion}-train"
     with progress_bar() as bar, build_executor(args.executor, args.workers or 2, threads=1,
                                                address=args.address) as executor:
@@ -273,7 +276,8 @@ def finetune(args: argparse.Namespace) -> int:
             bar.update(task, completed=step, total=total, description=f"fine-tuning {args.fusion} loss {loss:.3f}")
 
         card = run(args.fusion, on, args.out, steps=args.steps, weights=args.weights, threads=args.threads,
-                   force=args.force, executor=executor, stages=stages, log=console.print, progress=report)
+                   force=args.force, executor=executor, stages=stages, config=config, log=console.print,
+                   progress=report)
     table = Table(title=f"asg finetune --fusion {args.fusion} --on {on}: AP@0.3 / 0.5 / 0.7")
     for col in ("set", "frames", "before", "after"):
         table.add_column(col, justify="left" if col == "set" else "right")

@@ -10,20 +10,14 @@ from asg.cli import main
 from asg.scene import Scene
 
 from test_cli import assert_one_line_error, run
-from test_robustness import _scene_dict
+from test_tables import write_set
 
 
 @pytest.fixture
 def data_root(tmp_path, monkeypatch):
     """ASG_DATA with a 'normal' set of 3 synthetic val scenes."""
     root = tmp_path / "data"
-    normal = root / "normal"
-    normal.mkdir(parents=True)
-    ids = [f"n{i}" for i in range(3)]
-    with gzip.open(normal / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
-        for sid in ids:
-            fh.write(json.dumps(_scene_dict(sid)) + "\n")
-    (normal / "index.json").write_text(json.dumps({"name": "normal", "frames": 3, "splits": {"train": [], "val": ids}}))
+    write_set(root, "normal", {"train": [], "val": ["n0", "n1", "n2"]})
     monkeypatch.setenv("ASG_DATA", str(root))
     return root
 

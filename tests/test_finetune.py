@@ -1,7 +1,6 @@
 """``asg finetune``: a few steps on a tiny challenging set change the weights, write a card with the
 before/after table, resume after an interruption to the same weights, and never touch the shipped
 weights; ``--weights`` on evaluate and generate refuses a missing, corrupt or foreign file."""
-import gzip
 import hashlib
 import json
 from dataclasses import replace
@@ -17,6 +16,7 @@ from sumo_scenarios.errors import InputError
 
 from test_cli import assert_one_line_error, run
 from test_robustness import _scene_dict
+from test_tables import write_set
 
 #: two steps of one example, mixed with the normal set only, evaluated on normal-val only
 TINY = replace(load_finetune_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
@@ -28,14 +28,7 @@ def data_root(tmp_path, monkeypatch):
     """ASG_DATA with a 'normal' set (train n0, n1; val n2) and its challenging sets made against
     the fake oracle (so that they build in seconds)."""
     root = tmp_path / "data"
-    normal = root / "normal"
-    normal.mkdir(parents=True)
-    ids = [f"n{i}" for i in range(3)]
-    with gzip.open(normal / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
-        for sid in ids:
-            fh.write(json.dumps(_scene_dict(sid)) + "\n")
-    (normal / "index.json").write_text(json.dumps({"name": "normal", "frames": 3,
-                                                   "splits": {"train": ids[:2], "val": ids[2:]}}))
+    write_set(root, "normal", {"train": ["n0", "n1"], "val": ["n2"]})
     monkeypatch.setenv("ASG_DATA", str(root))
     for split in ("train", "val"):
         build_challenging("attfuse", split, detector_factory="fakes:oracle_factory")
@@ -106,6 +99,7 @@ def test_bad_weights_are_one_line(capsys, tmp_path, data_root):
         (["finetune", "--fusion", "attfuse", "--weights", str(corrupt)], "not a readable weights"),
         (["finetune", "--fusion", "attfuse", "--on", "challenging-late-train"], "is not built"),
         (["finetune", "--fusion", "attfuse", "--stages", "train,fly"], "--stages"),
+        (["finetune", "--fusion", "attfuse", "--config", str(tmp_path / "none.yaml")], "file not found"),
     ]
     for argv, needle in cases:
         code, err = run(capsys, *argv)

@@ -16,7 +16,8 @@ from test_robustness import _scene_dict
 AP_KEYS = {"0.3", "0.5", "0.7"}
 
 
-def _write_set(root, name, splits):
+def write_set(root, name, splits):
+    """A data set folder ``root/name`` of synthetic scenes with these splits ({split: [ids]})."""
     folder = root / name
     folder.mkdir(parents=True)
     ids = [i for ids in splits.values() for i in ids]
@@ -30,8 +31,8 @@ def _write_set(root, name, splits):
 def data_root(tmp_path, monkeypatch):
     """A tiny 'normal' set (3 train, 3 val scenes) and 'heuristic' set (2 scenes)."""
     root = tmp_path / "data"
-    _write_set(root, "normal", {"train": ["t0", "t1", "t2"], "val": ["v0", "v1", "v2"]})
-    _write_set(root, "heuristic", {"test": ["h0", "h1"]})
+    write_set(root, "normal", {"train": ["t0", "t1", "t2"], "val": ["v0", "v1", "v2"]})
+    write_set(root, "heuristic", {"test": ["h0", "h1"]})
     monkeypatch.setenv("ASG_DATA", str(root))
     return root
 
