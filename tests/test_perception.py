@@ -222,7 +222,7 @@ def test_folding_batch_norms_keeps_the_function(where):
 def test_registry_lists_all_fusions():
     from asg import perception  # noqa: F401
 
-    assert set(names("fusion")) == {"none", "late", "early", "attfuse"}
+    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft"}
     with pytest.raises(InputError, match="unknown fusion 'mid'.*attfuse"):
         perception.build_detector("mid")
 
