@@ -142,6 +142,9 @@ def test_sumo_routes_continue_in_sumo(scenes_dir, tmp_path):
     finally:
         libsumo.close()
     assert len(running) >= 0.8 * len(scene.vehicles) and near >= 0.8 * len(running)
+    # SUMO's own snapshot of the scene, read back by sumolib: every vehicle with its route
+    states = {v.id: v for v in sumolib.xml.parse(str(tmp_path / f"{scene.scene_id}.state.xml"), "vehicle")}
+    assert set(states) == {a.agent_id for a in scene.vehicles}
 
 
 def test_unsafe_or_bad_export_input_is_one_line(capsys, scenes_dir, tmp_path):

@@ -1,5 +1,6 @@
-"""SUMO route files that continue the traffic from each final scene: ``DIR/SCENE.rou.xml`` and
-``DIR/SCENE.sumocfg`` (net: the scene's town, referenced by absolute path).
+"""SUMO route and state files that continue the traffic from each final scene: ``DIR/SCENE.rou.xml``,
+``DIR/SCENE.sumocfg`` (net: the scene's town, referenced by absolute path) and ``DIR/SCENE.state.xml``
+(SUMO's own snapshot, written by SUMO from the routes: ``sumo -n NET --load-state SCENE.state.xml``).
 
 Every vehicle departs at time 0 on the lane it stands on (the nearest normal lane when it stands
 inside a junction or off its recorded lane after a move), at its position along that lane (SUMO's
@@ -15,7 +16,7 @@ import math
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from sumo_scenarios.atomic import write_text_atomic
+from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
 
@@ -26,6 +27,9 @@ from . import net_of
 ROUTE_EDGES = 12
 #: search radius for a vehicle's lane, metres
 LANE_SEARCH_M = 10.0
+#: the state file: SUMO inserts the vehicles at its first step (STEP_S) and saves them at STATE_TIME_S
+STEP_S = 0.1
+STATE_TIME_S = 0.1
 
 
 class RoutesWriter:
@@ -51,11 +55,29 @@ class RoutesWriter:
                   f'height="{a.height_m:.2f}"/>' for t, a in sorted(types.items())]
         routes = inside(self.out, self.out / f"{scene.scene_id}.rou.xml")
         write_text_atomic(routes, "<routes>\n" + "\n".join(vtypes + vehicles) + "\n</routes>\n")
-        write_text_atomic(inside(self.out, self.out / f"{scene.scene_id}.sumocfg"), (
+        config = inside(self.out, self.out / f"{scene.scene_id}.sumocfg")
+        write_text_atomic(config, (
             "<configuration>\n    <input>\n"
             f"        <net-file value={quoteattr(str(net_path.resolve()))}/>\n"
             f"        <route-files value={quoteattr(routes.name)}/>\n"
             "    </input>\n    <time>\n        <begin value=\"0\"/>\n    </time>\n</configuration>\n"))
+        self._state(config, inside(self.out, self.out / f"{scene.scene_id}.state.xml"))
+
+    @staticmethod
+    def _state(config: Path, state: Path) -> None:
+        """SUMO's own state file of the scene: the routes run for one step, saved at STATE_TIME_S."""
+        import subprocess
+
+        from sumo_scenarios import sumo_tools
+
+        with atomic_path(state) as tmp:
+            done = subprocess.run([sumo_tools.binary("sumo"), "-c", str(config), "--step-length", f"{STEP_S}",
+                                   "--end", f"{2 * STATE_TIME_S}", "--save-state.times", f"{STATE_TIME_S}",
+                                   "--save-state.files", str(tmp), "--no-step-log", "--no-warnings"],
+                                  capture_output=True, text=True, env=sumo_tools.sumo_env())
+            if done.returncode != 0 or not tmp.stat().st_size:
+                last = (done.stderr.strip().splitlines() or ["no message"])[-1]
+                raise InputError(f"{config}: SUMO could not load the exported routes ({last})")
 
     def _net(self, path: Path):
         import sumolib
