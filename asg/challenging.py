@@ -90,6 +90,11 @@ def first_scenes_ap(out: Path, count: int | None) -> dict[str, dict[str, float]]
 
 def challenging_scenes(name: str):
     """The scenes of a built challenging set, by its name (``challenging-NAME-SPLIT``)."""
+    from sumo_scenarios.checks import safe_id
+
+    if not name.startswith("challenging-"):
+        raise InputError(f"'{name}' is not a challenging set name (challenging-MODEL-train|val)")
+    safe_id(name, "challenging set")  # a name, never a path out of the data folder
     if not (data_root() / name / "index.json").is_file():
         parts = name.split("-")
         hint = (f"asg dataset build challenging --fusion {'-'.join(parts[1:-1])} --split {parts[-1]}"

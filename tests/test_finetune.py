@@ -98,6 +98,8 @@ def test_bad_weights_are_one_line(capsys, tmp_path, data_root):
          "not a readable weights"),
         (["finetune", "--fusion", "attfuse", "--weights", str(corrupt)], "not a readable weights"),
         (["finetune", "--fusion", "attfuse", "--on", "challenging-late-train"], "is not built"),
+        (["finetune", "--fusion", "attfuse", "--on", "challenging-../../x"], "not a safe name"),
+        (["finetune", "--fusion", "attfuse", "--on", "normal"], "not a challenging set"),
         (["finetune", "--fusion", "attfuse", "--stages", "train,fly"], "--stages"),
         (["finetune", "--fusion", "attfuse", "--config", str(tmp_path / "none.yaml")], "file not found"),
     ]
