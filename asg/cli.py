@@ -240,6 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search", default=None, help="rs, ga or bo (default bo)")
     p.add_argument("--acs", default=None, choices=["attention", "random", "off"])
     p.add_argument("--aps", default=None, choices=["on", "off"])
+    p.add_argument("--plausibility", default=None, choices=["paper", "traffic"],
+                   help="paper (default: on the drivable area, no collision, in range) or traffic (also in a lane "
+                        "of its own direction, heading within 30 deg of it)")
     p.add_argument("--count", type=COUNT, default=None, help="scenes to generate (default 10; demo 2)")
     p.add_argument("--budget", type=COUNT, default=None, help="evaluations per scene (default 50; demo 15)")
     p.add_argument("--seed", type=SEED, default=1)

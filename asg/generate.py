@@ -211,7 +211,7 @@ def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
             p = out / name
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
     elif record.is_file() and _has_finished_scenes(out):
-        earlier = _read_record(record)
+        earlier = with_new_defaults(_read_record(record))
         diff = _first_difference(earlier, settings)
         if diff:
             raise InputError(f"{out} holds a run made with other settings ({diff}); give another --out, "
@@ -225,6 +225,19 @@ def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
         write_text_atomic(record, json.dumps(settings, indent=1, sort_keys=True))
     except OSError as exc:
         raise InputError(f"--out {out}: cannot write in it ({exc.strerror}); give a writable folder") from None
+
+
+def with_new_defaults(record: dict) -> dict:
+    """``record`` with every setting it lacks filled in with today's default: a setting added to
+    the generator after the record was written has a default that reproduces the earlier
+    behaviour, so a folder written before it resumes instead of being refused."""
+    def fill(old, default):
+        if isinstance(old, dict) and isinstance(default, dict):
+            return {**{k: v for k, v in default.items() if k not in old},
+                    **{k: fill(v, default.get(k)) for k, v in old.items()}}
+        return old
+
+    return fill(record, {"config": json.loads(json.dumps(asdict(GenerateConfig())))})
 
 
 def _has_finished_scenes(out: Path) -> bool:

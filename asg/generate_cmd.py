@@ -36,6 +36,10 @@ def run_generate(args: argparse.Namespace) -> int:
     cfg = load_generate_config(args.config, fusion=fusion, search=args.search, acs=args.acs,
                                aps=None if args.aps is None else args.aps == "on", budget=budget,
                                weights=None if args.weights is None else str(args.weights))
+    if args.plausibility is not None:
+        from dataclasses import replace
+
+        cfg = replace(cfg, space=replace(cfg.space, plausibility=args.plausibility))
     if cfg.weights and not args.detector:
         from .perception.weights_io import check_weights_file
 

@@ -223,11 +223,12 @@ class Generator:
                     notes.append(f"APS skipped: {exc}")
             else:
                 notes.append("APS skipped: no vehicle to move")
-        plaus = recheck(after.scene, aps.best.scene)  # shapely, not the fcl checker that built Q
+        level = (self.cfg.space.plausibility, self.cfg.space.traffic_heading_deg)
+        plaus = recheck(after.scene, aps.best.scene, *level)  # shapely, not the fcl checker that built Q
         if not plaus.ok:  # never publish an implausible scene
             notes.append(f"final scene failed the independent plausibility check {plaus.to_dict()}; kept the scene after ACS")
             aps = ApsOutcome(after, aps.history, [], aps.perturbed)
-            plaus = recheck(after.scene, after.scene)
+            plaus = recheck(after.scene, after.scene, *level)
         final = aps.best
         stages = {"initial": normal, "after_acs": after, "final": final}
         return SceneResult(

@@ -131,6 +131,10 @@ class LaneMap:
         self._drivable_loose = self.drivable.buffer(DRIVABLE_TOLERANCE_M)
         shapely.prepare(self._drivable_loose)
         self._by_id = {l.lane_id: i for i, l in enumerate(self.lanes)}
+        self._max_half_width_m = max((l.width_m / 2.0 for l in self.lanes), default=0.0)
+        junctions = [p for p in (_polygon(j.shape_xy) for j in self.junctions) if p is not None]
+        self._junctions_loose = unary_union(junctions).buffer(DRIVABLE_TOLERANCE_M) if junctions else Polygon()
+        shapely.prepare(self._junctions_loose)
 
     # ---- construction ------------------------------------------------------------------------
     @staticmethod
@@ -231,6 +235,37 @@ class LaneMap:
         dx, dy = x_m - foot.x, y_m - foot.y
         lateral = -math.sin(heading) * dx + math.cos(heading) * dy
         return LanePosition(lane.lane_id, float(s), float(lateral), float(heading), abs(lateral) <= lane.width_m / 2.0)
+
+    def directions_at(self, x_m: float, y_m: float) -> list[float]:
+        """Headings (rad) of every lane, internal ones included, whose area (centerline widened by
+        half its width, within tolerance) holds the point."""
+        if self._lane_tree is None:
+            return []
+        pt = Point(x_m, y_m)
+        near = self._lane_tree.query(pt.buffer(self._max_half_width_m + DRIVABLE_TOLERANCE_M))
+        out = []
+        for i in np.atleast_1d(near):
+            line, lane = self._lines[int(i)], self.lanes[int(i)]
+            if line.length > 0 and line.distance(pt) <= lane.width_m / 2.0 + DRIVABLE_TOLERANCE_M:
+                out.append(self._heading_at(lane.centerline_xy, line, line.project(pt)))
+        return out
+
+    def in_junction(self, x_m: float, y_m: float) -> bool:
+        return bool(self._junctions_loose.contains(Point(x_m, y_m)))
+
+    def in_own_lane(self, center_xy: tuple[float, float], yaw_rad: float, footprint_xy: np.ndarray,
+                    max_heading_rad: float) -> bool:
+        """The ``traffic`` plausibility of a vehicle: its centre on a lane (internal lanes count)
+        heading within ``max_heading_rad`` of its yaw, and each corner of its footprint on a lane
+        of its own direction (within 90 deg: a neighbouring lane of the same road, as in a lane
+        change) or inside a junction."""
+        def gap(h: float) -> float:
+            return abs((h - yaw_rad + math.pi) % (2 * math.pi) - math.pi)
+
+        if not any(gap(h) <= max_heading_rad for h in self.directions_at(*center_xy)):
+            return False
+        return all(self.in_junction(x, y) or any(gap(h) < math.pi / 2 for h in self.directions_at(x, y))
+                   for x, y in np.asarray(footprint_xy))
 
     def heading_at(self, lane_id: str, station_m: float) -> float:
         """The heading (rad) of lane ``lane_id`` at ``station_m`` along its centerline."""

@@ -140,6 +140,22 @@ def test_a_rerun_with_other_settings_is_refused_and_force_starts_over(capsys, tm
     assert summary["config"]["seed"] == 2 and len(summary["scenes"]) == 1
 
 
+def test_a_folder_written_before_a_setting_existed_resumes(capsys, tmp_path):
+    """A run.json without a setting added since (its default reproduces the old behaviour) is the
+    same settings; the same key with another value is not."""
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    out = tmp_path / "out"
+    assert _generate(capsys, scenes, out)[0] == 0
+    record = json.loads((out / "run.json").read_text())
+    del record["config"]["weights"], record["config"]["space"]["plausibility"]
+    (out / "run.json").write_text(json.dumps(record))
+    assert _generate(capsys, scenes, out)[0] == 0
+    code, err = _generate(capsys, scenes, out, "--plausibility", "traffic")
+    assert code == 2
+    assert_one_line_error(err, "other settings", "plausibility")
+
+
 def test_duplicate_scene_ids_are_refused(capsys, tmp_path):
     scenes = tmp_path / "scenes"
     _write(scenes, _scene_dict("same"), "a")

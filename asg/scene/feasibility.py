@@ -67,21 +67,27 @@ class Plausibility:
     collisions: int
     off_road: int
     out_of_range: int
+    #: ``traffic`` level only: moved vehicles not in a lane of their own direction (None: not checked)
+    wrong_way: int | None = None
 
     @property
     def ok(self) -> bool:
-        return self.collisions == 0 and self.off_road == 0 and self.out_of_range == 0
+        return self.collisions == 0 and self.off_road == 0 and self.out_of_range == 0 and not self.wrong_way
 
     def to_dict(self) -> dict:
-        return {"collisions": self.collisions, "off_road": self.off_road, "out_of_range": self.out_of_range}
+        out = {"collisions": self.collisions, "off_road": self.off_road, "out_of_range": self.out_of_range}
+        return out if self.wrong_way is None else out | {"wrong_way": self.wrong_way}
 
 
 class FeasibilityChecker:
     """Checks poses of the ``movable`` vehicles of a scene against everything else in it."""
 
-    def __init__(self, scene: Scene, movable_ids: Sequence[str]):
+    def __init__(self, scene: Scene, movable_ids: Sequence[str], plausibility: str = "paper",
+                 traffic_heading_deg: float = 30.0):
         self.scene = scene
         self.movable_ids = tuple(movable_ids)
+        self.traffic = plausibility == "traffic"
+        self.max_heading_rad = math.radians(traffic_heading_deg)
         fixed = [a for a in scene.agents if a.agent_id not in self.movable_ids]
         self._static = fcl.DynamicAABBTreeCollisionManager()
         objs = [box_object(a) for a in fixed] + [_building_object(b) for b in scene.buildings]
@@ -116,11 +122,24 @@ class FeasibilityChecker:
         return in_eval_range(self.scene.ego, agents)
 
     def on_road(self, agents: Sequence[Agent]) -> np.ndarray:
-        return self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
+        """(n,) bool: on the drivable area and, at the ``traffic`` level, in a lane of its own direction."""
+        ok = self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
+        if self.traffic:
+            ok &= ~self.wrong_way(agents)
+        return ok
+
+    def wrong_way(self, agents: Sequence[Agent]) -> np.ndarray:
+        """(n,) bool: not in a lane of its own direction (see LaneMap.in_own_lane)."""
+        lanes = self.scene.lane_map
+        return np.array([not lanes.in_own_lane((a.x_m, a.y_m), a.yaw_rad, a.footprint_xy(), self.max_heading_rad)
+                         for a in agents], dtype=bool)
 
     def check(self, moved: Mapping[str, Agent]) -> Plausibility:
-        """Collisions, off-road and out-of-range counts of the ``moved`` vehicles (by id) at their poses."""
+        """Collisions, off-road and out-of-range counts of the ``moved`` vehicles (by id) at their
+        poses, and at the ``traffic`` level the wrong-way count."""
         agents = [moved[i] for i in self.movable_ids if i in moved]
         if not agents:
-            return Plausibility(0, 0, 0)
-        return Plausibility(self.collides(agents), int((~self.on_road(agents)).sum()), int((~self.in_range(agents)).sum()))
+            return Plausibility(0, 0, 0, 0 if self.traffic else None)
+        on_area = self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
+        return Plausibility(self.collides(agents), int((~on_area).sum()), int((~self.in_range(agents)).sum()),
+                            int(self.wrong_way(agents).sum()) if self.traffic else None)

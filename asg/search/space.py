@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Literal, Sequence
 
 import numpy as np
 
@@ -28,12 +28,19 @@ class SpaceConfig:
     n_q: int = 1000
     #: at most this many draws (x n_q) while filling Q
     max_draw_factor: int = 20
+    #: what a moved vehicle must respect: "paper" (on the drivable area, no collision, in range) or
+    #: "traffic" (also in a lane of its own direction, heading within traffic_heading_deg of it)
+    plausibility: Literal["paper", "traffic"] = "paper"
+    traffic_heading_deg: float = 30.0
 
     def __post_init__(self) -> None:
         checks.number(self.dxy_m, "space.dxy_m", 0.0, MAX_DXY_M, lo_open=True)
         checks.number(self.dyaw_deg, "space.dyaw_deg", 0.0, 180.0, lo_open=True)
         checks.number(self.n_q, "space.n_q", 1, 1_000_000)
         checks.number(self.max_draw_factor, "space.max_draw_factor", 1, 10_000)
+        if self.plausibility not in ("paper", "traffic"):
+            raise InputError(f"space.plausibility must be paper or traffic, got {self.plausibility!r}")
+        checks.number(self.traffic_heading_deg, "space.traffic_heading_deg", 0.0, 90.0, lo_open=True)
 
     def scale_per_vehicle(self) -> np.ndarray:
         """(3,) the bounds of one vehicle's move: dx_m, dy_m, dyaw_rad (x = 1 in normalised units)."""
@@ -100,7 +107,8 @@ class FeasibleSet:
 
     def __init__(self, space: SearchSpace, rng: np.random.Generator):
         self.space = space
-        checker = FeasibilityChecker(space.scene, space.vehicle_ids)
+        checker = FeasibilityChecker(space.scene, space.vehicle_ids, space.cfg.plausibility,
+                                     space.cfg.traffic_heading_deg)
         budget = space.cfg.n_q * space.cfg.max_draw_factor
         pools = [self._vehicle_pool(checker, vid, rng, budget) for vid in space.vehicle_ids]
         self.drawn = sum(p.drawn for p in pools)

@@ -1,0 +1,67 @@
+"""Plausibility levels: ``paper`` (drivable area, no collision, in range) and ``traffic`` (also in a
+lane of its own direction, heading within 30 deg), checked by the search's checker and by the
+independent re-check alike; a traffic-level run publishes no wrong-way vehicle."""
+import json
+import math
+
+import numpy as np
+
+from asg.cli import main
+from asg.scene import Scene, load_scene
+from asg.scene.feasibility import FeasibilityChecker
+from asg.scene.recheck import recheck
+
+from conftest import car
+from test_robustness import _road, _scene_dict, _write
+
+
+def test_own_lane_heading_and_direction(cross_map):
+    lanes = _road()
+    ok = lambda x, y, yaw_deg: lanes.in_own_lane((x, y), math.radians(yaw_deg), car("c", x, y, math.radians(yaw_deg)).footprint_xy(),
+                                               math.radians(30.0))
+    assert ok(0.0, -4.8, 20.0)                # 20 deg, the front corner still on an eastbound lane
+    assert not ok(0.0, -1.6, 28.0)            # 28 deg from the inner lane: a corner in the westbound lane
+    assert ok(0.0, -1.6, 0.0)                 # eastbound lane, heading east
+    assert ok(0.0, -3.2, 0.0)                 # straddling the two eastbound lanes: a lane change
+    assert not ok(0.0, -1.6, 180.0)           # eastbound lane, heading west
+    assert not ok(0.0, 1.6, 0.0)              # centre in the westbound lane, heading east
+    assert not ok(0.0, -1.6, 40.0)            # 40 deg off the lane
+    assert ok(0.0, 1.6, 180.0) and ok(0.0, 4.8, 175.0)
+    # in a junction the corners may leave the lanes; the centre must still follow one
+    junction = lambda x, y, yaw_deg: cross_map.in_own_lane((x, y), math.radians(yaw_deg),
+                                                          car("c", x, y, math.radians(yaw_deg)).footprint_xy(), math.radians(30.0))
+    assert junction(-6.0, -1.6, 0.0) and not junction(-6.0, -1.6, 180.0)
+
+
+def test_checker_and_recheck_agree_on_random_moves():
+    scene = Scene.from_dict(_scene_dict())
+    movers = ["v2", "u1"]
+    checker = FeasibilityChecker(scene, movers, "traffic", 30.0)
+    rng = np.random.default_rng(4)
+    seen = set()
+    for _ in range(150):
+        d = rng.uniform(-1, 1, size=(2, 3)) * np.array([2.5, 2.5, math.radians(45.0)])
+        moved = {vid: scene.agent(vid).moved(*dv) for vid, dv in zip(movers, d)}
+        final = scene.with_agents([moved.get(a.agent_id, a) for a in scene.agents])
+        a, b = checker.check(moved), recheck(scene, final, "traffic", 30.0)
+        assert a.wrong_way == b.wrong_way, (d, a, b)
+        seen.add(a.wrong_way)
+    assert seen >= {0, 1}  # both outcomes occur: the comparison is not vacuous
+    assert recheck(scene, scene, "paper").wrong_way is None
+
+
+def test_a_traffic_run_publishes_no_wrong_way_vehicle(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    for i in range(2):
+        _write(scenes, _scene_dict(f"s{i}"))
+    out = tmp_path / "run"
+    assert main(["generate", "--scenes", str(scenes), "--detector", "fakes:oracle_factory", "--budget", "6",
+                 "--count", "2", "--workers", "1", "--plausibility", "traffic", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["config"]["space"]["plausibility"] == "traffic"
+    for entry in summary["scenes"]:
+        assert entry["plausibility"] == {"collisions": 0, "off_road": 0, "out_of_range": 0, "wrong_way": 0}
+        final = load_scene(out / "scenes" / entry["scene_id"] / "final.yaml")
+        initial = load_scene(out / "scenes" / entry["scene_id"] / "after_acs.yaml")
+        assert recheck(initial, final, "traffic", 30.0).wrong_way == 0
+    capsys.readouterr()
