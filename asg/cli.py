@@ -240,6 +240,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search", default=None, help="rs, ga or bo (default bo)")
     p.add_argument("--acs", default=None, choices=["attention", "random", "off"])
     p.add_argument("--aps", default=None, choices=["on", "off"])
+    p.add_argument("--movers", type=_whole(0, 64, "--movers"), default=None,
+                   help="vehicles the perturbation search moves (m; default 3, the paper's)")
     p.add_argument("--plausibility", default=None, choices=["paper", "traffic"],
                    help="paper (default: on the drivable area, no collision, in range) or traffic (also in a lane "
                         "of its own direction, heading within 30 deg of it)")

@@ -34,7 +34,7 @@ def run_generate(args: argparse.Namespace) -> int:
     if args.weights is not None and args.detector:
         raise InputError("--weights picks the weights of a shipped --fusion; your --detector factory loads its own")
     cfg = load_generate_config(args.config, fusion=fusion, search=args.search, acs=args.acs,
-                               aps=None if args.aps is None else args.aps == "on", budget=budget,
+                               aps=None if args.aps is None else args.aps == "on", budget=budget, perturbed=args.movers,
                                weights=None if args.weights is None else str(args.weights))
     if args.plausibility is not None:
         from dataclasses import replace

@@ -65,3 +65,14 @@ def test_a_traffic_run_publishes_no_wrong_way_vehicle(capsys, tmp_path):
         initial = load_scene(out / "scenes" / entry["scene_id"] / "after_acs.yaml")
         assert recheck(initial, final, "traffic", 30.0).wrong_way == 0
     capsys.readouterr()
+
+
+def test_movers_sets_how_many_vehicles_move(capsys, tmp_path):
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("s0"))
+    out = tmp_path / "run"
+    assert main(["generate", "--scenes", str(scenes), "--detector", "fakes:oracle_factory", "--budget", "4",
+                 "--count", "1", "--workers", "1", "--movers", "5", "--out", str(out)]) == 0
+    entry = json.loads((out / "summary.json").read_text())["scenes"][0]
+    assert len(entry["perturbed"]) == 5 and len(set(entry["perturbed"])) == 5
+    capsys.readouterr()
