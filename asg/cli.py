@@ -237,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--net", type=Path, help="...or from any SUMO net")
     src.add_argument("--scenes", type=Path, help="...or take the scenes of this folder (scene yaml or a data set) or set (normal, normal-val)")
     p.add_argument("--fusion", default=None, help="target model: none, late, early, attfuse (default attfuse)")
-    p.add_argument("--search", default=None, help="rs, ga or bo (default bo)")
+    p.add_argument("--search", default=None, help="rs, ga, bo or ng (nevergrad; default bo)")
     p.add_argument("--acs", default=None, choices=["attention", "random", "off"])
     p.add_argument("--aps", default=None, choices=["on", "off"])
     p.add_argument("--movers", type=_whole(0, 64, "--movers"), default=None,

@@ -1,4 +1,4 @@
-"""Black-box optimisers behind one ask/tell interface, registered by name: rs, ga, bo.
+"""Black-box optimisers behind one ask/tell interface, registered by name: rs, ga, bo, ng (nevergrad).
 
 All work in normalised units x in [-1, 1]^D and minimise the loss. ``ask`` gets the candidates, the
 members of the feasible set Q not evaluated yet (K, D), and returns a point; the search loop
@@ -178,6 +178,38 @@ class BayesianOptimization(Optimizer):
         self.opt.tell([float(v) for v in np.clip(x, -1.0, 1.0)], float(loss))
         if self.opt.models:
             self.opt.base_estimator_.set_params(kernel=self.opt.models[-1].kernel_)
+
+
+@register("search", "ng")
+class NevergradSearch(Optimizer):
+    """A nevergrad optimiser (default NGOpt, its own pick of algorithm for the dimension and budget;
+    nevergrad also handles discrete and mixed dimensions) over the box [-1, 1]^D, seeded from the
+    scene's generator. ``tell`` gives it the loss of the member of Q nearest to what it asked (the
+    projection is part of the objective it sees); the unperturbed start, which it did not ask for,
+    is not told to it."""
+
+    def __init__(self, dim: int, budget: int, rng: np.random.Generator, optimizer: str = "NGOpt"):
+        super().__init__(dim, budget, rng)
+        import warnings
+
+        import nevergrad as ng
+
+        warnings.filterwarnings("ignore", module="nevergrad")  # advice on bound widths, not errors
+        if optimizer not in ng.optimizers.registry:
+            raise InputError(f"search ng: unknown nevergrad optimizer {optimizer!r} (configs/search/ng.yaml)")
+        param = ng.p.Array(shape=(dim,), lower=-1.0, upper=1.0)
+        param.random_state = np.random.RandomState(int(rng.integers(2**31 - 1)))
+        self._opt = ng.optimizers.registry[optimizer](parametrization=param, budget=budget, num_workers=1)
+        self._asked = None
+
+    def ask(self, candidates: np.ndarray) -> np.ndarray:
+        self._asked = self._opt.ask()
+        return np.asarray(self._asked.value, dtype=float)
+
+    def tell(self, x: np.ndarray, loss: float) -> None:
+        if self._asked is not None:
+            self._opt.tell(self._asked, float(loss))
+            self._asked = None
 
 
 def check_settings(name: str, params: dict) -> None:
