@@ -101,7 +101,7 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
     if not card.get("trained") and set(stages) - {"train"}:
         raise InputError(f"{out}: no fine-tuned weights yet; run the train stage first")
     if "evaluate" in stages:
-        card["evaluation"] = evaluate_before_after(fusion, start, ft_weights, on, fcfg, out / "eval", executor, log)
+        card["evaluation"] = evaluate_before_after(fusion, start, ft_weights, fcfg, out / "eval", executor, log)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     if "reattack" in stages:
         card["reattack"] = reattack(fusion, ft_weights, out / "reattack", executor, log)
@@ -192,7 +192,7 @@ def train_chunk(name: str, on: str, start: Path, weights_out: Path, ckpt: Path, 
             "seed": fcfg.seed, "views": fcfg.views, "threads": threads, "wall_s": round(wall_s, 1)}
 
 
-def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, on: str, fcfg: FinetuneConfig, cache: Path,
+def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, fcfg: FinetuneConfig, cache: Path,
                           executor, log: Callable[[str], None]) -> dict:
     """{set: {"before": AP, "after": AP, "frames": N}} on each eval set and the original model's
     challenging val set (built if missing); each result cached in ``cache``."""
