@@ -27,10 +27,11 @@ def held_out_samples(tmp_path_factory):
 #: the shipped weights scored there when the floors were set (AP@0.3 / AP@0.7: none 0.84 / 0.46, late 0.95 /
 #: 0.78, early 0.95 / 0.84, attfuse 0.95 / 0.82); quality on the whole validation split is in the
 #: model cards
-FLOOR = {"none": (0.65, 0.26), "late": (0.8, 0.65), "early": (0.8, 0.68), "attfuse": (0.8, 0.7)}
+FLOOR = {"none": (0.65, 0.26), "late": (0.8, 0.65), "early": (0.8, 0.68), "attfuse": (0.8, 0.7),
+         "attfuse-ft": (0.8, 0.7)}
 
 
-@pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse"])
+@pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse", "attfuse-ft"])
 def test_shipped_model_detects_vehicles(fusion, held_out_samples):
     det = build_detector(fusion)
     frames = [(*det.detect(s.frame), s.gt_eval()) for s in held_out_samples]
@@ -45,3 +46,12 @@ def test_model_cards_describe_the_weights():
         # the IoU and refinement branches the shipped config uses were fitted on these weights
         assert card["branch_fit"]["candidates"] > 0 and card["chunks"][-1]["part"] == "branches"
         assert (WEIGHTS_DIR / card["weights"]).is_file()
+
+
+def test_the_fine_tuned_card_says_what_it_was_tuned_on():
+    card = json.loads((WEIGHTS_DIR / "attfuse-ft.json").read_text())
+    assert card["weights"] == "attfuse-ft.pt" and card["start"]["weights"] == "attfuse.pt"
+    assert card["trained"]["on"] == "challenging-attfuse-train" and card["trained"]["steps"] > 0
+    assert set(card["evaluation"]) == {"normal-val", "heuristic", "challenging-attfuse-val"}
+    assert set(card["reattack"]) >= {"finetuned", "original", "frames"}
+    assert (WEIGHTS_DIR / card["weights"]).is_file()
