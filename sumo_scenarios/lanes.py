@@ -242,7 +242,7 @@ class LaneMap:
         if self._lane_tree is None:
             return []
         pt = Point(x_m, y_m)
-        near = self._lane_tree.query(pt.buffer(self._max_half_width_m + DRIVABLE_TOLERANCE_M))
+        near = self._lane_tree.query(pt, predicate="dwithin", distance=self._max_half_width_m + DRIVABLE_TOLERANCE_M)
         out = []
         for i in np.atleast_1d(near):
             line, lane = self._lines[int(i)], self.lanes[int(i)]

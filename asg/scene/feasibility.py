@@ -124,8 +124,9 @@ class FeasibilityChecker:
     def on_road(self, agents: Sequence[Agent]) -> np.ndarray:
         """(n,) bool: on the drivable area and, at the ``traffic`` level, in a lane of its own direction."""
         ok = self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
-        if self.traffic:
-            ok &= ~self.wrong_way(agents)
+        if self.traffic:  # the costlier lane-direction test only where the area test passed
+            idx = np.flatnonzero(ok)
+            ok[idx] = ~self.wrong_way([agents[i] for i in idx])
         return ok
 
     def wrong_way(self, agents: Sequence[Agent]) -> np.ndarray:
