@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 import yaml
 
-from asg.cli import main
 from asg.io.export import export
 from asg.io.export.kitti import TR_VELO_TO_CAM
 from asg.io.export.opv2v import opv2v_ids

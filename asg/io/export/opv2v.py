@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from sumo_scenarios.atomic import write_text_atomic
