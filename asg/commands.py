@@ -251,7 +251,7 @@ def export(args: argparse.Namespace) -> int:
 
 
 def finetune(args: argparse.Namespace) -> int:
-    from .executors import build_executor
+    from .generate_cmd import executor_from_args
     from .perception.finetune import finetune as run
     from .perception.train_config import weights_for
 
@@ -268,8 +268,7 @@ def finetune(args: argparse.Namespace) -> int:
 
     config = load_finetune_config(args.config)
     on = args.on or f"challenging-{args.fusion}-train"
-    with progress_bar() as bar, build_executor(args.executor, args.workers or 2, threads=1,
-                                               address=args.address) as executor:
+    with progress_bar() as bar, executor_from_args(args, 10**6) as executor:  # one worker per core by default
         task = bar.add_task(f"fine-tuning {args.fusion}", total=None)
 
         def report(step: int, total: int, loss: float) -> None:
