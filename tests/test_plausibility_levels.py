@@ -6,13 +6,12 @@ import math
 
 import numpy as np
 
-from asg.cli import main
 from asg.scene import Scene, load_scene
 from asg.scene.feasibility import FeasibilityChecker
 from asg.scene.recheck import recheck
 
 from conftest import car
-from test_robustness import _road, _scene_dict, _write
+from test_robustness import _road, _scene_dict, oracle_run
 
 
 def test_own_lane_heading_and_direction(cross_map):
@@ -51,12 +50,7 @@ def test_checker_and_recheck_agree_on_random_moves():
 
 
 def test_a_traffic_run_publishes_no_wrong_way_vehicle(capsys, tmp_path):
-    scenes = tmp_path / "scenes"
-    for i in range(2):
-        _write(scenes, _scene_dict(f"s{i}"))
-    out = tmp_path / "run"
-    assert main(["generate", "--scenes", str(scenes), "--detector", "fakes:oracle_factory", "--budget", "6",
-                 "--count", "2", "--workers", "1", "--plausibility", "traffic", "--out", str(out)]) == 0
+    out = oracle_run(tmp_path, 2, "--budget", "6", "--plausibility", "traffic")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["config"]["space"]["plausibility"] == "traffic"
     for entry in summary["scenes"]:
@@ -68,11 +62,7 @@ def test_a_traffic_run_publishes_no_wrong_way_vehicle(capsys, tmp_path):
 
 
 def test_movers_sets_how_many_vehicles_move(capsys, tmp_path):
-    scenes = tmp_path / "scenes"
-    _write(scenes, _scene_dict("s0"))
-    out = tmp_path / "run"
-    assert main(["generate", "--scenes", str(scenes), "--detector", "fakes:oracle_factory", "--budget", "4",
-                 "--count", "1", "--workers", "1", "--movers", "5", "--out", str(out)]) == 0
+    out = oracle_run(tmp_path, 1, "--budget", "4", "--movers", "5")
     entry = json.loads((out / "summary.json").read_text())["scenes"][0]
     assert len(entry["perturbed"]) == 5 and len(set(entry["perturbed"])) == 5
     capsys.readouterr()

@@ -64,15 +64,12 @@ def test_nevergrad_search_is_seeded_and_learns():
 def test_nevergrad_drives_a_generator_run(capsys, tmp_path):
     import json
 
-    from asg.cli import main
-    from test_robustness import _scene_dict, _write
+    from test_robustness import oracle_run
 
-    _write(tmp_path / "scenes", _scene_dict("s0"))
     runs = []
     for out in ("a", "b"):
-        assert main(["generate", "--scenes", str(tmp_path / "scenes"), "--detector", "fakes:oracle_factory",
-                     "--search", "ng", "--budget", "6", "--count", "1", "--workers", "1", "--out", str(tmp_path / out)]) == 0
-        runs.append(json.loads((tmp_path / out / "summary.json").read_text())["scenes"][0])
+        folder = oracle_run(tmp_path, 1, "--search", "ng", "--budget", "6", out=out)
+        runs.append(json.loads((folder / "summary.json").read_text())["scenes"][0])
     assert runs[0]["evaluations"] == runs[1]["evaluations"] and runs[0]["delta"] == runs[1]["delta"]
     assert (tmp_path / "a" / "scenes" / "s0" / "history.csv").read_text().count("\n") == 7  # header + 6
     capsys.readouterr()

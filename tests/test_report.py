@@ -7,7 +7,7 @@ import subprocess
 from asg.cli import main
 
 from test_cli import assert_one_line_error, run
-from test_robustness import _scene_dict, _write
+from test_robustness import oracle_run
 
 
 def _chromium() -> str:
@@ -18,12 +18,7 @@ def _chromium() -> str:
 
 
 def test_report_renders_in_headless_chromium(capsys, tmp_path):
-    scenes = tmp_path / "scenes"
-    for i in range(2):
-        _write(scenes, _scene_dict(f"s{i}"))
-    out = tmp_path / "run"
-    assert main(["generate", "--scenes", str(scenes), "--detector", "fakes:oracle_factory", "--budget", "4",
-                 "--count", "2", "--workers", "1", "--out", str(out)]) == 0
+    out = oracle_run(tmp_path, 2, "--budget", "4")
     assert main(["report", str(out)]) == 0
     page = (out / "report.html").read_text()
     assert "s0" in page and "s1" in page and "after ACS" in page

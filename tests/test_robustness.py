@@ -41,6 +41,18 @@ def _scene_dict(scene_id: str = "road_t0") -> dict:
     return d
 
 
+def oracle_run(tmp_path: Path, n_scenes: int, *extra: str, out: str = "run") -> Path:
+    """``asg generate`` in this process with the fake oracle detector on synthetic scenes s0, s1, ...
+    (written to tmp_path/scenes); ``extra`` flags added. Returns the run folder tmp_path/out."""
+    scenes = tmp_path / "scenes"
+    for i in range(n_scenes):
+        _write(scenes, _scene_dict(f"s{i}"))
+    folder = tmp_path / out
+    assert main(["generate", "--scenes", str(scenes), "--detector", "fakes:oracle_factory", "--count", str(n_scenes),
+                 "--workers", "1", "--out", str(folder), *extra]) == 0
+    return folder
+
+
 def _write(folder: Path, d: dict, name: str | None = None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     p = folder / f"{name or d['scene_id']}.yaml"

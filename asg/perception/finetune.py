@@ -112,7 +112,7 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
 def claim(out: Path, settings: dict, force: bool) -> None:
     """Make ``out`` the folder of this run: refused if it records other settings (``force``
     empties it first)."""
-    from ..generate import _first_difference
+    from ..generate import _first_difference, _read_record
 
     settings = json.loads(json.dumps(settings))
     if out.exists() and not out.is_dir():
@@ -121,11 +121,7 @@ def claim(out: Path, settings: dict, force: bool) -> None:
     if force and out.is_dir():
         shutil.rmtree(out)
     elif record.is_file():
-        try:
-            earlier = json.loads(record.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            raise InputError(f"{record} is unreadable; give another --out, or --force to start over") from None
-        diff = _first_difference(earlier, settings)
+        diff = _first_difference(_read_record(record), settings)
         if diff:
             raise InputError(f"{out} holds a fine-tuning run with other settings ({diff}); give another --out, "
                              "or --force to start it over")

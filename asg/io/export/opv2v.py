@@ -74,7 +74,7 @@ class ScenarioWriter:
             write_text_atomic(agent_dir / f"{TIMESTAMP}.yaml", yaml.safe_dump(meta, sort_keys=False))
         write_text_atomic(folder / "ids.yaml", yaml.safe_dump(
             {"scene_id": scene.scene_id, "ego": ids[scene.ego_id], "sensing": [ids[a] for a in frame.sensing_ids],
-             "ids": {k: v for k, v in ids.items()}, "frame": "CARLA left-handed: y and yaw mirrored from SUMO"},
+             "ids": dict(ids), "frame": "CARLA left-handed: y and yaw mirrored from SUMO"},
             sort_keys=False))
 
     def close(self) -> None:
