@@ -245,6 +245,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plausibility", default=None, choices=["paper", "traffic"],
                    help="paper (default: on the drivable area, no collision, in range) or traffic (also in a lane "
                         "of its own direction, heading within 30 deg of it)")
+    p.add_argument("--space", default=None, metavar="NAME[,NAME...]",
+                   help="perturbation spaces searched together: poses (default, the paper's), insert, pose-error, "
+                        "latency, dropout (bounds: configs/generate.yaml, space)")
     p.add_argument("--count", type=COUNT, default=None, help="scenes to generate (default 10; demo 2)")
     p.add_argument("--budget", type=COUNT, default=None, help="evaluations per scene (default 50; demo 15)")
     p.add_argument("--seed", type=SEED, default=1)

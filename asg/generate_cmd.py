@@ -22,6 +22,23 @@ DEMO = {"town": "fiveleg", "count": 2, "budget": 15, "fusion": "early"}
 DEFAULT_COUNT = 10
 
 
+def with_space_flags(cfg, plausibility: str | None, spaces: str | None):
+    """``cfg`` with the --plausibility and --space flags (``spaces``: comma-separated names) applied."""
+    from dataclasses import replace
+
+    from .search import SpaceConfig
+
+    changes = {}
+    if plausibility is not None:
+        changes["plausibility"] = plausibility
+    if spaces is not None:
+        changes["kinds"] = tuple(k.strip() for k in spaces.split(",") if k.strip())
+    if not changes:
+        return cfg
+    fields = {f: getattr(cfg.space, f) for f in SpaceConfig.__dataclass_fields__} | changes
+    return replace(cfg, space=SpaceConfig(**fields))
+
+
 def run_generate(args: argparse.Namespace) -> int:
     """``asg generate`` with parsed ``args``."""
     import shutil
@@ -36,10 +53,7 @@ def run_generate(args: argparse.Namespace) -> int:
     cfg = load_generate_config(args.config, fusion=fusion, search=args.search, acs=args.acs,
                                aps=None if args.aps is None else args.aps == "on", budget=budget, perturbed=args.movers,
                                weights=None if args.weights is None else str(args.weights))
-    if args.plausibility is not None:
-        from dataclasses import replace
-
-        cfg = replace(cfg, space=replace(cfg.space, plausibility=args.plausibility))
+    cfg = with_space_flags(cfg, args.plausibility, args.space)
     if cfg.weights and not args.detector:
         from .perception.weights_io import check_weights_file
 

@@ -5,6 +5,7 @@ What the CLI and the benchmarks call. Works with any detector behind the V2XDete
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +26,7 @@ from .scene.recheck import recheck
 from .scene.neighbours import COMM_RANGE_M, vehicles_within
 from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, check_settings, run_search
 from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
-from .sensors.frame import CooperativeFrame, render_frame
+from .sensors.frame import CooperativeFrame, apply_link, delayed_view, render_frame
 
 #: evaluations per scene at most (a scene at 50 takes seconds; this many is a day)
 MAX_BUDGET = 100_000
@@ -119,13 +120,17 @@ class SceneResult:
     bo_overhead_s: list[float] = field(default_factory=list)
     #: (boxes, scores, ground truth) of the target model on the initial and final scene (ego frame)
     detections: dict[str, "Detections"] = field(default_factory=dict)
-    #: one vehicle's move bounds (dx_m, dy_m, dyaw_deg): history's normalised x times these
-    move_bounds: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: history.csv's columns for a member (units in the names) and each evaluation's values in them
+    history_columns: list[str] = field(default_factory=list)
+    history_values: list[list[float]] = field(default_factory=list)
+    #: the spaces searched with their bounds; what the final scene inserted and did to the link
+    space: dict = field(default_factory=dict)
+    inserted: tuple[str, ...] = ()
 
     @property
     def moved(self) -> tuple[str, ...]:
         """The perturbed vehicles that the final scene actually moved (none if APS kept the start)."""
-        return self.perturbed if self.delta else ()
+        return tuple(vid for vid, d in zip(self.perturbed, self.delta) if any(d))
 
 
 class Generator:
@@ -215,19 +220,16 @@ class Generator:
         after = acs.best
         aps = ApsOutcome(after, [], [], ())
         if self.cfg.aps:
-            perturbed = self.pick_perturbed(after.scene, notes)
-            if perturbed:
-                try:
-                    aps = self._perturb(after, perturbed, rng, on_step)
-                except EmptyFeasibleSet as exc:
-                    notes.append(f"APS skipped: {exc}")
-            else:
-                notes.append("APS skipped: no vehicle to move")
+            perturbed = self.pick_perturbed(after.scene, notes) if "poses" in self.cfg.space.kinds else []
+            try:
+                aps = self._perturb(after, perturbed, rng, on_step)
+            except EmptyFeasibleSet as exc:
+                notes.append(f"APS skipped: {exc}")
         level = (self.cfg.space.plausibility, self.cfg.space.traffic_heading_deg)
         plaus = recheck(after.scene, aps.best.scene, *level)  # shapely, not the fcl checker that built Q
         if not plaus.ok:  # never publish an implausible scene
             notes.append(f"final scene failed the independent plausibility check {plaus.to_dict()}; kept the scene after ACS")
-            aps = ApsOutcome(after, aps.history, [], aps.perturbed)
+            aps = ApsOutcome(after, aps.history, [], aps.perturbed, aps.columns, aps.values, aps.space)
             plaus = recheck(after.scene, after.scene, *level)
         final = aps.best
         stages = {"initial": normal, "after_acs": after, "final": final}
@@ -236,30 +238,58 @@ class Generator:
             1 + acs.combinations + len(aps.history), time.perf_counter() - t0, aps.perturbed, aps.delta, plaus,
             aps.history, {k: v.frame for k, v in stages.items()}, notes, acs.probabilities,
             [e.optimizer_s for e in aps.history], {k: self._detections(v.frame) for k, v in stages.items()},
-            (self.cfg.space.dxy_m, self.cfg.space.dxy_m, self.cfg.space.dyaw_deg))
+            aps.columns, aps.values, aps.space, aps.inserted)
 
     def _perturb(self, start_at: "Scored", perturbed: list[str], rng: np.random.Generator, on_step) -> "ApsOutcome":
-        """Search the moves of ``perturbed`` from ``start_at`` (its loss is told first, not counted)."""
+        """Search the spaces of ``cfg.space.kinds`` from ``start_at`` (``perturbed``: the vehicles the
+        poses space moves; the start's loss is told first, not counted)."""
         scene = start_at.scene
         space = SearchSpace(scene, perturbed, self.cfg.space)
+        if space.dim == 0:
+            raise EmptyFeasibleSet("nothing to perturb (no vehicle to move, no collaborator)")
         feasible = FeasibleSet(space, rng)
-        world = World(scene, self.spec, movable_ids=perturbed)
+        world = World(space.world_scene, self.spec, movable_ids=space.movable_ids)
         world.prepare(scene.sensing_ids)
+        delayed: dict[tuple[str, float], tuple] = {}  # a delayed message renders once per (collaborator, delay)
+
+        def view(aid: str, state) -> tuple:
+            key = (aid, state.delay_s)
+            if key not in delayed:
+                delayed[key] = delayed_view(scene, aid, state, self.spec)
+            return delayed[key]
+
+        def frame_of(x: np.ndarray) -> CooperativeFrame:
+            p = space.decode(x)
+            frame = render_frame(world, scene.sensing_ids, moved=p.moved)
+            return apply_link(frame, p.link, view) if p.link else frame
 
         def objective(x: np.ndarray) -> tuple[float, dict[str, float]]:
-            return self._score(render_frame(world, moved=space.moved_agents(x)))
+            return self._score(frame_of(x))
 
         optimizer = build_optimizer(self.cfg.search, space.dim, self.cfg.budget, rng, **self.params)
-        start = Evaluation(0, np.zeros(space.dim), start_at.loss, start_at.ap, 0.0)
+        start = Evaluation(0, space.identity(), start_at.loss, start_at.ap, 0.0)
         history = run_search(optimizer, feasible, objective, self.cfg.budget, start, on_step)
         best = best_of(history, start)
+        record = {"kinds": list(self.cfg.space.kinds), "bounds": space.bounds(), "dimensions": space.dim,
+                  "q_members": len(feasible)}
+        columns, values = space.columns(), [space.readable(e.x) for e in history]
         if best.step == 0:
-            return ApsOutcome(start_at, history, [], tuple(perturbed))
-        moved = space.moved_agents(best.x)
-        final = scene.with_agents([moved.get(a.agent_id, a) for a in scene.agents])
-        delta = [[round(float(v), 4) for v in d] for d in space.denormalise(best.x)]
-        return ApsOutcome(Scored(final, best.loss, best.ap, render_frame(world, moved=moved)), history, delta,
-                          tuple(perturbed))
+            return ApsOutcome(start_at, history, [], tuple(perturbed), columns, values, record)
+        final = space.apply(best.x)
+        moves = space.decode(best.x).moved
+        delta = [[round(float(v), 4) for v in (moves[vid].x_m - scene.agent(vid).x_m, moves[vid].y_m - scene.agent(vid).y_m,
+                                               _wrap(moves[vid].yaw_rad - scene.agent(vid).yaw_rad))]
+                 for vid in perturbed]
+        inserted = tuple(aid for aid, a in moves.items() if a is not None and aid not in perturbed)
+        record["link"] = {cid: {k: v for k, v in st.to_dict().items() if k != "earlier_agents"}
+                          for cid, st in final.link.items()}
+        record["inserted"] = list(inserted)
+        return ApsOutcome(Scored(final, best.loss, best.ap, frame_of(best.x)), history, delta, tuple(perturbed),
+                          columns, values, record, inserted)
+
+
+def _wrap(angle_rad: float) -> float:
+    return math.atan2(math.sin(angle_rad), math.cos(angle_rad))
 
 
 @dataclass(frozen=True)
@@ -292,3 +322,9 @@ class ApsOutcome:
     history: list[Evaluation]
     delta: list[list[float]]
     perturbed: tuple[str, ...]
+    #: history.csv's columns and each evaluation's values in them
+    columns: list[str] = field(default_factory=list)
+    values: list[list[float]] = field(default_factory=list)
+    #: the spaces, their bounds and (when the search changed the scene) what it inserted and did to the link
+    space: dict = field(default_factory=dict)
+    inserted: tuple[str, ...] = ()

@@ -4,7 +4,7 @@
     OUT/scenes/SCENE_ID/initial.yaml         the normal scene (its collaborators set)
     OUT/scenes/SCENE_ID/after_acs.yaml       after the collaborator search
     OUT/scenes/SCENE_ID/final.yaml           after the perturbation search
-    OUT/scenes/SCENE_ID/history.csv          step, dx/dy/dyaw per perturbed vehicle, loss, AP@0.3/0.5/0.7
+    OUT/scenes/SCENE_ID/history.csv          step, the member in units (per space: columns named VEHICLE_dx_m, ...), loss, AP
     OUT/scenes/SCENE_ID/clouds/AGENT.pcd     final per-agent clouds (sensor frame), also .npy
     OUT/scenes/SCENE_ID/{initial,after_acs,final}.png   bird's-eye pictures (perturbed vehicles circled)
     OUT/scenes/SCENE_ID/result.json          this scene's summary entry: written last, marks it done
@@ -40,7 +40,7 @@ def scene_entry(r: SceneResult) -> dict:
         "collaborators": {"initial": list(r.initial.collaborators), "final": list(r.after_acs.collaborators)},
         "perturbed": list(r.perturbed), "moved": list(r.moved), "delta": r.delta,
         "plausibility": r.plausibility.to_dict(), "notes": r.notes,
-    }
+    } | ({"space": r.space} if r.space and r.space.get("kinds") != ["poses"] else {})
 
 
 def write_scene(out_dir: Path, r: SceneResult, artifacts: bool = True) -> dict:
@@ -48,19 +48,15 @@ def write_scene(out_dir: Path, r: SceneResult, artifacts: bool = True) -> dict:
     return its summary entry. ``artifacts``: also the final clouds and the pictures (a data set of
     challenging scenes keeps only the scenes, history and detections)."""
     entry = scene_entry(r)
-    m_ids = list(r.perturbed)
     with atomic_dir(inside(out_dir / "scenes", out_dir / "scenes" / r.scene_id)) as work:
         save_scene(r.initial, work / "initial.yaml")
         save_scene(r.after_acs, work / "after_acs.yaml")
         save_scene(r.final, work / "final.yaml")
         buf = io.StringIO()
         w = csv.writer(buf)
-        cols = [f"{v}_{k}" for v in m_ids for k in ("dx_m", "dy_m", "dyaw_deg")]
-        w.writerow(["step", *cols, "loss", "ap_0.3", "ap_0.5", "ap_0.7"])
-        scale = np.tile(r.move_bounds, len(m_ids))
-        for e in r.history:
-            w.writerow([e.step, *[round(float(v), 4) for v in e.x * scale], round(e.loss, 6),
-                        *[round(e.ap.get(k, 0.0), 6) for k in ("0.3", "0.5", "0.7")]])
+        w.writerow(["step", *r.history_columns, "loss", "ap_0.3", "ap_0.5", "ap_0.7"])
+        for e, values in zip(r.history, r.history_values):
+            w.writerow([e.step, *values, round(e.loss, 6), *[round(e.ap.get(k, 0.0), 6) for k in ("0.3", "0.5", "0.7")]])
         (work / "history.csv").write_text(buf.getvalue())
         if artifacts:
             _write_artifacts(work, r)

@@ -113,3 +113,25 @@ def extract_scenes(log_path: str | Path, params: ExtractParams) -> Iterator[Scen
         scene = scene_from_frame(log, frame, params)
         if scene is not None:
             yield scene
+
+
+def agents_at(log_path: str | Path, times_s: list[float]) -> dict[float, list[Agent]]:
+    """Every vehicle (as agents) of the log's frames at ``times_s`` (seconds; matched to 1 ms),
+    reading the log once up to the last of them. A time the log does not record is absent."""
+    log = open_log(log_path)
+    wanted = {round(t, 3) for t in times_s}
+    last = max(wanted)
+    out: dict[float, list[Agent]] = {}
+    for frame in log.frames():
+        t = round(frame.time_s, 3)
+        if t in wanted:
+            out[t] = frame_vehicles(log, frame)
+        if t >= last:
+            break
+    return out
+
+
+def log_period_s(log_path: str | Path) -> tuple[float, float]:
+    """(recording period, first recorded time) of a log folder, seconds."""
+    meta = open_log(log_path).meta
+    return float(meta.record_period_s), float(meta.warmup_s)

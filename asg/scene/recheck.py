@@ -35,10 +35,10 @@ OVERLAP_M2 = 1e-6
 
 
 def moved_vehicles(initial: Scene, final: Scene) -> list[Agent]:
-    """The vehicles of ``final`` whose pose differs from ``initial``."""
+    """The vehicles of ``final`` whose pose differs from ``initial``, and those it added."""
     before = {a.agent_id: a for a in initial.agents}
-    return [a for a in final.vehicles if a.agent_id in before
-            and (a.x_m, a.y_m, a.yaw_rad) != (before[a.agent_id].x_m, before[a.agent_id].y_m, before[a.agent_id].yaw_rad)]
+    return [a for a in final.vehicles if a.agent_id not in before
+            or (a.x_m, a.y_m, a.yaw_rad) != (before[a.agent_id].x_m, before[a.agent_id].y_m, before[a.agent_id].yaw_rad)]
 
 
 def _footprint(a: Agent) -> Polygon:
@@ -89,7 +89,7 @@ def _wrong_way(final: Scene, moved: list[Agent], max_heading_rad: float) -> int:
 
 
 def recheck(initial: Scene, final: Scene, plausibility: str = "paper", traffic_heading_deg: float = 30.0) -> Plausibility:
-    """Collisions, off-road and out-of-range counts of the vehicles ``final`` moved (see module),
+    """Collisions, off-road and out-of-range counts of the vehicles ``final`` moved or inserted (see module),
     and at the ``traffic`` level how many are not in a lane of their own direction."""
     moved = moved_vehicles(initial, final)
     traffic = plausibility == "traffic"

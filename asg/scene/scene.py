@@ -9,6 +9,7 @@ Schema (every key required unless marked optional)::
     ego: str             # agent id of the ego (an RSU or a vehicle)
     collaborators: [str] # optional: sensing agents besides the ego
     log: str | null      # optional: the log folder it came from
+    link: {COLLABORATOR_ID: LinkState}   # optional: what the V2X link did (link.py); absent = perfect
     agents: [Agent]      # see agent.py; vehicles and RSUs
     buildings: [{id, height_m, footprint: [[x, y], ...]}]
     lanes: {lanes: [...], junctions: [...]}   # sumo_scenarios.lanes.LaneMap.to_dict()
@@ -16,9 +17,9 @@ Schema (every key required unless marked optional)::
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import yaml
 
@@ -29,6 +30,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.lanes import LaneMap
 
 from .agent import Agent
+from .link import LinkState
 
 REQUIRED_KEYS = ("scene_id", "town", "source", "time_s", "ego", "agents", "buildings", "lanes")
 
@@ -45,6 +47,8 @@ class Scene:
     lane_map: LaneMap
     collaborators: tuple[str, ...] = ()
     log: str | None = None
+    #: per collaborator, what the V2X link did to its message (none listed: a perfect link)
+    link: Mapping[str, LinkState] = field(default_factory=dict)
 
     # ---- lookups ---------------------------------------------------------------------------
     def agent(self, agent_id: str) -> Agent:
@@ -71,7 +75,12 @@ class Scene:
         return replace(self, agents=tuple(agents))
 
     def with_collaborators(self, ids: Sequence[str]) -> "Scene":
-        return replace(self, collaborators=tuple(ids))
+        """Other collaborators (their link records go: they describe the old ones' messages)."""
+        return replace(self, collaborators=tuple(ids), link={})
+
+    def with_link(self, link: Mapping[str, LinkState]) -> "Scene":
+        """The scene with this link record (perfect states left out)."""
+        return replace(self, link={k: v for k, v in link.items() if not v.is_perfect})
 
     def moved(self, moves: dict[str, tuple[float, float, float]]) -> "Scene":
         """A copy with agents displaced: ``moves[agent_id] = (dx_m, dy_m, dyaw_rad)``."""
@@ -85,7 +94,7 @@ class Scene:
             "agents": [a.to_dict() for a in self.agents],
             "buildings": [b.to_dict() for b in self.buildings],
             "lanes": self.lane_map.to_dict(),
-        }
+        } | ({"link": {k: v.to_dict() for k, v in self.link.items()}} if self.link else {})
 
     @staticmethod
     def from_dict(d: dict, where: str = "scene") -> "Scene":
@@ -104,6 +113,7 @@ class Scene:
                 lane_map=LaneMap.from_dict(d["lanes"]),
                 collaborators=tuple(str(c) for c in _items(d.get("collaborators"), "collaborators")),
                 log=None if d.get("log") is None else str(d["log"]),
+                link=_link(d.get("link"), where),
             )
         except InputError as exc:
             raise InputError(f"{where}: {exc}") from None
@@ -122,7 +132,18 @@ class Scene:
                 raise InputError(f"{where}: agent '{needed}' named as ego or collaborator is not in 'agents'")
         if len(set(scene.sensing_ids)) != len(scene.sensing_ids):
             raise InputError(f"{where}: the ego or a collaborator is named twice")
+        stray = next((k for k in scene.link if k not in scene.collaborators), None)
+        if stray is not None:
+            raise InputError(f"{where}: link record for '{stray}', which is not a collaborator")
         return scene
+
+
+def _link(value, where: str) -> dict[str, LinkState]:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise TypeError("'link' must be a mapping of collaborator id to link state")
+    return {str(k): LinkState.from_dict(v, str(k), where) for k, v in value.items()}
 
 
 #: where scenes come from

@@ -1,15 +1,21 @@
 """The perturbation search space and its feasible set Q.
 
-A perturbation of m vehicles is x in [-1, 1]^(3m): per vehicle (dx, dy, dyaw) divided by the
-bounds (2.5 m, 2.5 m, 45 deg), dx and dy in the network frame. Q holds N_Q joint samples, uniform
-over the plausible ones: every moved vehicle stays on the drivable area, collides with nothing and
-stays in the evaluation range (see FeasibleSet for how they are drawn). Projection onto Q: nearest
-member in normalised units (L2).
+The space is the concatenation of the perturbation spaces named in ``space.kinds`` (asg.search.spaces:
+``poses`` is the paper's, m = 3 vehicles each moved within +-2.5 m and +-45 deg; ``insert``,
+``pose-error``, ``latency``, ``dropout`` go beyond it). A member x is a vector in normalised units,
+[-1, 1] per dimension: first every physical slot (a moved or inserted vehicle), then every link
+dimension. Q holds N_Q joint samples, uniform over the plausible ones: every moved or inserted
+vehicle stays on the drivable area, collides with nothing and stays in the evaluation range (see
+FeasibleSet for how they are drawn); link dimensions are drawn uniformly within their bounds.
+Projection onto Q: nearest member in normalised units (L2).
+
+The budget does not grow with the dimensions: every space gets ``--budget`` evaluations, so spaces
+and searches are compared at the same cost.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal, Sequence
 
 import numpy as np
@@ -17,12 +23,18 @@ import numpy as np
 from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 
+from ..registry import lookup, names
 from ..scene import Agent, Scene
 from ..scene.feasibility import FeasibilityChecker, box_object, collide_boxes
+from ..scene.link import LinkState
+from .spaces import DropoutConfig, InsertConfig, LatencyConfig, PoseErrorConfig, Slot, SpaceContext
 
 
 @dataclass(frozen=True)
 class SpaceConfig:
+    #: the perturbation spaces searched together (asg.search.spaces): poses, insert, pose-error, latency, dropout
+    kinds: tuple[str, ...] = ("poses",)
+    #: poses: one vehicle's move bounds
     dxy_m: float = 2.5
     dyaw_deg: float = 45.0
     n_q: int = 1000
@@ -32,8 +44,22 @@ class SpaceConfig:
     #: "traffic" (also in a lane of its own direction, heading within traffic_heading_deg of it)
     plausibility: Literal["paper", "traffic"] = "paper"
     traffic_heading_deg: float = 30.0
+    insert: InsertConfig = field(default_factory=InsertConfig)
+    pose_error: PoseErrorConfig = field(default_factory=PoseErrorConfig)
+    latency: LatencyConfig = field(default_factory=LatencyConfig)
+    dropout: DropoutConfig = field(default_factory=DropoutConfig)
 
     def __post_init__(self) -> None:
+        from . import spaces as _  # noqa: F401  (the registry)
+
+        known = names("space")
+        if not self.kinds:
+            raise InputError(f"space.kinds is empty; name at least one of {', '.join(known)}")
+        for k in self.kinds:
+            if k not in known:
+                raise InputError(f"unknown perturbation space '{k}'; known: {', '.join(known)}")
+        if len(set(self.kinds)) != len(self.kinds):
+            raise InputError(f"space.kinds names a space twice: {', '.join(self.kinds)}")
         checks.number(self.dxy_m, "space.dxy_m", 0.0, MAX_DXY_M, lo_open=True)
         checks.number(self.dyaw_deg, "space.dyaw_deg", 0.0, 180.0, lo_open=True)
         checks.number(self.n_q, "space.n_q", 1, 1_000_000)
@@ -47,6 +73,8 @@ class SpaceConfig:
         return np.array([self.dxy_m, self.dxy_m, math.radians(self.dyaw_deg)])
 
 
+#: where an absent slot "stands" for the pair test (m): farther than any two vehicles can be apart
+FAR_M = 1.0e9
 #: a move larger than this (m) is no longer a nudge within the lane's neighbourhood
 MAX_DXY_M = 20.0
 
@@ -60,30 +88,105 @@ class EmptyFeasibleSet(InputError):
     """No sampled perturbation is plausible (e.g. vehicles boxed in): the scene cannot be perturbed."""
 
 
+@dataclass(frozen=True)
+class Perturbation:
+    """What a member does: the placed vehicles by id (None: an inserted one left out) and, per
+    collaborator whose message it changes, the link state."""
+
+    moved: dict[str, Agent | None]
+    link: dict[str, LinkState]
+
+
 class SearchSpace:
-    def __init__(self, scene: Scene, vehicle_ids: Sequence[str], cfg: SpaceConfig = SpaceConfig()):
+    """The spaces of ``cfg.kinds`` over a scene (after ACS) and its m perturbed vehicles ``movers``."""
+
+    def __init__(self, scene: Scene, movers: Sequence[str], cfg: SpaceConfig = SpaceConfig()):
         self.scene = scene
-        self.vehicle_ids = tuple(vehicle_ids)
+        self.vehicle_ids = tuple(movers)
         self.cfg = cfg
-        self.scale = np.tile(cfg.scale_per_vehicle(), len(self.vehicle_ids))
+        ctx = SpaceContext(scene, self.vehicle_ids)
+        self.parts = [lookup("space", k)(ctx, cfg) for k in cfg.kinds]
+        self.slots: list[Slot] = [slot for p in self.parts for slot in p.slots]
+        self.link_parts = [p for p in self.parts if p.width]
+        self._slot_cuts = np.cumsum([0] + [s.width for s in self.slots])
+        self._link_cuts = self._slot_cuts[-1] + np.cumsum([0] + [p.width for p in self.link_parts])
 
     @property
     def dim(self) -> int:
-        return 3 * len(self.vehicle_ids)
+        return int(self._link_cuts[-1])
 
-    def denormalise(self, x: np.ndarray) -> np.ndarray:
-        """(3m,) normalised → (m, 3) dx_m, dy_m, dyaw_rad."""
-        return (np.asarray(x) * self.scale).reshape(-1, 3)
+    @property
+    def slot_dim(self) -> int:
+        return int(self._slot_cuts[-1])
 
-    def moved_agents(self, x: np.ndarray) -> dict[str, Agent]:
-        deltas = self.denormalise(x)
-        return {vid: self.scene.agent(vid).moved(*d) for vid, d in zip(self.vehicle_ids, deltas)}
+    @property
+    def movable_ids(self) -> tuple[str, ...]:
+        """The agents a render must be able to place: moved vehicles and insertion slots."""
+        return tuple(s.agent_id for s in self.slots)
+
+    @property
+    def world_scene(self) -> Scene:
+        """The scene with every insertion slot present (at its first candidate), for a World whose
+        movable agents are :attr:`movable_ids`; a render passes each slot's state."""
+        have = {a.agent_id for a in self.scene.agents}
+        extra = [_placeholder(s) for s in self.slots if s.agent_id not in have]
+        return self.scene.with_agents(list(self.scene.agents) + extra) if extra else self.scene
+
+    def identity(self) -> np.ndarray:
+        """(dim,) the member that changes nothing."""
+        parts = [s.identity() for s in self.slots] + [p.identity() for p in self.link_parts]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def slot_values(self, x: np.ndarray) -> list[np.ndarray]:
+        return [np.asarray(x)[a:b] for a, b in zip(self._slot_cuts[:-1], self._slot_cuts[1:])]
+
+    def link_values(self, x: np.ndarray) -> list[np.ndarray]:
+        return [np.asarray(x)[a:b] for a, b in zip(self._link_cuts[:-1], self._link_cuts[1:])]
+
+    def decode(self, x: np.ndarray) -> Perturbation:
+        moved = {s.agent_id: s.agent(v) for s, v in zip(self.slots, self.slot_values(x))}
+        fields: dict[str, dict] = {}
+        for part, v in zip(self.link_parts, self.link_values(x)):
+            for cid, f in part.link_fields(v).items():
+                fields.setdefault(cid, {}).update(f)
+        return Perturbation(moved, {cid: LinkState(**f) for cid, f in fields.items()})
+
+    def moved_agents(self, x: np.ndarray) -> dict[str, Agent | None]:
+        return self.decode(x).moved
+
+    def apply(self, x: np.ndarray) -> Scene:
+        """The scene with member ``x`` applied: vehicles moved, inserted ones added, the link record set."""
+        p = self.decode(x)
+        agents = [p.moved.get(a.agent_id, a) for a in self.scene.agents]
+        have = {a.agent_id for a in self.scene.agents}
+        agents += [a for aid, a in p.moved.items() if aid not in have and a is not None]
+        return self.scene.with_agents([a for a in agents if a is not None]).with_link(p.link)
+
+    def columns(self) -> list[str]:
+        """history.csv's column names for a member (with units)."""
+        return [c for s in self.slots for c in s.columns()] + [c for p in self.link_parts for c in p.link_columns()]
+
+    def readable(self, x: np.ndarray) -> list[float]:
+        """Member ``x`` in the units of :meth:`columns`."""
+        return [v for s, xs in zip(self.slots, self.slot_values(x)) for v in s.readable(xs)] + \
+            [v for p, xs in zip(self.link_parts, self.link_values(x)) for v in p.link_readable(xs)]
+
+    def bounds(self) -> dict:
+        """Each space's bounds, as summary.json records them."""
+        return {p.registry_name: p.bounds() for p in self.parts}
+
+
+def _placeholder(slot) -> Agent:
+    """An insertion slot's agent for the World's list of movable agents (renders always place it)."""
+    from dataclasses import replace
+
+    return replace(slot.template, agent_id=slot.agent_id)
 
 
 @dataclass
 class _Pool:
-    """One vehicle's moves that pass its own constraints: normalised (K, 3), the moved vehicle's
-    fcl boxes and centres (K, 2), the draws used, and the radius of the circle around its footprint."""
+    """One slot's candidates that pass its own constraints: normalised (K, width), the placed
+    vehicle's fcl box (None: absent) and centre (K, 2), the draws used, the slot's radius."""
 
     x: np.ndarray
     objects: list
@@ -91,87 +194,110 @@ class _Pool:
     drawn: int
     radius_m: float
 
+    @property
+    def present(self) -> np.ndarray:
+        """(K,) bool: candidates that place a vehicle."""
+        return np.array([o is not None for o in self.objects], dtype=bool)
+
 
 class FeasibleSet:
-    """Q: plausible joint perturbations (K, 3m) in normalised units; row 0 is always 'no move'.
+    """Q: plausible joint perturbations (K, dim) in normalised units; row 0 is always the identity.
 
-    Sampled in two steps, with the same distribution as drawing joint perturbations uniformly and
-    rejecting the implausible ones, but far fewer draws: each vehicle's own constraints (on the
-    drivable area, in range, clear of everything that does not move) do not depend on the other
-    moved vehicles, so each vehicle first gets a pool of uniform moves that pass them; joint
-    samples then combine one move from each pool at random and are kept only if the moved
-    vehicles stay clear of each other. Joint rejection sampling needs about 1 / (p_1 ... p_m)
-    draws per member; in a dense lane (p_i of a few percent each) it filled only a few dozen of
-    the 1000 members in 20,000 draws.
+    The physical slots are sampled in two steps, with the same distribution as drawing joint
+    perturbations uniformly and rejecting the implausible ones, but far fewer draws: each slot's own
+    constraints (on the drivable area, in range, clear of everything that does not move) do not
+    depend on the other slots, so each slot first gets a pool of candidates that pass them; joint
+    samples then combine one candidate from each pool at random and are kept only if the placed
+    vehicles stay clear of each other. Joint rejection sampling needs about 1 / (p_1 ... p_m) draws
+    per member; in a dense lane (p_i of a few percent each) it filled only a few dozen of the 1000
+    members in 20,000 draws. Each member then gets link values drawn uniformly (independent of the
+    physical ones).
     """
 
     def __init__(self, space: SearchSpace, rng: np.random.Generator):
         self.space = space
-        checker = FeasibilityChecker(space.scene, space.vehicle_ids, space.cfg.plausibility,
-                                     space.cfg.traffic_heading_deg)
-        budget = space.cfg.n_q * space.cfg.max_draw_factor
-        pools = [self._vehicle_pool(checker, vid, rng, budget) for vid in space.vehicle_ids]
+        cfg = space.cfg
+        self.drawn = 0
+        physical = self._physical_members(rng) if space.slots else np.zeros((cfg.n_q + 1, 0))
+        n = len(physical)
+        links = [p.sample(rng, n - 1) for p in space.link_parts]
+        identity = space.identity()
+        rows = np.concatenate([physical[1:]] + links, axis=1) if n > 1 else np.zeros((0, space.dim))
+        self.members = np.concatenate([identity[None], rows]) if len(rows) else identity[None]
+        if len(self.members) < 2:
+            raise EmptyFeasibleSet(f"scene {space.scene.scene_id}: the search space is empty")
+
+    def _physical_members(self, rng: np.random.Generator) -> np.ndarray:
+        space, cfg = self.space, self.space.cfg
+        checker = FeasibilityChecker(space.scene, space.vehicle_ids, cfg.plausibility, cfg.traffic_heading_deg)
+        budget = cfg.n_q * cfg.max_draw_factor
+        pools = [self._slot_pool(checker, slot, rng, budget) for slot in space.slots]
         self.drawn = sum(p.drawn for p in pools)
-        empty = [vid for vid, p in zip(space.vehicle_ids, pools) if not len(p.x)]
+        empty = [s.agent_id for s, p in zip(space.slots, pools) if not p.present.any()]
         if empty:
             raise EmptyFeasibleSet(
-                f"scene {space.scene.scene_id}: no plausible move for vehicle {empty[0]} in {budget} draws; "
-                "the scene cannot be perturbed")
-        kept = [np.zeros(space.dim)]
+                f"scene {space.scene.scene_id}: no plausible move for vehicle {empty[0]} in {budget} draws "
+                "(boxed in; for an inserted one, no free lane position); the scene cannot be perturbed")
+        kept = [np.concatenate([s.identity() for s in space.slots])]
         drawn = 0
-        while len(kept) < space.cfg.n_q + 1 and drawn < budget:
+        while len(kept) < cfg.n_q + 1 and drawn < budget:
             batch = min(256, budget - drawn)
-            picks = np.stack([rng.integers(0, len(p.x), size=batch) for p in pools], axis=1)  # (batch, m)
+            picks = np.stack([rng.integers(0, len(p.x), size=batch) for p in pools], axis=1)  # (batch, slots)
             drawn += batch
             for row in picks[self._clear_pairs(pools, picks)]:
                 kept.append(np.concatenate([p.x[k] for p, k in zip(pools, row)]))
-                if len(kept) >= space.cfg.n_q + 1:
+                if len(kept) >= cfg.n_q + 1:
                     break
         self.drawn += drawn
-        self.members = np.array(kept)
-        if len(self.members) < 2:
+        if len(kept) < 2:
             raise EmptyFeasibleSet(
-                f"scene {space.scene.scene_id}: no plausible joint move for vehicles {', '.join(space.vehicle_ids)} "
+                f"scene {space.scene.scene_id}: no plausible joint move for vehicles {', '.join(space.movable_ids)} "
                 f"in {drawn} draws (each can move alone, not together); the scene cannot be perturbed")
+        return np.array(kept)
 
     @staticmethod
     def _clear_pairs(pools: list["_Pool"], picks: np.ndarray) -> np.ndarray:
-        """(batch,) bool: the picked moves (batch, m) keep every pair of moved vehicles apart.
-        Pairs whose bounding circles are apart are clear without asking fcl."""
+        """(batch,) bool: the picked candidates (batch, slots) keep every pair of placed vehicles
+        apart. Pairs whose bounding circles are apart, or with one absent, are clear without asking fcl."""
         ok = np.ones(len(picks), dtype=bool)
         for i in range(len(pools)):
             for j in range(i + 1, len(pools)):
                 gap = np.linalg.norm(pools[i].xy[picks[:, i]] - pools[j].xy[picks[:, j]], axis=1)
-                near = np.flatnonzero(ok & (gap < pools[i].radius_m + pools[j].radius_m))
+                both = pools[i].present[picks[:, i]] & pools[j].present[picks[:, j]]
+                near = np.flatnonzero(ok & both & (gap < pools[i].radius_m + pools[j].radius_m))
                 for r in near:
                     ok[r] = not collide_boxes(pools[i].objects[picks[r, i]], pools[j].objects[picks[r, j]])
         return ok
 
-    def _vehicle_pool(self, checker: FeasibilityChecker, vehicle_id: str, rng: np.random.Generator,
-                      budget: int) -> "_Pool":
-        """Up to N_Q uniform moves of one vehicle that pass its own constraints."""
-        base = self.space.scene.agent(vehicle_id)
-        scale = self.space.scale[:3]
+    def _slot_pool(self, checker: FeasibilityChecker, slot: Slot, rng: np.random.Generator, budget: int) -> "_Pool":
+        """Up to N_Q candidates of one slot that pass its own constraints (an absent one always does)."""
+        n_q = self.space.cfg.n_q
         xs: list[np.ndarray] = []
         objects: list = []
         xy: list[tuple[float, float]] = []
         drawn = 0
-        while len(xs) < self.space.cfg.n_q and drawn < budget:
+        while len(xs) < n_q and drawn < budget:
             batch = min(512, budget - drawn)
-            draws = rng.uniform(-1.0, 1.0, size=(batch, 3))
+            draws = slot.draw(rng, batch)
             drawn += batch
-            moved = [base.moved(*(x * scale)) for x in draws]
-            ok = checker.on_road(moved) & checker.in_range(moved)
-            for x, a in zip(draws[ok], (a for a, k in zip(moved, ok) if k)):
-                box = box_object(a)
-                if not checker.touches_fixed(box):
-                    xs.append(x)
-                    objects.append(box)
-                    xy.append((a.x_m, a.y_m))
-                    if len(xs) >= self.space.cfg.n_q:
-                        break
-        return _Pool(np.array(xs).reshape(-1, 3), objects, np.array(xy).reshape(-1, 2), drawn,
-                     0.5 * math.hypot(base.length_m, base.width_m))
+            placed = [slot.agent(x) for x in draws]
+            real = [i for i, a in enumerate(placed) if a is not None]
+            ok = np.ones(batch, dtype=bool)
+            if real:
+                agents = [placed[i] for i in real]
+                ok[real] = checker.on_road(agents) & checker.in_range(agents)
+            for x, a, good in zip(draws, placed, ok):
+                if not good:
+                    continue
+                box = box_object(a) if a is not None else None
+                if box is not None and checker.touches_fixed(box):
+                    continue
+                xs.append(x)
+                objects.append(box)
+                xy.append((a.x_m, a.y_m) if a is not None else (FAR_M, FAR_M))
+                if len(xs) >= n_q:
+                    break
+        return _Pool(np.array(xs).reshape(-1, slot.width), objects, np.array(xy).reshape(-1, 2), drawn, slot.radius_m)
 
     def __len__(self) -> int:
         return len(self.members)

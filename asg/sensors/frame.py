@@ -8,14 +8,15 @@ yaw with (x, y, z) the box centre; ``boxes_in(agent)`` gives them in that agent'
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from sumo_scenarios.errors import InputError
 
 from ..scene import Agent, Scene
+from ..scene.link import LinkState
 from .lidar_spec import LidarSpec
 from .world import SensorPose, World
 
@@ -111,18 +112,21 @@ def count_points_in_boxes(points: np.ndarray, boxes: np.ndarray, margin_m: float
     return counts
 
 
-def ground_truth(scene: Scene, moved: Mapping[str, Agent] | None = None) -> tuple[tuple[str, ...], np.ndarray]:
-    """Ids and network-frame boxes (M, 7) of every vehicle but the ego."""
+def ground_truth(scene: Scene, moved: Mapping[str, Agent | None] | None = None) -> tuple[tuple[str, ...], np.ndarray]:
+    """Ids and network-frame boxes (M, 7) of every vehicle but the ego (``moved``: new poses by
+    id, None = absent)."""
     moved = moved or {}
     vehicles = [moved.get(a.agent_id, a) for a in scene.vehicles if a.agent_id != scene.ego_id]
+    vehicles = [a for a in vehicles if a is not None]
     if not vehicles:
         return (), np.zeros((0, 7))
     return tuple(a.agent_id for a in vehicles), np.stack([a.box7() for a in vehicles])
 
 
-def render_frame(world: World, sensing_ids: Sequence[str] | None = None, moved: Mapping[str, Agent] | None = None,
+def render_frame(world: World, sensing_ids: Sequence[str] | None = None, moved: Mapping[str, Agent | None] | None = None,
                  seed: int = 0) -> CooperativeFrame:
-    """Render the cooperative frame of ``world.scene`` for its sensing agents (ego + collaborators)."""
+    """Render the cooperative frame of ``world.scene`` for its sensing agents (ego + collaborators),
+    as the ego receives it: the scene's link record applied (see :func:`apply_link`)."""
     scene = world.scene
     ids = tuple(sensing_ids) if sensing_ids is not None else scene.sensing_ids
     if not ids:
@@ -130,8 +134,47 @@ def render_frame(world: World, sensing_ids: Sequence[str] | None = None, moved: 
     clouds = world.render_many(ids, moved, seed)
     gt_ids, gt = ground_truth(scene, moved)
     ego_box = scene.ego.box7() if scene.ego.is_vehicle else None
-    return CooperativeFrame(scene.scene_id, scene.ego_id, ids, {a: world.sensor_pose(a) for a in ids}, clouds, gt_ids, gt,
-                            ego_box)
+    frame = CooperativeFrame(scene.scene_id, scene.ego_id, ids, {a: world.sensor_pose(a) for a in ids}, clouds, gt_ids,
+                             gt, ego_box)
+    if not scene.link:
+        return frame
+    return apply_link(frame, scene.link, lambda aid, state: delayed_view(scene, aid, state, world.spec, seed))
+
+
+#: a delayed message: the collaborator's cloud (N, 4) in its sensor frame of that earlier instant, and that pose
+DelayedView = Callable[[str, LinkState], tuple[np.ndarray, SensorPose]]
+
+
+def delayed_view(scene: Scene, agent_id: str, state: LinkState, spec: LidarSpec, seed: int = 0) -> tuple[np.ndarray, SensorPose]:
+    """What collaborator ``agent_id`` sensed ``state.delay_s`` earlier: its cloud rendered in the
+    world of that instant (``state.earlier_agents`` with the scene's buildings) and its sensor pose then."""
+    earlier = replace(scene, agents=state.earlier_agents, link={}, collaborators=(agent_id,),
+                      ego_id=agent_id)
+    world = World(earlier, spec)
+    return world.render(agent_id, seed=seed), world.sensor_pose(agent_id)
+
+
+def apply_link(frame: CooperativeFrame, link: Mapping[str, LinkState], delayed: DelayedView) -> CooperativeFrame:
+    """The frame as the ego receives it over a V2X link (see asg.scene.link): a delayed
+    collaborator's cloud and pose replaced by ``delayed(id, state)``, a pose error added to the
+    shared pose, a dropped message removed. Ground truth and the ego are untouched."""
+    ids, poses, clouds = [], dict(frame.poses), dict(frame.clouds)
+    for aid in frame.sensing_ids:
+        state = link.get(aid) if aid != frame.ego_id else None
+        if state is None or state.is_perfect:
+            ids.append(aid)
+            continue
+        if state.dropped:
+            poses.pop(aid)
+            clouds.pop(aid)
+            continue
+        if state.delay_s > 0:
+            clouds[aid], poses[aid] = delayed(aid, state)
+        p = poses[aid]
+        poses[aid] = SensorPose(p.x_m + state.dx_m, p.y_m + state.dy_m, p.z_m,
+                                math.atan2(math.sin(p.yaw_rad + state.dyaw_rad), math.cos(p.yaw_rad + state.dyaw_rad)))
+        ids.append(aid)
+    return replace(frame, sensing_ids=tuple(ids), poses=poses, clouds=clouds)
 
 
 def simulate_frame(scene: Scene, spec: LidarSpec, seed: int = 0) -> CooperativeFrame:

@@ -237,7 +237,8 @@ class World:
                     seed: int = 0) -> dict[str, np.ndarray]:
         """Points (N, 4) float32 per sensor: x, y, z in that sensor's frame, intensity in [0, 1].
 
-        ``moved``: new poses of movable agents by id; the others stay as in the scene.
+        ``moved``: new poses of movable agents by id (None: the agent is absent); the others stay
+        as in the scene.
         Intensity = reflectivity of the surface class (ground 0.20, building 0.35, vehicle 0.60,
         pole 0.50) x |cos(incidence angle)|. Noise and drop-off (if the spec has them) are drawn
         from a generator seeded by (``seed``, sensor id).
@@ -257,7 +258,9 @@ class World:
                 hits = hits.copy()
                 rays = self._rays(sid)
                 for aid in sorted(self.movable_ids):
-                    self._cast_instance(moved.get(aid) or self.scene.agent(aid), rays.pose, rays.dirs_w, hits)
+                    agent = moved[aid] if aid in moved else self.scene.agent(aid)
+                    if agent is not None:  # None: absent (an inserted vehicle a search left out)
+                        self._cast_instance(agent, rays.pose, rays.dirs_w, hits)
             out[sid] = self._to_points(sid, hits, seed)
         return out
 

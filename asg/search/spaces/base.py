@@ -1,0 +1,104 @@
+"""The parts a search space is made of; each perturbation space (poses, insert, pose-error, latency,
+dropout) is one registered class built from the scene after ACS and the space's settings.
+
+A member x of the search space is one vector in normalised units, [-1, 1] per dimension: first the
+*slots* of every physical part (one per vehicle a member places: a moved vehicle's dx, dy, dyaw, an
+inserted vehicle's presence, position and heading), then the *link* dimensions of every link part
+(per collaborator). Physical slots must be plausible together (the feasible set checks them
+jointly); link dimensions are free within their bounds.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ...scene import Agent, Scene
+
+
+class Slot(ABC):
+    """One vehicle a member may place: ``width`` normalised numbers decode to its agent (None: absent)."""
+
+    agent_id: str
+    width: int
+    #: radius (m) of the circle around its footprint (pairs of slots farther apart cannot collide)
+    radius_m: float
+
+    @abstractmethod
+    def draw(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """(n, width) candidates, uniform over this slot's own range (before plausibility)."""
+
+    @abstractmethod
+    def agent(self, x: np.ndarray) -> Agent | None:
+        """The vehicle ``x`` (width,) places, in the network frame; None if absent."""
+
+    @abstractmethod
+    def identity(self) -> np.ndarray:
+        """(width,) the slot as in the scene (unmoved, or not inserted)."""
+
+    @abstractmethod
+    def readable(self, x: np.ndarray) -> list[float]:
+        """The values written to history.csv for ``x`` (see ``columns``)."""
+
+    @abstractmethod
+    def columns(self) -> list[str]:
+        """Column names (with units) of :meth:`readable`."""
+
+
+@dataclass(frozen=True)
+class SpaceContext:
+    """What a space is built from: the scene after ACS (its collaborators set) and the vehicles the
+    occlusion heuristic picked to move (m of them)."""
+
+    scene: Scene
+    movers: tuple[str, ...]
+
+
+class PerturbationSpace(ABC):
+    """A registered perturbation space: physical slots and/or link dimensions."""
+
+    registry_name: str = ""
+
+    def __init__(self, ctx: SpaceContext, cfg) -> None:
+        self.ctx = ctx
+        self.cfg = cfg
+
+    @property
+    def slots(self) -> Sequence[Slot]:
+        """The vehicles this space places (none for a link space)."""
+        return ()
+
+    # ---- link dimensions (none for a physical space) -----------------------------------------
+    @property
+    def width(self) -> int:
+        """Link dimensions of this space."""
+        return 0
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """(n, width) link members, uniform over the space's bounds."""
+        return np.zeros((n, 0))
+
+    def identity(self) -> np.ndarray:
+        """(width,) a perfect link."""
+        return np.zeros(0)
+
+    def link_fields(self, x: np.ndarray) -> dict[str, dict]:
+        """Per collaborator, the LinkState fields ``x`` (width,) sets."""
+        return {}
+
+    def link_columns(self) -> list[str]:
+        return []
+
+    def link_readable(self, x: np.ndarray) -> list[float]:
+        return []
+
+    @abstractmethod
+    def bounds(self) -> dict:
+        """The space's bounds as summary.json records them (units in the keys)."""
+
+
+def collaborators(ctx: SpaceContext) -> tuple[str, ...]:
+    """The collaborators whose messages a link space perturbs (never the ego)."""
+    return ctx.scene.collaborators
