@@ -215,7 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = _add(bsub, "paper", "the paper's tables (--table), or the generator's targets: AttFuse with ACS-A/BO, GA, "
              "RS and ACS-R/BO on 30 normal scenes", commands.bench_paper)
     p.add_argument("--table", default=None, metavar="NAME[,NAME]",
-                   help="main, finetune, transfer, acs, ablation, blackbox or all: write OUT/NAME.json, .csv, .md "
+                   help="main, finetune, transfer, acs, ablation, blackbox, spaces (beyond the paper: the perturbation "
+                        "spaces on 30 benchmark scenes) or all: write OUT/NAME.json, .csv, .md "
                         "(default: the generator's targets table)")
     p.add_argument("--scenes", type=COUNT, default=None,
                    help="scenes per split (tables: default the whole split, as the paper; targets: default 30)")

@@ -1,4 +1,5 @@
-"""``asg bench paper --table main|finetune|transfer|acs|ablation|blackbox|all``: the paper's tables.
+"""``asg bench paper --table main|finetune|transfer|acs|ablation|blackbox|spaces|all``: the paper's tables
+and, beyond the paper, the perturbation spaces (``spaces``).
 
 Every table is measured at the paper's sizes by default (the 219 scenes of normal's train split;
 fine-tuning on the 112 of its val split) or on the first ``scenes`` of each split for a quick run,
@@ -25,7 +26,7 @@ from sumo_scenarios.errors import InputError
 
 from . import paper_figures as paper
 
-TABLES = ("main", "finetune", "transfer", "acs", "ablation", "blackbox")
+TABLES = ("main", "finetune", "transfer", "acs", "ablation", "blackbox", "spaces")
 #: the four shipped models of the paper, in its order
 MODELS = ("none", "late", "early", "attfuse")
 THRESHOLDS = ("0.3", "0.5", "0.7")
@@ -152,8 +153,43 @@ def blackbox_table(run: TableRun) -> tuple[list[dict], int]:
     return rows, min(r["scenes"] for r in runs.values())
 
 
+#: the spaces table: each space alone, then all together (asg.search.spaces)
+SPACES = ("poses", "insert", "pose-error", "latency", "dropout", "poses,insert,pose-error,latency,dropout")
+#: the searches it compares at the same budget
+SPACE_SEARCHES = ("rs", "bo", "ng")
+#: the spaces table runs on the generator benchmark's scenes (asg bench paper without --table)
+BENCHMARK_SCENES = 30
+
+
+def spaces_table(run: TableRun) -> tuple[list[dict], int]:
+    """Beyond the paper: AttFuse with ACS-A, then each perturbation space alone and all of them
+    together, searched by random search, BO and nevergrad at the same budget, on the generator
+    benchmark's scenes (``run.scenes`` of them, default 30). Drop = AP on the normal scenes minus
+    AP after the search."""
+    from .paper import pick_scenes
+
+    count = run.scenes or BENCHMARK_SCENES
+    scene_dir = pick_scenes(run.out / f"benchmark-scenes-{count}", count)
+    rows, counts = [], set()
+    for kinds in SPACES:
+        for search in SPACE_SEARCHES:
+            row = {"space": "union" if "," in kinds else kinds, "kinds": kinds.split(","), "search": search}
+            try:
+                res = _generator_run(run, "attfuse", acs="attention", search=search, aps=True, kinds=kinds,
+                                     scenes=scene_dir)
+            except InputError as exc:  # e.g. latency on scenes without a traffic log: say why, measure the rest
+                rows.append(row | {"error": str(exc)})
+                continue
+            counts.add(res["scenes"])
+            rows.append(row | {"plausibility": res["plausibility"], "ap": res["challenging"], "normal": res["normal"],
+                         "drop": {k: round(res["normal"][k] - res["challenging"][k], 6) for k in THRESHOLDS},
+                         "mean_loss": res["mean_loss"], "seconds_per_scene": res["seconds_per_scene"],
+                         "implausible_scenes": res["implausible"]})
+    return rows, min(counts, default=0)
+
+
 _BUILDERS = {"main": main_table, "finetune": finetune_table, "transfer": transfer_table, "acs": acs_table,
-             "ablation": ablation_table, "blackbox": blackbox_table}
+             "ablation": ablation_table, "blackbox": blackbox_table, "spaces": spaces_table}
 
 
 # ---- shared measurements -------------------------------------------------------------------------------
@@ -173,21 +209,35 @@ def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
     return {"ap": {k: round(v, 6) for k, v in res["ap"].items()}, "frames": res["frames"]}
 
 
-def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: bool) -> dict:
-    """{"scenes", "normal", "challenging"} of one generator configuration on the first scenes of
-    normal's train split (an ``asg generate`` folder under OUT/runs/, resumed if there)."""
+def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: bool, kinds: str | None = None,
+                   scenes: Path | None = None) -> dict:
+    """{"scenes", "normal", "challenging", "mean_loss", "seconds_per_scene", "plausibility",
+    "implausible"} of one generator configuration on the first scenes of normal's train split
+    (or of folder ``scenes``), with the perturbation spaces ``kinds`` (comma-separated; default the
+    config's): an ``asg generate`` folder under OUT/runs/, resumed if there."""
+    import statistics
+
     from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+    from ..generate_cmd import with_space_flags
     from ..pipeline import load_generate_config
 
-    cfg = load_generate_config(fusion=model, acs=acs, search=search, aps=aps)
-    source = SceneSource(scenes=Path("normal"))
-    run_dir = run.out / "runs" / f"{model}-acs_{acs}-{search if aps else 'no_aps'}"
-    scenes = load_scenes(source, run.scenes or 10**6, run.seed, run_dir / ".work")
-    settings = run_settings(cfg, run.seed, len(scenes), source.describe() | {"detector": run.detector_factory})
+    cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps), None, kinds)
+    source = SceneSource(scenes=scenes or Path("normal"))
+    name = f"{model}-acs_{acs}-{search if aps else 'no_aps'}"
+    if kinds is not None:
+        name = f"{scenes.name if scenes else 'normal'}-{name}-space_{kinds.replace(',', '+')}"
+    run_dir = run.out / "runs" / name
+    picked = load_scenes(source, run.scenes or 10**6, run.seed, run_dir / ".work")
+    settings = run_settings(cfg, run.seed, len(picked), source.describe() | {"detector": run.detector_factory})
     prepare_run(run_dir, settings)
-    agg = generate(cfg, scenes, run_dir, seed=run.seed, detector_factory=run.detector_factory,
-                   executor=run.executor, artifacts=False).summary["aggregate"]
-    return {"scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
+    summary = generate(cfg, picked, run_dir, seed=run.seed, detector_factory=run.detector_factory,
+                       executor=run.executor, artifacts=False).summary
+    agg, entries = summary["aggregate"], summary["scenes"]
+    return {"scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"],
+            "mean_loss": round(statistics.fmean(e["loss_final"] for e in entries), 6),
+            "seconds_per_scene": round(statistics.median(e["seconds"] for e in entries), 3),
+            "plausibility": cfg.space.plausibility,
+            "implausible": sum(any(v for v in e["plausibility"].values()) for e in entries)}
 
 
 # ---- output ---------------------------------------------------------------------------------------------
@@ -294,5 +344,14 @@ def _md_blackbox(rows):
     return _md_table(["search", "AP", "paper"], [[r["search"], _triple(r["ap"]), _triple(r["paper"])] for r in rows])
 
 
-_MD = {"main": _md_main, "finetune": _md_finetune, "transfer": _md_transfer, "acs": _md_acs, "ablation": _md_ablation,
+def _md_spaces(rows):
+    return ("AP@0.3 / 0.5 / 0.7 after ACS-A and the search, drop of AP@0.7 from the normal scenes (points), mean "
+            "final loss, median seconds a scene.\n\n" +
+            _md_table(["space", "search", "AP", "drop @0.7", "mean loss", "s / scene", "implausible"],
+                      [[r["space"], r["search"], _triple(r["ap"]), f"{100 * r['drop']['0.7']:.1f}", f"{r['mean_loss']:.3f}",
+                        f"{r['seconds_per_scene']:.1f}", str(r["implausible_scenes"])] if "error" not in r else
+                       [r["space"], r["search"], f"not measured: {r['error']}", "", "", "", ""] for r in rows]))
+
+
+_MD = {"spaces": _md_spaces, "main": _md_main, "finetune": _md_finetune, "transfer": _md_transfer, "acs": _md_acs, "ablation": _md_ablation,
        "blackbox": _md_blackbox}

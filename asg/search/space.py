@@ -223,7 +223,9 @@ class FeasibleSet:
         links = [p.sample(rng, n - 1) for p in space.link_parts]
         identity = space.identity()
         rows = np.concatenate([physical[1:]] + links, axis=1) if n > 1 else np.zeros((0, space.dim))
-        self.members = np.concatenate([identity[None], rows]) if len(rows) else identity[None]
+        members = np.concatenate([identity[None], rows]) if len(rows) else identity[None]
+        _, first = np.unique(members, axis=0, return_index=True)  # discrete spaces repeat members: keep one each
+        self.members = members[np.sort(first)]
         if len(self.members) < 2:
             raise EmptyFeasibleSet(f"scene {space.scene.scene_id}: the search space is empty")
 
