@@ -72,10 +72,16 @@ def _log_folder(scene: Scene, max_delay_s: float) -> Path:
     if request is None:
         raise InputError(f"scene {scene.scene_id} names no traffic log to take earlier frames from "
                          f"(log: {scene.log!r}); the latency space needs the scene's SUMO log folder")
-    if not (request.out_dir / META_NAME).is_file():
-        from sumo_scenarios.simulate import simulate_sumo
+    import fcntl
 
-        simulate_sumo(request)  # atomic: a worker that loses the race overwrites with the same files
+    from sumo_scenarios.simulate import simulate_sumo
+
+    request.out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with open(request.out_dir.parent / f".{request.out_dir.name}.lock", "w") as lock:
+        # one worker simulates; the others wait for the whole folder (its files land one by one)
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (request.out_dir / META_NAME).is_file():
+            simulate_sumo(request)
     return request.out_dir
 
 
