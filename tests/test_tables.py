@@ -74,6 +74,15 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
     assert all({"model", "normal", "acs_random", "acs_attention"} <= set(r) for r in tables["acs"])
     assert [(r["acs"], r["aps"]) for r in tables["ablation"]] == [(False, False), (True, False), (False, True), (True, True)]
     assert [r["search"] for r in tables["blackbox"]] == ["normal", "rs", "ga", "bo"]
+    spaces = tables["spaces"]
+    assert {(r["space"], r["search"]) for r in spaces} == {(s, q) for s in ("poses", "insert", "pose-error", "latency",
+                                                                            "dropout", "union") for q in ("rs", "bo", "ng")}
+    for r in spaces:  # the synthetic scenes have no traffic log: latency (alone or in the union) says so
+        if "latency" in r["kinds"]:
+            assert "SUMO log" in r["error"]
+        else:
+            assert _is_ap(r["ap"]) and r["implausible_scenes"] == 0
+            assert r["drop"]["0.7"] == pytest.approx(r["normal"]["0.7"] - r["ap"]["0.7"], abs=1e-6)
     # a rerun reuses every challenging set and generator run: the same numbers
     assert main(argv) == 0
     capsys.readouterr()
