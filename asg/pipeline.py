@@ -5,7 +5,6 @@ What the CLI and the benchmarks call. Works with any detector behind the V2XDete
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -276,20 +275,16 @@ class Generator:
         if best.step == 0:
             return ApsOutcome(start_at, history, [], tuple(perturbed), columns, values, record)
         final = space.apply(best.x)
-        moves = space.decode(best.x).moved
-        delta = [[round(float(v), 4) for v in (moves[vid].x_m - scene.agent(vid).x_m, moves[vid].y_m - scene.agent(vid).y_m,
-                                               _wrap(moves[vid].yaw_rad - scene.agent(vid).yaw_rad))]
-                 for vid in perturbed]
-        inserted = tuple(aid for aid, a in moves.items() if a is not None and aid not in perturbed)
+        # the movers' (dx_m, dy_m, dyaw_rad) as the member gives them: slots come in ``perturbed``'s order
+        delta = [[round(float(v), 4) for v in np.asarray(x) * slot.scale]
+                 for slot, x in zip(space.slots, space.slot_values(best.x)) if slot.agent_id in perturbed]
+        before = {a.agent_id for a in scene.agents}
+        inserted = tuple(a.agent_id for a in final.agents if a.agent_id not in before)
         record["link"] = {cid: {k: v for k, v in st.to_dict().items() if k != "earlier_agents"}
                           for cid, st in final.link.items()}
         record["inserted"] = list(inserted)
         return ApsOutcome(Scored(final, best.loss, best.ap, frame_of(best.x)), history, delta, tuple(perturbed),
                           columns, values, record, inserted)
-
-
-def _wrap(angle_rad: float) -> float:
-    return math.atan2(math.sin(angle_rad), math.cos(angle_rad))
 
 
 @dataclass(frozen=True)
