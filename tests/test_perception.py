@@ -378,3 +378,19 @@ def test_weights_without_the_iou_branch_load_only_where_allowed(tmp_path):
     load_state(model, tmp_path / "old.pt", allow_missing=("head.iou.", "head.refine."))
     assert torch.equal(model.head.iou[0].weight, branch)  # its own start
     assert torch.equal(model.head.cls.weight, old.head.cls.weight)
+
+
+def test_canvases_and_fused_maps_are_channels_last():
+    """The pillar canvas and AttFuse's fused map keep each cell's channels adjacent (what oneDNN's
+    convolutions run fastest on), with the same values as the contiguous layout."""
+    torch.manual_seed(0)
+    model = AttFuse(TINY).eval()
+    clouds = [torch.randn(500, 4) * 5, torch.randn(400, 4) * 5]
+    with torch.no_grad():
+        canvas = model.encoder(clouds)
+        assert canvas.is_contiguous(memory_format=torch.channels_last)
+        feats = model.backbone.stages[0](canvas)
+        fused, _ = model.fusion(feats.view(1, 2, *feats.shape[1:]), torch.ones(1, 2, dtype=torch.bool))
+        assert fused.is_contiguous(memory_format=torch.channels_last)
+        ref, _ = model.fusion(feats.contiguous().view(1, 2, *feats.shape[1:]), torch.ones(1, 2, dtype=torch.bool))
+    assert torch.allclose(fused, ref, atol=1e-6)

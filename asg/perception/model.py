@@ -58,17 +58,18 @@ class ScaledDotAttention(nn.Module):
 
     def forward(self, feats: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """feats (B, N, C, H, W), mask (B, N) of present agents (the ego, index 0, always) → fused
-        ego features (B, C, H, W) and the ego row of attention (B, N, H, W)."""
+        ego features (B, C, H, W) (channels-last memory) and the ego row of attention (B, N, H, W).
+        Works cell-major: with channels-last ``feats`` (what the backbone gives) no copy is made."""
         b, n, c, h, w = feats.shape
-        x = feats.reshape(b, n, c, h * w)
-        q = torch.matmul(self.q.weight, x[:, 0]) + self.q.bias[:, None]  # (B, C, HW)
-        qk = torch.matmul(self.k.weight.t(), q)  # (B, C, HW)
-        logits = (x * qk[:, None]).sum(dim=2) * self.scale  # (B, N, HW)
+        x = feats.permute(0, 1, 3, 4, 2).reshape(b, n, h * w, c)  # (B, N, HW, C)
+        q = torch.addmm(self.q.bias, x[:, 0].reshape(-1, c), self.q.weight.t())  # (B*HW, C)
+        qk = torch.matmul(q, self.k.weight).view(b, 1, h * w, c)  # rows: W_k^T q
+        logits = (x * qk).sum(dim=3) * self.scale  # (B, N, HW)
         logits = logits.masked_fill(~mask[:, :, None], float("-inf"))
         a = torch.softmax(logits, dim=1)
-        ctx = (x * a[:, :, None]).sum(dim=1)  # (B, C, HW)
-        out = torch.matmul(self.v.weight, ctx) + self.v.bias[:, None]
-        return out.view(b, c, h, w), a.view(b, n, h, w)
+        ctx = (x * a[..., None]).sum(dim=1)  # (B, HW, C)
+        out = torch.addmm(self.v.bias, ctx.view(-1, c), self.v.weight.t())  # (B*HW, C)
+        return out.view(b, h, w, c).permute(0, 3, 1, 2), a.view(b, n, h, w)
 
 
 class AttFuse(nn.Module):

@@ -31,7 +31,8 @@ def pillar_indices(points: torch.Tensor, cfg: DetectorConfig) -> tuple[torch.Ten
 
 
 class PillarEncoder(nn.Module):
-    """A batch of clouds → BEV canvases (B, C, n, n), row = y index, column = x index."""
+    """A batch of clouds → BEV canvases (B, C, n, n), row = y index, column = x index, stored
+    channels-last (``torch.channels_last``)."""
 
     def __init__(self, cfg: DetectorConfig):
         super().__init__()
@@ -54,13 +55,15 @@ class PillarEncoder(nn.Module):
             f = torch.cat([p, p[:, :3] - mean[inv], (p[:, 0] - cx)[:, None], (p[:, 1] - cy)[:, None]], dim=1)
             feats.append((f, inv, uniq))
         batch = len(clouds)
-        canvas = torch.zeros(batch, cfg.pfn_channels, cells)
+        canvas = torch.zeros(batch, cells, cfg.pfn_channels)
         all_f = torch.cat([f for f, _, _ in feats]) if feats else torch.zeros(0, 9)
         h = torch.relu(self.norm(self.linear(all_f)))
         start = 0
         for b, (f, inv, uniq) in enumerate(feats):
             hh = h[start:start + len(f)]
             start += len(f)
-            pooled = torch.zeros(len(uniq), cfg.pfn_channels).index_reduce_(0, inv, hh, "amax", include_self=False)
-            canvas[b, :, uniq] = pooled.t()
-        return canvas.view(batch, cfg.pfn_channels, n, n)
+            canvas[b, uniq] = torch.zeros(len(uniq), cfg.pfn_channels).index_reduce_(0, inv, hh, "amax",
+                                                                                      include_self=False)
+        # (B, C, n, n) in channels-last memory: each cell's C features adjacent, which the
+        # convolutions (oneDNN) run fastest on; the values are those of the contiguous layout
+        return canvas.view(batch, n, n, cfg.pfn_channels).permute(0, 3, 1, 2)

@@ -30,6 +30,9 @@ class V2XDetector(ABC):
             load_state(self.model, weights_file or weights_path(self.weights))
         self.model.eval()
         fold_batch_norms(self.model)
+        # the canvases are channels-last (see PillarEncoder); weights in the same layout spare
+        # oneDNN a reorder per convolution
+        self.model.to(memory_format=torch.channels_last)
 
     @abstractmethod
     def build_model(self) -> torch.nn.Module: ...
