@@ -23,7 +23,8 @@ def unit_box_triangles():
     return m.vertices[m.faces]
 
 
-@pytest.mark.parametrize("caster_cls", [EmbreeCaster, TrimeshCaster])
+@pytest.mark.parametrize("caster_cls", [EmbreeCaster, lambda tris: EmbreeCaster(tris, packets=False), TrimeshCaster],
+                         ids=["embree-packets", "embree-single", "trimesh"])
 def test_ray_hits_box_and_plane_analytically(caster_cls):
     box = unit_box_triangles()
     plane = np.array([[[-50, -50, -2.0], [50, -50, -2.0], [50, 50, -2.0]], [[-50, -50, -2.0], [50, 50, -2.0], [-50, 50, -2.0]]])
@@ -39,6 +40,33 @@ def test_ray_hits_box_and_plane_analytically(caster_cls):
     assert (prim >= 0).all()
     t_far, prim_far = c.first_hits(o[:1], d[:1], np.array([3.0]))
     assert np.isinf(t_far[0]) and prim_far[0] == -1
+
+
+def test_packet_cast_agrees_with_single_rays_on_axis_aligned_fans():
+    """Embree's packets (16 rays a call, coherent traversal) hit what embreex's one-ray-at-a-time
+    cast hits, also for rays with a direction component of exactly 0 or below Embree's 1e-18
+    (a sensor yawed a multiple of 90 deg): such a ray was culled before those are cast as 1e-6."""
+    from asg.sensors.embree import packet_library
+
+    if packet_library() is None:
+        pytest.skip("embreex's Embree 4 library is not where a Linux wheel puts it")
+    wall = np.array([[[10.0, -20, -2], [10, 20, -2], [10, 20, 6]], [[10.0, -20, -2], [10, 20, 6], [10, -20, 6]]])
+    tris = np.concatenate([wall, unit_box_triangles() * 2 + [5.0, 3.0, 0.0]])
+    azimuth = np.radians(np.linspace(-40, 40, 81))
+    d = np.stack([np.cos(azimuth), np.sin(azimuth), np.full_like(azimuth, -0.05)], axis=1)
+    d[40, 1] = -5.19e-33  # the straight-ahead ray: y below 1e-18, negative
+    d = np.concatenate([d, d * [1.0, 1.0, 0.0]])  # and a fan with z exactly 0
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    o = np.tile([0.0, 0.0, 1.0], (len(d), 1))
+    packets = EmbreeCaster(tris, robust=False)
+    single = EmbreeCaster(tris, robust=False, packets=False)
+    assert packets._packets is not None and single._packets is None
+    t_p, prim_p = packets.first_hits(o, d, np.full(len(d), 60.0))
+    t_s, prim_s = single.first_hits(o, d, np.full(len(d), 60.0))
+    assert (prim_s >= 0).all()
+    assert np.array_equal(prim_p, prim_s)
+    assert np.allclose(t_p, t_s, atol=1e-4)
+    assert np.array_equal(packets.first_prims(o, d, np.full(len(d), 60.0, dtype=np.float32)), prim_s)
 
 
 def test_empty_world_sees_only_ground(cross_map):

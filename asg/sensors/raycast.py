@@ -23,43 +23,68 @@ class Caster(Protocol):
 
 
 class EmbreeCaster:
-    """First hits through Intel Embree (embreex); triangles: (F, 3, 3) float, any frame.
+    """First hits through Intel Embree; triangles: (F, 3, 3) float, any frame.
+
+    Cast in packets of 16 rays through the Embree 4 library embreex ships
+    (:mod:`asg.sensors.embree`), or, where that library is not found, one ray at a time through
+    embreex's ``EmbreeScene.run``; both answer the same.
 
     ``robust``: Embree's robust traversal (RTC_SCENE_FLAG_ROBUST, embreex's default), which keeps
     rays from slipping through the shared edge of two triangles; without it casts are faster (the
     measured trade-off: docs/lidar.md)."""
 
-    def __init__(self, triangles: np.ndarray, robust: bool = True):
+    def __init__(self, triangles: np.ndarray, robust: bool = True, packets: bool = True):
+        from .embree import PacketScene, packet_library
+
+        self.n_triangles = len(triangles)
+        self._packets = None
+        self._scene = None
+        if not self.n_triangles:
+            return
+        library = packet_library() if packets else None
+        if library is not None:
+            self._packets = PacketScene(library, triangles, robust)
+            return
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
-        self.n_triangles = len(triangles)
         self._scene = rtcore_scene.EmbreeScene(robust=robust)
-        if self.n_triangles:
-            TriangleMesh(self._scene, np.ascontiguousarray(triangles, dtype=np.float32))
+        TriangleMesh(self._scene, np.ascontiguousarray(triangles, dtype=np.float32))
 
     def first_hits(self, origins: np.ndarray, directions: np.ndarray,
                    far: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         n = len(origins)
         if n == 0 or self.n_triangles == 0:
             return np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
-        dists = None if far is None else np.ascontiguousarray(np.minimum(far, 1e30), dtype=np.float32)
-        out = self._scene.run(np.ascontiguousarray(origins, dtype=np.float32),
-                              np.ascontiguousarray(directions, dtype=np.float32), dists=dists, output=1)
-        prim = out["primID"].astype(np.int64)
-        t = out["tfar"].astype(np.float64)
+        dists = np.full(n, 1e30, dtype=np.float32) if far is None else _far32(far)
+        origins32 = np.ascontiguousarray(origins, dtype=np.float32)
+        directions32 = np.ascontiguousarray(directions, dtype=np.float32)
+        if self._packets is not None:
+            prim32, t32 = self._packets.cast(origins32, directions32, dists, want_distance=True)
+        else:
+            out = self._scene.run(origins32, directions32, dists=dists, output=1)
+            prim32, t32 = out["primID"], out["tfar"]
+        prim = prim32.astype(np.int64)
+        t = t32.astype(np.float64)
         t[prim < 0] = np.inf
         return t, prim
 
     def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray) -> np.ndarray:
-        """Embree's plain intersect query: triangle ids only, no per-ray distances, normals or
-        barycentrics to convert (the renderer gets the distance from the triangle's plane)."""
+        """Triangle ids only, no per-ray distances, normals or barycentrics to convert (the
+        renderer gets the distance from the triangle's plane)."""
         if len(origins) == 0 or self.n_triangles == 0:
             return np.full(len(origins), -1, dtype=np.int32)
-        if far.dtype != np.float32 or far.max() > 1e30:
-            far = np.minimum(far, 1e30).astype(np.float32)
-        return self._scene.run(np.ascontiguousarray(origins, dtype=np.float32),
-                               np.ascontiguousarray(directions, dtype=np.float32), dists=np.ascontiguousarray(far))
+        origins32 = np.ascontiguousarray(origins, dtype=np.float32)
+        directions32 = np.ascontiguousarray(directions, dtype=np.float32)
+        if self._packets is not None:
+            return self._packets.cast(origins32, directions32, _far32(far), want_distance=False)[0]
+        return self._scene.run(origins32, directions32, dists=_far32(far))
+
+
+def _far32(far: np.ndarray) -> np.ndarray:
+    """Far limits as Embree takes them: a new contiguous float32 array (embreex writes each
+    ray's hit distance into it), at most 1e30 (inf: none)."""
+    return np.minimum(far, 1e30).astype(np.float32)
 
 
 class TrimeshCaster:
