@@ -394,3 +394,33 @@ def test_canvases_and_fused_maps_are_channels_last():
         assert fused.is_contiguous(memory_format=torch.channels_last)
         ref, _ = model.fusion(feats.contiguous().view(1, 2, *feats.shape[1:]), torch.ones(1, 2, dtype=torch.bool))
     assert torch.allclose(fused, ref, atol=1e-6)
+
+
+def test_strided_conv_of_pillars_is_the_dense_convolution():
+    """The first convolution computed from the occupied pillars alone equals the dense one on the
+    canvas, pillars on the grid's edges included; and the model's inference (no gradients, the
+    sparse path) equals its training path (the dense canvas)."""
+    from asg.perception.pillars import Pillars, strided_conv_of_pillars
+
+    torch.manual_seed(0)
+    n, c_in, c_out = 12, 5, 7
+    cells = [torch.tensor([0, 1, n - 1, n, 5 * n + 6, n * n - 1, n * (n - 1), 3 * n + 11]), torch.tensor([4, 77]),
+             torch.zeros(0, dtype=torch.long)]
+    pillars = Pillars(cells, [torch.randn(len(c), c_in) for c in cells], n)
+    for bias in (True, False):
+        conv = torch.nn.Conv2d(c_in, c_out, 3, stride=2, padding=1, bias=bias)
+        with torch.no_grad():
+            dense = conv(pillars.canvas())
+            sparse = strided_conv_of_pillars(conv, pillars)
+        assert sparse.shape == dense.shape == (3, c_out, n // 2, n // 2)
+        assert torch.allclose(sparse, dense, atol=1e-5)
+    with pytest.raises(ValueError, match="3x3 convolution of stride 2"):
+        strided_conv_of_pillars(torch.nn.Conv2d(c_in, c_out, 3, stride=1, padding=1), pillars)
+
+    model = AttFuse(replace(TINY, attfuse_fusion="stage1")).eval()
+    clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5]]
+    with torch.no_grad():
+        inference = model(clouds)
+    training_path = model(clouds)  # gradients on: the dense canvas
+    for a, b in zip(inference, training_path):
+        assert torch.allclose(a, b.detach(), atol=1e-4)

@@ -5,6 +5,7 @@ import torch
 from torch import nn
 
 from .config import DetectorConfig
+from .pillars import Pillars, strided_conv_of_pillars
 
 
 def _conv(cin: int, cout: int, stride: int = 1) -> list[nn.Module]:
@@ -35,6 +36,16 @@ class Backbone(nn.Module):
         self.out_channels = 3 * cfg.upsample_channels
         self.stage_channels = tuple(cfg.filters)
 
+    def first_stage(self, pillars: Pillars) -> torch.Tensor:
+        """Stage 1 on the pillars' canvas → (B, filters[0], n/2, n/2). Without gradients (inference)
+        its strided convolution is computed from the occupied pillars alone
+        (:func:`strided_conv_of_pillars`: about 3x faster, the same function up to float rounding);
+        training runs it on the dense canvas."""
+        stage = self.stages[0]
+        if torch.is_grad_enabled():
+            return stage(pillars.canvas())
+        return stage[1:](strided_conv_of_pillars(stage[0], pillars))
+
     def stage_outputs(self, x: torch.Tensor, start: int = 0) -> list[torch.Tensor]:
         """(B, pfn, n, n) → each stage's output (B, filters[k], n / 2^(k+1), n / 2^(k+1)); with
         ``start`` = k > 0, ``x`` is stage k-1's output and only stages k, k+1, ... run."""
@@ -47,6 +58,11 @@ class Backbone(nn.Module):
     def upsample(self, stage_outs: list[torch.Tensor]) -> torch.Tensor:
         """Stage outputs → (B, 3 * upsample_channels, n/2, n/2)."""
         return torch.cat([up(x) for up, x in zip(self.ups, stage_outs)], dim=1)
+
+    def after_first_stage(self, first: torch.Tensor) -> torch.Tensor:
+        """Stage 1's output (B, filters[0], n/2, n/2) → the later stages and the upsampling →
+        (B, 3 * upsample_channels, n/2, n/2)."""
+        return self.upsample([first] + self.stage_outputs(first, start=1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.upsample(self.stage_outputs(x))

@@ -33,7 +33,7 @@ class PointPillars(nn.Module):
         self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
 
     def features(self, clouds: list[torch.Tensor]) -> torch.Tensor:
-        return self.backbone(self.encoder(clouds))
+        return self.backbone.after_first_stage(self.backbone.first_stage(self.encoder.encode(clouds)))
 
     def forward(self, clouds: list[torch.Tensor]):
         return self.head(self.features(clouds))
@@ -112,24 +112,26 @@ class AttFuse(nn.Module):
             for j in range(n):
                 flat.append(clouds[j] if j < len(clouds) else empty)
                 mask[b, j] = j < len(clouds)
-        bev = self.encoder(flat)
+        pillars = self.encoder.encode(flat)
         per_sample = lambda f: f.view(len(agent_clouds), n, *f.shape[1:])
         backbone = self.backbone
-        if self.placement == "stages":
-            fused_stages, atts = [], []
-            for att_module, f in zip(self.fusion, backbone.stage_outputs(bev)):
-                fused, att = att_module(per_sample(f), mask)
-                fused_stages.append(fused)
-                atts.append(att)
-            fused, att = backbone.upsample(fused_stages), atts[0]
-        elif self.placement == "stage1":
-            first, att = self.fusion(per_sample(backbone.stages[0](bev)), mask)
-            fused = backbone.upsample([first] + backbone.stage_outputs(first, start=1))
-        elif self.placement == "pillars":
-            canvas, att = self.fusion(per_sample(bev), mask)
+        if self.placement == "pillars":
+            canvas, att = self.fusion(per_sample(pillars.canvas()), mask)
             fused = backbone(canvas)
         else:
-            fused, att = self.fusion(per_sample(backbone(bev)), mask)
+            first = backbone.first_stage(pillars)
+            if self.placement == "stages":
+                fused_stages, atts = [], []
+                for att_module, f in zip(self.fusion, [first] + backbone.stage_outputs(first, start=1)):
+                    fused, att = att_module(per_sample(f), mask)
+                    fused_stages.append(fused)
+                    atts.append(att)
+                fused, att = backbone.upsample(fused_stages), atts[0]
+            elif self.placement == "stage1":
+                first, att = self.fusion(per_sample(first), mask)
+                fused = backbone.after_first_stage(first)
+            else:
+                fused, att = self.fusion(per_sample(backbone.after_first_stage(first)), mask)
         self.last_attention = att.detach()
         return self.head(fused)
 

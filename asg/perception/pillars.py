@@ -40,10 +40,10 @@ class PillarEncoder(nn.Module):
         self.linear = nn.Linear(9, cfg.pfn_channels, bias=False)
         self.norm = nn.BatchNorm1d(cfg.pfn_channels, eps=1e-3, momentum=0.01)
 
-    def forward(self, clouds: list[torch.Tensor]) -> torch.Tensor:
+    def encode(self, clouds: list[torch.Tensor]) -> "Pillars":
+        """The occupied pillars of each cloud and their learned features (see :class:`Pillars`)."""
         cfg = self.cfg
         n = cfg.grid_size
-        cells = n * n
         feats = []
         for pts in clouds:
             p, flat = pillar_indices(pts, cfg)
@@ -54,16 +54,70 @@ class PillarEncoder(nn.Module):
             cy = (flat // n).float() * cfg.pillar_m - cfg.range_m + cfg.pillar_m / 2
             f = torch.cat([p, p[:, :3] - mean[inv], (p[:, 0] - cx)[:, None], (p[:, 1] - cy)[:, None]], dim=1)
             feats.append((f, inv, uniq))
-        batch = len(clouds)
-        canvas = torch.zeros(batch, cells, cfg.pfn_channels)
         all_f = torch.cat([f for f, _, _ in feats]) if feats else torch.zeros(0, 9)
         h = torch.relu(self.norm(self.linear(all_f)))
+        cells, pooled = [], []
         start = 0
-        for b, (f, inv, uniq) in enumerate(feats):
+        for f, inv, uniq in feats:
             hh = h[start:start + len(f)]
             start += len(f)
-            canvas[b, uniq] = torch.zeros(len(uniq), cfg.pfn_channels).index_reduce_(0, inv, hh, "amax",
-                                                                                      include_self=False)
-        # (B, C, n, n) in channels-last memory: each cell's C features adjacent, which the
-        # convolutions (oneDNN) run fastest on; the values are those of the contiguous layout
-        return canvas.view(batch, n, n, cfg.pfn_channels).permute(0, 3, 1, 2)
+            cells.append(uniq)
+            pooled.append(torch.zeros(len(uniq), cfg.pfn_channels).index_reduce_(0, inv, hh, "amax", include_self=False))
+        return Pillars(cells, pooled, n)
+
+    def forward(self, clouds: list[torch.Tensor]) -> torch.Tensor:
+        return self.encode(clouds).canvas()
+
+
+class Pillars:
+    """Per sample b: ``cells[b]`` (P_b,) the flat index (row y * n + column x) of each occupied
+    pillar, ``features[b]`` (P_b, C) its learned features; every other pillar is zero."""
+
+    def __init__(self, cells: list[torch.Tensor], features: list[torch.Tensor], grid_size: int):
+        self.cells = cells
+        self.features = features
+        self.grid_size = grid_size
+
+    def canvas(self) -> torch.Tensor:
+        """BEV canvases (B, C, n, n), channels-last in memory (each cell's C features adjacent,
+        which the convolutions (oneDNN) run fastest on; the values are the contiguous layout's)."""
+        n = self.grid_size
+        channels = self.features[0].shape[1] if self.features else 0
+        canvas = torch.zeros(len(self.cells), n * n, channels)
+        for b, (cells, feats) in enumerate(zip(self.cells, self.features)):
+            canvas[b, cells] = feats
+        return canvas.view(len(self.cells), n, n, channels).permute(0, 3, 1, 2)
+
+
+def strided_conv_of_pillars(conv: nn.Conv2d, pillars: Pillars) -> torch.Tensor:
+    """``conv`` (3x3, stride 2, padding 1, with or without bias) applied to the pillars' canvas,
+    computed from the occupied pillars alone: each pillar feeds the output cells whose 3x3 window
+    holds it (1, 2 or 4 of them, by the parity of its row and column), so the work is about 2.25
+    (C_in x C_out) products per pillar instead of 9 per output cell of a mostly empty canvas. The
+    same function as ``conv(pillars.canvas())`` up to float rounding (the sums run in another
+    order). Returns (B, C_out, n/2, n/2), channels-last in memory."""
+    if conv.kernel_size != (3, 3) or conv.stride != (2, 2) or conv.padding != (1, 1) or conv.groups != 1:
+        raise ValueError("strided_conv_of_pillars takes a 3x3 convolution of stride 2 and padding 1")
+    n = pillars.grid_size
+    m = (n + 1) // 2
+    batch = len(pillars.cells)
+    weight = conv.weight  # (C_out, C_in, 3, 3)
+    c_out = weight.shape[0]
+    out = torch.zeros(batch * m * m, c_out)
+    if conv.bias is not None:
+        out += conv.bias
+    cells = torch.cat([c + b * n * n for b, c in enumerate(pillars.cells)]) if batch else torch.zeros(0, dtype=torch.long)
+    feats = torch.cat(pillars.features) if batch else torch.zeros(0, weight.shape[1])
+    sample, local = cells // (n * n), cells % (n * n)
+    iy, ix = local // n, local % n
+    for ky in range(3):
+        # output row oy takes input rows 2 oy - 1 + ky: the pillars of row iy feed oy = (iy + 1 - ky) / 2
+        row_ok = ((iy + 1 - ky) % 2 == 0) & (iy + 1 - ky >= 0) & (iy + 1 - ky < 2 * m)
+        for kx in range(3):
+            sel = row_ok & ((ix + 1 - kx) % 2 == 0) & (ix + 1 - kx >= 0) & (ix + 1 - kx < 2 * m)
+            idx = torch.nonzero(sel).squeeze(1)
+            if not len(idx):
+                continue
+            target = sample[idx] * m * m + (iy[idx] + 1 - ky) // 2 * m + (ix[idx] + 1 - kx) // 2
+            out.index_add_(0, target, feats[idx] @ weight[:, :, ky, kx].t())
+    return out.view(batch, m, m, c_out).permute(0, 3, 1, 2)
