@@ -210,6 +210,14 @@ class Generator:
 
     # ---- one scene ---------------------------------------------------------------------------
     def generate(self, scene: Scene, seed: int, on_step: Callable[[Evaluation], None] | None = None) -> SceneResult:
+        """ACS, then APS, then the independent plausibility re-check of one scene (BLAS on one
+        thread meanwhile: see :func:`asg.executors.base.blas_on_one_thread`)."""
+        from .executors.base import blas_on_one_thread
+
+        with blas_on_one_thread():
+            return self._generate(scene, seed, on_step)
+
+    def _generate(self, scene: Scene, seed: int, on_step: Callable[[Evaluation], None] | None) -> SceneResult:
         t0 = time.perf_counter()
         rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
         notes: list[str] = []

@@ -66,9 +66,8 @@ class Executor(ABC):
 
 
 def apply_threads(threads: int) -> None:
-    """Limit this process to ``threads`` threads: torch's, the LiDAR casts', and the BLAS and
-    OpenMP pools that numpy, scipy and scikit-optimize's GP use (two workers whose BLAS each take
-    every core slow each other down by half)."""
+    """Limit this process to ``threads`` threads: torch's, the LiDAR casts' and the OpenMP pools';
+    BLAS (numpy, scipy, scikit-optimize's GP) to one thread (see :func:`blas_on_one_thread`)."""
     from threadpoolctl import threadpool_limits
 
     from ..sensors.world import set_cast_threads
@@ -77,7 +76,20 @@ def apply_threads(threads: int) -> None:
 
     set_cast_threads(threads)
     torch.set_num_threads(threads)
-    threadpool_limits(limits=threads)
+    threadpool_limits(limits={"openmp": threads, "blas": 1})
+
+
+def blas_on_one_thread():
+    """A context in which the loaded BLAS libraries (OpenBLAS under numpy and scipy) use one
+    thread. Their matrices here are small (the GP of BO holds at most a budget of points), and
+    OpenBLAS's spinning threads fight torch's OpenMP threads for the cores: a scene of AttFuse +
+    ACS-A + BO took 4.3 s in one process on two threads, 2.7 s with BLAS on one (measured with
+    ``asg bench generate``)."""
+    from threadpoolctl import threadpool_limits
+
+    import scipy.linalg  # noqa: F401  (load scipy's own OpenBLAS, so that the limit reaches it)
+
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def default_workers(items: int) -> int:

@@ -73,7 +73,7 @@ class LocalExecutor(Executor):
         from ..sensors import world
 
         before = (torch.get_num_threads(), world._CAST_THREADS)
-        with threadpool_limits(limits=self.threads):  # restores the BLAS and OpenMP pools after
+        with threadpool_limits(limits={"openmp": self.threads, "blas": 1}):  # restored after
             apply_threads(self.threads)
             try:
                 state = job.setup(*job.setup_args)

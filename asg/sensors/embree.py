@@ -131,13 +131,15 @@ class PacketScene:
         lib.rtcCommitScene(self._scene)
         library.check("building a scene")
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray,
-             want_distance: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """(N, 3) float32 origins and unit directions, (N,) float32 far limits → ((N,) int32
-        triangle hit first, -1: none; (N,) float32 its distance (tfar) or None)."""
-        prim = np.empty(len(far), dtype=np.int32)
-        t = np.empty(len(far) if want_distance else 0, dtype=np.float32)
-        cast_packets(self._library.intersect16, self._scene, origins, directions, far, prim, t)
+    def cast(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray, want_distance: bool,
+             rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """(N, 3) float32 origins and unit directions, (N,) float32 far limits; ``rows`` (K,) int64:
+        cast only these rays (default all) → ((K,) int32 triangle hit first, -1: none; (K,) float32
+        its distance (tfar) or None)."""
+        rows = np.arange(len(far)) if rows is None else rows
+        prim = np.empty(len(rows), dtype=np.int32)
+        t = np.empty(len(rows) if want_distance else 0, dtype=np.float32)
+        cast_packets(self._library.intersect16, self._scene, rows, origins, directions, far, prim, t)
         return prim, (t if want_distance else None)
 
     def __del__(self):
@@ -149,12 +151,12 @@ class PacketScene:
 
 
 @nb.njit(cache=True, nogil=True)
-def cast_packets(intersect16, scene: int, origins: np.ndarray, directions: np.ndarray, far: np.ndarray,
-                 prim_out: np.ndarray, t_out: np.ndarray) -> None:
-    """Cast rays i = 0..N-1 (``origins``, ``directions`` (N, 3) float32, ``far`` (N,) float32) in
-    packets of 16 consecutive rays through ``intersect16`` (rtcIntersect16) on ``scene``; writes
-    the first triangle hit (or -1) to ``prim_out`` (N,) int32 and, if ``t_out`` has N entries, its
-    distance to ``t_out`` float32."""
+def cast_packets(intersect16, scene: int, rows: np.ndarray, origins: np.ndarray, directions: np.ndarray,
+                 far: np.ndarray, prim_out: np.ndarray, t_out: np.ndarray) -> None:
+    """Cast rays ``rows`` (K,) int64 of ``origins``, ``directions`` (N, 3) float32 and ``far`` (N,)
+    float32, in packets of 16 consecutive rows, through ``intersect16`` (rtcIntersect16) on
+    ``scene``; writes row k's first triangle hit (or -1) to ``prim_out[k]`` (K,) int32 and, if
+    ``t_out`` has K entries, its distance to ``t_out[k]`` float32."""
     # one 64-byte aligned block: the packet, then the valid mask, then the query arguments
     buf = np.zeros(_PACKET_WORDS + 16 + 16 + 16, dtype=np.float32)
     start = (64 - buf.ctypes.data % 64) % 64 // 4
@@ -164,13 +166,13 @@ def cast_packets(intersect16, scene: int, origins: np.ndarray, directions: np.nd
     args = buf[start + _PACKET_WORDS + 16:start + _PACKET_WORDS + 32].view(np.uint32)
     args[0] = _QUERY_FLAGS
     args[1] = 0xFFFFFFFF  # every feature
-    n = len(far)
+    n = len(rows)
     with_t = len(t_out) == n
     for first in range(0, n, 16):
         m = min(16, n - first)
         for k in range(16):
             if k < m:
-                i = first + k
+                i = rows[first + k]
                 ray[k], ray[16 + k], ray[32 + k], ray[48 + k] = origins[i, 0], origins[i, 1], origins[i, 2], 0.0
                 for axis in range(3):
                     d = directions[i, axis]

@@ -1,7 +1,7 @@
 """Compiled (numba) per-ray bookkeeping around the Embree cast of a full render.
 
 Embree finds the first triangle each ray hits; everything else a render does per ray (choosing
-which rays can hit an object at all, gathering them, turning triangle ids into distances, surface
+which rays can hit an object at all, turning triangle ids into distances, surface
 classes and incidence, and rays into points) is a loop over tens of thousands of rays. In numpy
 each step is a pass over temporary arrays, and together they cost more than the cast itself; here
 each is one compiled loop (``cache=True``: compiled once per installation, then loaded).
@@ -50,22 +50,6 @@ def candidate_rays(lo: np.ndarray, hi: np.ndarray, r_min_m: np.ndarray, el_top_r
             out[j] = i
             j += 1
     return out
-
-
-@nb.njit(cache=True, nogil=True)
-def gather_rays(cand: np.ndarray, starts: np.ndarray, dirs: np.ndarray, far_m: np.ndarray):
-    """The candidate rays' starts (K, 3), directions (K, 3) and far limits (K,), float32."""
-    n = len(cand)
-    out_starts = np.empty((n, 3), dtype=np.float32)
-    out_dirs = np.empty((n, 3), dtype=np.float32)
-    out_far = np.empty(n, dtype=np.float32)
-    for i in range(n):
-        j = cand[i]
-        for d in range(3):
-            out_starts[i, d] = starts[j, d]
-            out_dirs[i, d] = dirs[j, d]
-        out_far[i] = far_m[j]
-    return out_starts, out_dirs, out_far
 
 
 @nb.njit(cache=True, nogil=True)

@@ -18,8 +18,10 @@ class Caster(Protocol):
 
         ``far`` (N,): ignore hits beyond this distance (lets the caster stop early)."""
 
-    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray) -> np.ndarray:
-        """Only the (N,) index of the first triangle hit within ``far`` (-1: none)."""
+    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray,
+                    rows: np.ndarray | None = None) -> np.ndarray:
+        """Only the index of the first triangle hit within ``far`` (-1: none): (N,), or (K,) for
+        the rays ``rows`` (K,) int64 alone."""
 
 
 class EmbreeCaster:
@@ -69,16 +71,22 @@ class EmbreeCaster:
         t[prim < 0] = np.inf
         return t, prim
 
-    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray) -> np.ndarray:
+    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray,
+                    rows: np.ndarray | None = None) -> np.ndarray:
         """Triangle ids only, no per-ray distances, normals or barycentrics to convert (the
-        renderer gets the distance from the triangle's plane)."""
-        if len(origins) == 0 or self.n_triangles == 0:
-            return np.full(len(origins), -1, dtype=np.int32)
-        origins32 = np.ascontiguousarray(origins, dtype=np.float32)
-        directions32 = np.ascontiguousarray(directions, dtype=np.float32)
+        renderer gets the distance from the triangle's plane); ``rows``: see :class:`Caster`
+        (the packets read those rays in place, no gathered copy)."""
+        count = len(origins) if rows is None else len(rows)
+        if count == 0 or self.n_triangles == 0:
+            return np.full(count, -1, dtype=np.int32)
         if self._packets is not None:
-            return self._packets.cast(origins32, directions32, _far32(far), want_distance=False)[0]
-        return self._scene.run(origins32, directions32, dists=_far32(far))
+            return self._packets.cast(np.ascontiguousarray(origins, dtype=np.float32),
+                                      np.ascontiguousarray(directions, dtype=np.float32), _far32(far),
+                                      want_distance=False, rows=rows)[0]
+        if rows is not None:
+            origins, directions, far = origins[rows], directions[rows], far[rows]
+        return self._scene.run(np.ascontiguousarray(origins, dtype=np.float32),
+                               np.ascontiguousarray(directions, dtype=np.float32), dists=_far32(far))
 
 
 def _far32(far: np.ndarray) -> np.ndarray:
@@ -122,7 +130,10 @@ class TrimeshCaster:
             prim[beyond] = -1
         return t, prim
 
-    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray) -> np.ndarray:
+    def first_prims(self, origins: np.ndarray, directions: np.ndarray, far: np.ndarray,
+                    rows: np.ndarray | None = None) -> np.ndarray:
+        if rows is not None:
+            origins, directions, far = origins[rows], directions[rows], far[rows]
         return self.first_hits(origins, directions, far)[1]
 
 

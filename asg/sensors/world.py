@@ -31,7 +31,7 @@ from sumo_scenarios.errors import InputError
 
 from ..scene import Agent, Scene
 from .lidar_spec import LidarSpec
-from .kernels import gather_rays, hits_to_points, outline_spans, static_candidates, take_hits
+from .kernels import hits_to_points, outline_spans, static_candidates, take_hits
 from .meshes import REFLECTIVITY, SURFACES, agent_template, building_mesh
 from .raycast import Caster, make_caster
 
@@ -315,8 +315,7 @@ class World:
         if not len(cand):
             return
         view = self._view_cache[sensor_id]
-        starts, dirs, far = gather_rays(cand, rays.starts32, rays.dirs32, rays.far32)
-        prim = view.caster.first_prims(starts, dirs, far)
+        prim = view.caster.first_prims(rays.starts32, rays.dirs32, rays.far32, rows=cand)
         take_hits(cand, prim, rays.pose.origin, rays.dirs_w, view.v0, view.normals, view.surface,
                   hits.t, hits.surface, hits.cos_inc)
 

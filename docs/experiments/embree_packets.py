@@ -12,7 +12,6 @@ import numpy as np
 from asg.benchmarks.lidar import dense_scene
 from asg.scene.neighbours import with_nearest_collaborators
 from asg.sensors import load_lidar_spec
-from asg.sensors.kernels import gather_rays
 from asg.sensors.raycast import EmbreeCaster
 from asg.sensors.world import World, _xy_distance_to_triangles
 
@@ -29,7 +28,7 @@ def main(rounds: int) -> None:
         near = _xy_distance_to_triangles(world._static_tris, rays.pose.origin[:2]) <= spec.range_m + 1.0
         tris = world._static_tris[facing & near & (world._static_owner != own)]
         cand = world._candidates(rays, None if own < 0 else own)
-        starts, dirs, far = gather_rays(cand, rays.starts32, rays.dirs32, rays.far32)
+        starts, dirs, far = rays.starts32[cand], rays.dirs32[cand], rays.far32[cand]
         casters = (EmbreeCaster(tris, robust=False, packets=False), EmbreeCaster(tris, robust=False))
         jobs.append((casters, starts, dirs, far))
     times = {"embreex": [], "packets": []}

@@ -1,0 +1,38 @@
+"""BO's settings in the union of spaces (31 dimensions): AttFuse, ACS-A, budget 50, on the spaces
+table's 30 benchmark scenes; AP@0.7 over the final scenes (as `asg bench paper --table spaces`)
+for random search and BO with other initial-design sizes (`n_initial`) and confidence bounds.
+usage: .venv/bin/python docs/experiments/spaces_bo_variants.py SCENES_DIR OUT VARIANT [VARIANT...]
+  VARIANT: rs | bo | bo:n_initial=10 | bo:n_initial=10,kappa=1.0 | ...
+  (each variant runs in this process on one thread; run two commands side by side for two cores)
+"""
+import json
+import sys
+from pathlib import Path
+
+import asg.pipeline as pipeline
+from asg.generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+from asg.generate_cmd import with_space_flags
+from asg.pipeline import load_generate_config
+
+UNION = "poses,insert,pose-error,latency,dropout"
+
+
+def run_variant(scenes: Path, out: Path, variant: str) -> dict:
+    search, _, overrides = variant.partition(":")
+    params = {k: float(v) if "." in v else int(v) for k, v in (kv.split("=") for kv in overrides.split(",") if kv)}
+    defaults = pipeline.search_params
+    pipeline.search_params = lambda name: defaults(name) | (params if name == search else {})
+    try:
+        cfg = with_space_flags(load_generate_config(fusion="attfuse", acs="attention", search=search), None, UNION)
+        run_dir = out / variant.replace(":", "_").replace(",", "_").replace("=", "")
+        picked = load_scenes(SceneSource(scenes=scenes), 10**6, 1, run_dir / ".work")
+        prepare_run(run_dir, run_settings(cfg, 1, len(picked), {"scenes": str(scenes), "variant": variant}))
+        agg = generate(cfg, picked, run_dir, seed=1, artifacts=False).summary["aggregate"]
+    finally:
+        pipeline.search_params = defaults
+    return {"variant": variant, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
+
+
+if __name__ == "__main__":
+    for v in sys.argv[3:]:
+        print(json.dumps(run_variant(Path(sys.argv[1]), Path(sys.argv[2]), v)), flush=True)
