@@ -83,7 +83,7 @@ def blas_on_one_thread():
     """A context in which the loaded BLAS libraries (OpenBLAS under numpy and scipy) use one
     thread. Their matrices here are small (the GP of BO holds at most a budget of points), and
     OpenBLAS's spinning threads fight torch's OpenMP threads for the cores: a scene of AttFuse +
-    ACS-A + BO took 4.3 s in one process on two threads, 2.7 s with BLAS on one (measured with
+    ACS-A + BO took 4.3 s in one process on two threads, 2.5-2.7 s with BLAS on one (measured with
     ``asg bench generate``)."""
     from threadpoolctl import threadpool_limits
 

@@ -12,7 +12,7 @@ Rendering casts only the rays that can hit something above the ground: a ray is 
 some object spanning its azimuth column starts within the ray's horizontal reach (before the
 ground or the range) and rises to the ray's elevation; each cast ray stops at its ground hit
 (Embree's tfar); the rest are ground hits or misses. Candidate rays
-are cast in two tasks, even and odd channels, on two threads (embreex releases the GIL);
+are cast in two tasks, even and odd channels, on two threads (the packet cast releases the GIL);
 Embree returns only the hit triangle, and the distance is that triangle's plane along the ray. The
 per-ray work around the cast runs in compiled loops (:mod:`asg.sensors.kernels`).
 Static results are cached per sensor, so a re-render after moving vehicles costs only the moved
@@ -291,7 +291,7 @@ class World:
     def _fill_base(self, sensor_ids: list[str]) -> None:
         """Cache ground + static hits for the sensors that have none yet. The work (candidates,
         Embree cast, hits) is split in two tasks, the even and the odd channels of every sensor
-        (about equal work), one on a worker thread: the compiled kernels and embreex release the
+        (about equal work), one on a worker thread: the compiled kernels and the cast release the
         GIL."""
         todo = [s for s in dict.fromkeys(sensor_ids) if s not in self._base_cache]
         if not todo:
