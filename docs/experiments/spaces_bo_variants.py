@@ -1,8 +1,9 @@
-"""BO's settings in the union of spaces (31 dimensions): AttFuse, ACS-A, budget 50, on the spaces
-table's 30 benchmark scenes; AP@0.7 over the final scenes (as `asg bench paper --table spaces`)
-for random search and BO with other initial-design sizes (`n_initial`) and confidence bounds.
+"""Searches and their settings in the union of spaces (31 dimensions): AttFuse, ACS-A, budget 50,
+on the spaces table's 30 benchmark scenes; AP over the final scenes (as `asg bench paper --table
+spaces`) for random search, BO with other initial-design sizes (`n_initial`) and confidence bounds
+(`kappa`), and other nevergrad optimisers.
 usage: .venv/bin/python docs/experiments/spaces_bo_variants.py SCENES_DIR OUT VARIANT [VARIANT...]
-  VARIANT: rs | bo | bo:n_initial=10 | bo:n_initial=10,kappa=1.0 | ...
+  VARIANT: rs | bo | bo:n_initial=10 | bo:kappa=1.0 | ng:optimizer=TwoPointsDE | ...
   (each variant runs in this process on one thread; run two commands side by side for two cores)
 """
 import json
@@ -17,9 +18,18 @@ from asg.pipeline import load_generate_config
 UNION = "poses,insert,pose-error,latency,dropout"
 
 
+def _value(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
 def run_variant(scenes: Path, out: Path, variant: str) -> dict:
     search, _, overrides = variant.partition(":")
-    params = {k: float(v) if "." in v else int(v) for k, v in (kv.split("=") for kv in overrides.split(",") if kv)}
+    params = {k: _value(v) for k, v in (kv.split("=") for kv in overrides.split(",") if kv)}
     defaults = pipeline.search_params
     pipeline.search_params = lambda name: defaults(name) | (params if name == search else {})
     try:
