@@ -15,7 +15,8 @@ from asg.pipeline import Generator, load_generate_config
 #: stage -> the function whose cumulative time it is (file suffix, function name)
 STAGES = {
     "network (pillars, backbone, head)": ("perception/model.py", "forward"),
-    "  of which pillar canvases (torch.zeros)": ("~", "<built-in method torch.zeros>"),
+    "  of which pillar features": ("perception/pillars.py", "encode"),
+    "  of which the first convolution (from the pillars)": ("perception/pillars.py", "strided_conv_of_pillars"),
     "post-processing (decode, NMS, voting)": ("perception/model.py", "postprocess"),
     "render (LiDAR)": ("sensors/frame.py", "render_frame"),
     "AP": ("objective/ap.py", "ap_at"),
@@ -50,7 +51,7 @@ def main(count: int) -> None:
             cum = sum(_outermost(stats, "search/algorithms.py", n) for n in ("ask", "tell"))
         else:
             cum = _outermost(stats, suffix, name)
-        print(f"  {stage:45s} {cum:6.2f} s  {100 * cum / total:5.1f} %")
+        print(f"  {stage:52s} {cum:6.2f} s  {100 * cum / total:5.1f} %")
 
 
 if __name__ == "__main__":
