@@ -4,7 +4,7 @@ embreex (a dependency) ships Embree 4 as a shared library (``embreex.libs/libemb
 but its ``EmbreeScene.run`` casts one ray at a time (``rtcIntersect1`` in a loop). A LiDAR's
 rays come in coherent fans (neighbouring azimuths of one channel), which Embree traverses
 together when given as a packet: ``rtcIntersect16`` from a compiled loop casts the same rays
-1.5x faster than embreex on the benchmark frame, with the same triangles hit (measured:
+2.5x faster than embreex on the benchmark frame, hitting the same surfaces (measured:
 docs/lidar.md). This module binds the few Embree calls that needs (device, scene, one
 triangle geometry, commit, ``rtcIntersect16``); :func:`packet_library` returns None where
 that library is not found (another platform's wheel layout, an Embree 2/3 build of embreex),
@@ -13,7 +13,7 @@ and the caster then falls back to embreex's own ``run``.
 Ray/hit packet layout (``RTCRayHit16``, embree4/rtcore_ray.h, 64-byte aligned), in 32-bit
 words: org_x, org_y, org_z, tnear, dir_x, dir_y, dir_z, time, tfar, mask, id, flags (16 words
 each, words 0-191), then the hit: Ng_x, Ng_y, Ng_z, u, v, primID (word 272), geomID (word
-288), instance ids (their count depends on Embree's build: the buffer leaves room for 32 levels).
+288), instance ids (their count depends on Embree's build, 1 by default: the buffer has room for 22).
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
-#: 32-bit words of one packet buffer: RTCRayHit16 with room for any instance-level count
+#: 32-bit words of one packet buffer: RTCRayHit16 with room for up to 22 instance levels
 _PACKET_WORDS = 1024
 _TFAR, _MASK, _PRIM, _GEOM = 128, 144, 272, 288
 _NO_HIT = 0xFFFFFFFF
@@ -35,7 +35,7 @@ _BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
 _SCENE_FLAG_ROBUST = 1 << 2
 #: RTC_RAY_QUERY_FLAG_COHERENT: the packets are fans of neighbouring rays, which Embree then
-#: traverses as one frustum per direction octant (2.3x faster than without, measured: docs/lidar.md)
+#: traverses as one frustum per direction octant (2.2x faster than without, measured: docs/lidar.md)
 _QUERY_FLAGS = 1 << 16
 #: direction components smaller than this are cast as +-this: Embree's reciprocal of a component
 #: below 1e-18 loses its sign, and the coherent traversal, which splits a packet by the signs of
