@@ -75,8 +75,11 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
     assert [(r["acs"], r["aps"]) for r in tables["ablation"]] == [(False, False), (True, False), (False, True), (True, True)]
     assert [r["search"] for r in tables["blackbox"]] == ["normal", "rs", "ga", "bo"]
     spaces = tables["spaces"]
-    assert {(r["space"], r["search"]) for r in spaces} == {(s, q) for s in ("poses", "insert", "pose-error", "latency",
-                                                                            "dropout", "union") for q in ("rs", "bo", "ng")}
+    levels = {("paper", s) for s in ("poses", "insert", "pose-error", "latency", "dropout", "union")}
+    levels |= {("traffic", s) for s in ("poses", "insert", "union")}  # the spaces that place vehicles
+    assert len(spaces) == len(levels) * 3
+    assert {(r["plausibility"], r["space"], r["search"]) for r in spaces} == {(p, s, q) for p, s in levels
+                                                                              for q in ("rs", "bo", "ng")}
     for r in spaces:  # the synthetic scenes have no traffic log: latency (alone or in the union) says so
         if "latency" in r["kinds"]:
             assert "SUMO log" in r["error"]

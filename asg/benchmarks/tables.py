@@ -157,6 +157,9 @@ def blackbox_table(run: TableRun) -> tuple[list[dict], int]:
 SPACES = ("poses", "poses,insert,pose-error,latency,dropout", "pose-error", "latency", "insert", "dropout")
 #: the searches it compares at the same budget
 SPACE_SEARCHES = ("rs", "bo", "ng")
+#: the spaces that place vehicles (moved or inserted), measured at the traffic plausibility level too
+#: (the others move none, so the level does not change them)
+TRAFFIC_SPACES = ("poses", "poses,insert,pose-error,latency,dropout", "insert")
 #: the spaces table runs on the generator benchmark's scenes (asg bench paper without --table)
 BENCHMARK_SCENES = 30
 
@@ -164,21 +167,25 @@ BENCHMARK_SCENES = 30
 def spaces_table(run: TableRun) -> tuple[list[dict], int]:
     """Beyond the paper: AttFuse with ACS-A, then each perturbation space alone and all of them
     together, searched by random search, BO and nevergrad at the same budget, on the generator
-    benchmark's scenes (``run.scenes`` of them, default 30). Drop = AP on the normal scenes minus
-    AP after the search."""
+    benchmark's scenes (``run.scenes`` of them, default 30), at the config's plausibility level;
+    the spaces that place vehicles (TRAFFIC_SPACES) also at the ``traffic`` level. Drop = AP on
+    the normal scenes minus AP after the search."""
+    from ..pipeline import load_generate_config
     from .paper import pick_scenes
 
     count = run.scenes or BENCHMARK_SCENES
     scene_dir = pick_scenes(run.out / f"benchmark-scenes-{count}", count)
     rows, counts = [], set()
-    for kinds in SPACES:
+    runs = [(kinds, None) for kinds in SPACES] + [(kinds, "traffic") for kinds in TRAFFIC_SPACES]
+    for kinds, plausibility in runs:
         for search in SPACE_SEARCHES:
             row = {"space": "union" if "," in kinds else kinds, "kinds": kinds.split(","), "search": search}
             try:
                 res = _generator_run(run, "attfuse", acs="attention", search=search, aps=True, kinds=kinds,
-                                     scenes=scene_dir)
+                                     scenes=scene_dir, plausibility=plausibility)
             except InputError as exc:  # e.g. latency on scenes without a traffic log: say why, measure the rest
-                rows.append(row | {"error": str(exc)})
+                level = plausibility or load_generate_config().space.plausibility
+                rows.append(row | {"plausibility": level, "error": str(exc)})
                 continue
             counts.add(res["scenes"])
             rows.append(row | {"plausibility": res["plausibility"], "ap": res["challenging"], "normal": res["normal"],
@@ -210,22 +217,25 @@ def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
 
 
 def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: bool, kinds: str | None = None,
-                   scenes: Path | None = None) -> dict:
+                   scenes: Path | None = None, plausibility: str | None = None) -> dict:
     """{"scenes", "normal", "challenging", "mean_loss", "seconds_per_scene", "plausibility",
     "implausible"} of one generator configuration on the first scenes of normal's train split
     (or of folder ``scenes``), with the perturbation spaces ``kinds`` (comma-separated; default the
-    config's): an ``asg generate`` folder under OUT/runs/, resumed if there."""
+    config's) at the plausibility level ``plausibility`` (default the config's): an ``asg
+    generate`` folder under OUT/runs/, resumed if there."""
     import statistics
 
     from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
     from ..generate_cmd import with_space_flags
     from ..pipeline import load_generate_config
 
-    cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps), None, kinds)
+    cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps), plausibility, kinds)
     source = SceneSource(scenes=scenes or Path("normal"))
     name = f"{model}-acs_{acs}-{search if aps else 'no_aps'}"
     if kinds is not None:
         name = f"{scenes.name if scenes else 'normal'}-{name}-space_{kinds.replace(',', '+')}"
+    if plausibility is not None:
+        name += f"-plausibility_{plausibility}"
     run_dir = run.out / "runs" / name
     picked = load_scenes(source, run.scenes or 10**6, run.seed, run_dir / ".work")
     settings = run_settings(cfg, run.seed, len(picked), source.describe() | {"detector": run.detector_factory})
