@@ -357,10 +357,12 @@ def _md_blackbox(rows):
 def _md_spaces(rows):
     return ("AP@0.3 / 0.5 / 0.7 after ACS-A and the search, drop of AP@0.7 from the normal scenes (points), mean "
             "final loss, median seconds a scene.\n\n" +
-            _md_table(["space", "search", "AP", "drop @0.7", "mean loss", "s / scene", "implausible"],
-                      [[r["space"], r["search"], _triple(r["ap"]), f"{100 * r['drop']['0.7']:.1f}", f"{r['mean_loss']:.3f}",
-                        f"{r['seconds_per_scene']:.1f}", str(r["implausible_scenes"])] if "error" not in r else
-                       [r["space"], r["search"], f"not measured: {r['error']}", "", "", "", ""] for r in rows]))
+            _md_table(["space", "plausibility", "search", "AP", "drop @0.7", "mean loss", "s / scene", "implausible"],
+                      [[r["space"], r["plausibility"], r["search"], _triple(r["ap"]), f"{100 * r['drop']['0.7']:.1f}",
+                        f"{r['mean_loss']:.3f}", f"{r['seconds_per_scene']:.1f}", str(r["implausible_scenes"])]
+                       if "error" not in r else
+                       [r["space"], r["plausibility"], r["search"], f"not measured: {r['error']}", "", "", "", ""]
+                       for r in rows]))
 
 
 _MD = {"spaces": _md_spaces, "main": _md_main, "finetune": _md_finetune, "transfer": _md_transfer, "acs": _md_acs, "ablation": _md_ablation,
