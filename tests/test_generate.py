@@ -134,3 +134,18 @@ def test_bench_paper_spreads_its_scenes_over_the_set(tmp_path, busy_scene):
     pick_scenes(tmp_path / "pick", 4, set_name=str(tmp_path / "set"))
     assert {f.name: f.stat().st_mtime_ns for f in picked.glob("*.yaml")} == before
     assert len(list(pick_scenes(tmp_path / "all", 30, set_name=str(tmp_path / "set")).glob("*.yaml"))) == 10
+
+
+def test_blas_runs_on_one_thread_while_a_scene_is_generated(busy_scene):
+    """OpenBLAS's spinning threads fought torch's for the cores: a scene is generated with every
+    loaded BLAS on one thread, and the caller's setting is back afterwards."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    blas_threads = lambda: {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}  # noqa: E731
+    seen = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        gen = make_gen(GenerateConfig(fusion="none", search="bo", acs="random", budget=4, space=SpaceConfig(n_q=50)))
+        gen.generate(busy_scene, seed=1, on_step=lambda e: seen.append(blas_threads()))
+        after = blas_threads()
+    assert seen and all(s == {1} for s in seen)
+    assert after == {2}
