@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal, Sequence
 
 import numpy as np
@@ -194,9 +195,9 @@ class _Pool:
     drawn: int
     radius_m: float
 
-    @property
+    @cached_property
     def present(self) -> np.ndarray:
-        """(K,) bool: candidates that place a vehicle."""
+        """(K,) bool: candidates that place a vehicle (derived once: the pair test reads it per batch)."""
         return np.array([o is not None for o in self.objects], dtype=bool)
 
 
