@@ -19,6 +19,14 @@ from .atomic import atomic_path
 from .errors import InputError
 
 
+#: the fcd-output attributes (besides ``id``) ``asg simulate`` asks SUMO for on a flat net, in SUMO's
+#: order: what the reader uses. SUMO's default set adds ``pos`` and ``slope``; formatting every
+#: attribute of every vehicle in every recorded frame is what the log costs in wall time
+#: (docs/logs-and-scenes.md). A net with elevation adds :data:`FCD_ELEVATION_ATTRIBUTES`.
+FCD_ATTRIBUTES = ("x", "y", "angle", "type", "speed", "lane")
+FCD_ELEVATION_ATTRIBUTES = ("z", "slope")
+
+
 @dataclass(frozen=True)
 class FcdVehicle:
     """One vehicle in one time step, as SUMO writes it (front-bumper position, SUMO angle)."""
@@ -98,7 +106,10 @@ def _vehicle(v: ET.Element) -> FcdVehicle:
 
 
 def write_fcd(path: str | Path, frames: Iterable[FcdFrame]) -> None:
-    """Write frames as a gzipped fcd-output log, atomically, in SUMO's layout and attribute order."""
+    """Write frames as a gzipped fcd-output log, atomically, in SUMO's layout and attribute order:
+    :data:`FCD_ATTRIBUTES`, and ``z``/``slope`` too when any vehicle has a non-zero one."""
+    frames = list(frames)
+    elevated = any(v.z_m != 0.0 or v.slope_deg != 0.0 for f in frames for v in f.vehicles)
     with atomic_path(path) as tmp:
         with gzip.open(tmp, "wt", encoding="utf-8") as out:
             out.write('<?xml version="1.0" encoding="UTF-8"?>\n')
@@ -107,10 +118,12 @@ def write_fcd(path: str | Path, frames: Iterable[FcdFrame]) -> None:
             for frame in frames:
                 out.write(f'    <timestep time="{frame.time_s:.2f}">\n')
                 for v in frame.vehicles:
+                    z = f' z="{v.z_m:.2f}"' if elevated else ""
+                    slope = f' slope="{v.slope_deg:.2f}"' if elevated else ""
                     out.write(
-                        f'        <vehicle id="{v.vehicle_id}" x="{v.x_m:.2f}" y="{v.y_m:.2f}" z="{v.z_m:.2f}" '
+                        f'        <vehicle id="{v.vehicle_id}" x="{v.x_m:.2f}" y="{v.y_m:.2f}"{z} '
                         f'angle="{v.angle_deg:.2f}" type="{v.type_id}" speed="{v.speed_mps:.2f}" '
-                        f'pos="0.00" lane="{v.lane_id}" slope="{v.slope_deg:.2f}"/>\n'
+                        f'lane="{v.lane_id}"{slope}/>\n'
                     )
                 out.write("    </timestep>\n")
             out.write("</fcd-export>\n")

@@ -1,6 +1,7 @@
 """Run SUMO in-process through libsumo and record an fcd-output log folder (see ``log.py``)."""
 from __future__ import annotations
 
+import re
 import shutil
 import time
 from dataclasses import dataclass
@@ -11,7 +12,7 @@ from . import checks
 from .atomic import atomic_dir, remove_stale_partials_of, write_text_atomic
 from .buildings import write_buildings
 from .errors import InputError
-from .fcd import FcdFrame, FcdVehicle
+from .fcd import FCD_ATTRIBUTES, FCD_ELEVATION_ATTRIBUTES, FcdFrame, FcdVehicle
 from .log import BUILDINGS_NAME, FCD_NAME, NET_NAME, LogMeta, density_stats, write_meta
 from .routes import Density, TrafficParams, make_routes
 from .rsu import place_rsus
@@ -112,7 +113,7 @@ def _run_libsumo(work: Path, routes: Path, req: SimulationRequest, end_s: float,
         "--step-length", str(req.step_s), "--begin", "0", "--end", f"{end_s + 2 * req.step_s:.2f}",
         "--seed", str(req.seed), "--fcd-output", str(work / FCD_NAME),
         "--device.fcd.period", str(req.record_period_s), "--device.fcd.begin", f"{req.warmup_s:.2f}",
-        "--fcd-output.attributes", "x,y,z,angle,type,speed,pos,lane,slope",
+        "--fcd-output.attributes", ",".join(fcd_attributes(work / NET_NAME)),
         "--max-num-vehicles", str(max_vehicles), "--time-to-teleport", "60", "--collision.action", "warn", "--collision.check-junctions", "false",
         "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
     ]
@@ -137,6 +138,29 @@ def _run_libsumo(work: Path, routes: Path, req: SimulationRequest, end_s: float,
     finally:
         libsumo.close()
     return time.perf_counter() - started, samples
+
+
+def fcd_attributes(net_path: Path) -> tuple[str, ...]:
+    """The fcd attributes to record on this net: ``z`` and ``slope`` only where it has elevation (as
+    SUMO's own default does for ``z``), never ``pos``."""
+    if net_has_elevation(net_path):
+        return FCD_ATTRIBUTES[:2] + FCD_ELEVATION_ATTRIBUTES[:1] + FCD_ATTRIBUTES[2:] + FCD_ELEVATION_ATTRIBUTES[1:]
+    return FCD_ATTRIBUTES
+
+
+def net_has_elevation(net_path: Path) -> bool:
+    """Whether any ``shape`` in the ``.net.xml`` has a point with a non-zero z (netconvert writes 2-D
+    shapes on a flat net)."""
+    for match in re.finditer(rb'shape="([^"]*)"', Path(net_path).read_bytes()):
+        points = match.group(1).split()
+        if match.group(1).count(b",") > len(points):  # some point has three coordinates
+            try:
+                if any(len(p.split(b",")) == 3 and float(p.split(b",")[2]) != 0.0 for p in points):
+                    return True
+            except ValueError:
+                raise InputError(f"{net_path}: a shape holds a point that is not numbers "
+                                 f"({match.group(1)[:60].decode(errors='replace')!r}); rebuild the net with netconvert") from None
+    return False
 
 
 def _sample(libsumo, time_s: float) -> FcdFrame:

@@ -23,6 +23,15 @@ def test_fcd_round_trip(tmp_path):
     write_fcd(path, frames)
     assert list(read_fcd(path)) == frames
     assert list(tmp_path.iterdir()) == [path]  # no temporary left
+    assert b' z="' not in gzip.decompress(path.read_bytes())  # a flat log leaves z and slope out, as SUMO does
+
+
+def test_fcd_round_trip_with_elevation(tmp_path):
+    frames = [FcdFrame(0.0, (FcdVehicle("a", 1.0, 2.0, 3.5, 90.0, "car", 3.0, "e_0", 1.25),
+                             FcdVehicle("b", 4.0, 5.0, 0.0, 0.0, "car", 0.0, "e_1")))]
+    path = tmp_path / "fcd.xml.gz"
+    write_fcd(path, frames)
+    assert list(read_fcd(path)) == frames
 
 
 def test_truncated_log(tmp_path):

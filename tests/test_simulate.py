@@ -31,6 +31,7 @@ def test_log_is_real_sumo_fcd_with_vtypes(sumo_log):
     with gzip.open(sumo_log / "fcd.xml.gz", "rt") as fh:
         head = fh.read(5000)
     assert "<fcd-export" in head
+    assert ' lane="' in head and ' pos="' not in head and ' z="' not in head  # a flat net: no z, no slope
     routes = (sumo_log / "routes.rou.xml").read_text()
     assert 'vType id="truck"' in routes and 'height="3.40"' in routes
     meta = yaml.safe_load((sumo_log / "meta.yaml").read_text())
@@ -58,3 +59,32 @@ def test_user_net_runs(tmp_path):
     stats = simulate_sumo(SimulationRequest(out_dir=tmp_path / "u", net=net, seed=1, duration_s=10.0, warmup_s=30.0))
     assert stats["frames"] == 21
     assert open_log(tmp_path / "u").buildings  # generated on the fly
+
+
+def test_net_with_elevation_records_z(tmp_path):
+    """A net whose shapes carry z gets z (and slope) in its log; a flat one does not (above)."""
+    import re
+
+    from sumo_scenarios.paths import nets_dir
+    from sumo_scenarios.simulate import net_has_elevation
+
+    flat = nets_dir() / "roundabout.net.xml"
+    assert not net_has_elevation(flat)
+    raised = re.sub(r'shape="([^"]*)"', lambda m: 'shape="' + " ".join(p + ",2.00" for p in m.group(1).split()) + '"',
+                    flat.read_text())
+    net = tmp_path / "raised.net.xml"
+    net.write_text(raised)
+    assert net_has_elevation(net)
+    simulate_sumo(SimulationRequest(out_dir=tmp_path / "u", net=net, seed=1, duration_s=5.0, warmup_s=20.0))
+    vehicles = [v for f in read_fcd(tmp_path / "u" / "fcd.xml.gz") for v in f.vehicles]
+    assert vehicles and all(v.z_m == pytest.approx(2.0) for v in vehicles)
+
+
+def test_net_with_a_broken_shape_is_refused(tmp_path):
+    from sumo_scenarios.errors import InputError
+    from sumo_scenarios.simulate import net_has_elevation
+
+    net = tmp_path / "bad.net.xml"
+    net.write_text('<net><edge id="e"><lane id="e_0" shape="0,0,x 1,1,1"/></edge></net>')
+    with pytest.raises(InputError, match="not numbers"):
+        net_has_elevation(net)

@@ -1,9 +1,10 @@
 """Searches and their settings in the union of spaces (31 dimensions): AttFuse, ACS-A, budget 50,
 on the spaces table's 30 benchmark scenes; AP over the final scenes (as `asg bench paper --table
 spaces`) for random search, BO with other initial-design sizes (`n_initial`) and confidence bounds
-(`kappa`), and other nevergrad optimisers.
+(`kappa`), other nevergrad optimisers, and any of them at another budget (`@N`: the ceiling that
+more evaluations reach).
 usage: .venv/bin/python docs/experiments/spaces_bo_variants.py SCENES_DIR OUT VARIANT [VARIANT...]
-  VARIANT: rs | bo | bo:n_initial=10 | bo:kappa=1.0 | ng:optimizer=TwoPointsDE | ...
+  VARIANT: rs | bo | bo:n_initial=10 | bo:kappa=1.0 | ng:optimizer=TwoPointsDE | rs@250 | ...
   (each variant runs in this process on one thread; run two commands side by side for two cores)
 """
 import json
@@ -28,19 +29,21 @@ def _value(text: str):
 
 
 def run_variant(scenes: Path, out: Path, variant: str) -> dict:
-    search, _, overrides = variant.partition(":")
+    name, _, budget = variant.partition("@")
+    search, _, overrides = name.partition(":")
     params = {k: _value(v) for k, v in (kv.split("=") for kv in overrides.split(",") if kv)}
     defaults = pipeline.search_params
     pipeline.search_params = lambda name: defaults(name) | (params if name == search else {})
     try:
-        cfg = with_space_flags(load_generate_config(fusion="attfuse", acs="attention", search=search), None, UNION)
-        run_dir = out / variant.replace(":", "_").replace(",", "_").replace("=", "")
+        cfg = with_space_flags(load_generate_config(fusion="attfuse", acs="attention", search=search,
+                                                    budget=int(budget) if budget else None), None, UNION)
+        run_dir = out / variant.replace(":", "_").replace(",", "_").replace("=", "").replace("@", "_budget")
         picked = load_scenes(SceneSource(scenes=scenes), 10**6, 1, run_dir / ".work")
         prepare_run(run_dir, run_settings(cfg, 1, len(picked), {"scenes": str(scenes), "variant": variant}))
         agg = generate(cfg, picked, run_dir, seed=1, artifacts=False).summary["aggregate"]
     finally:
         pipeline.search_params = defaults
-    return {"variant": variant, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
+    return {"variant": variant, "budget": cfg.budget, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
 
 
 if __name__ == "__main__":
