@@ -5,13 +5,17 @@ spaces`) for random search, BO with other initial-design sizes (`n_initial`) and
 more evaluations reach).
 usage: .venv/bin/python docs/experiments/spaces_bo_variants.py SCENES_DIR OUT VARIANT [VARIANT...]
   VARIANT: rs | bo | bo:n_initial=10 | bo:kappa=1.0 | ng:optimizer=TwoPointsDE | rs@250 | ...
-  (each variant runs in this process on one thread; run two commands side by side for two cores)
+  (each variant runs in this process on one thread; run two commands side by side for two cores,
+  or set WORKERS=2 in the environment for two worker processes: random search and the searches'
+  defaults only, as a variant's changed settings stay in this process)
 """
 import json
+import os
 import sys
 from pathlib import Path
 
 import asg.pipeline as pipeline
+from asg.executors import build_executor
 from asg.generate import SceneSource, generate, load_scenes, prepare_run, run_settings
 from asg.generate_cmd import with_space_flags
 from asg.pipeline import load_generate_config
@@ -40,7 +44,11 @@ def run_variant(scenes: Path, out: Path, variant: str) -> dict:
         run_dir = out / variant.replace(":", "_").replace(",", "_").replace("=", "").replace("@", "_budget")
         picked = load_scenes(SceneSource(scenes=scenes), 10**6, 1, run_dir / ".work")
         prepare_run(run_dir, run_settings(cfg, 1, len(picked), {"scenes": str(scenes), "variant": variant}))
-        agg = generate(cfg, picked, run_dir, seed=1, artifacts=False).summary["aggregate"]
+        workers = int(os.environ.get("WORKERS", "0"))
+        if workers and params:
+            raise SystemExit("WORKERS applies to variants without settings (the workers read the searches' yaml)")
+        executor = build_executor("local", workers) if workers else None
+        agg = generate(cfg, picked, run_dir, seed=1, artifacts=False, executor=executor).summary["aggregate"]
     finally:
         pipeline.search_params = defaults
     return {"variant": variant, "budget": cfg.budget, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
