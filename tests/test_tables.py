@@ -77,9 +77,10 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
     spaces = tables["spaces"]
     levels = {("paper", s) for s in ("poses", "insert", "pose-error", "latency", "dropout", "union")}
     levels |= {("traffic", s) for s in ("poses", "insert", "union")}  # the spaces that place vehicles
+    levels = {(p, s, 3) for p, s in levels} | {("paper", "union", 6)}  # and the union with six movers
     assert len(spaces) == len(levels) * 3
-    assert {(r["plausibility"], r["space"], r["search"]) for r in spaces} == {(p, s, q) for p, s in levels
-                                                                              for q in ("rs", "bo", "ng")}
+    assert {(r["plausibility"], r["space"], r["movers"], r["search"]) for r in spaces} == {
+        (p, s, m, q) for p, s, m in levels for q in ("rs", "bo", "ng")}
     for r in spaces:  # the synthetic scenes have no traffic log: latency (alone or in the union) says so
         if "latency" in r["kinds"]:
             assert "SUMO log" in r["error"]

@@ -160,6 +160,9 @@ SPACE_SEARCHES = ("rs", "bo", "ng")
 #: the spaces that place vehicles (moved or inserted), measured at the traffic plausibility level too
 #: (the others move none, so the level does not change them)
 TRAFFIC_SPACES = ("poses", "poses,insert,pose-error,latency,dropout", "insert")
+#: the union once more with this many moved vehicles instead of the config's (the paper's 3): a
+#: larger space of the same kinds
+WIDE_UNION_MOVERS = 6
 #: the spaces table runs on the generator benchmark's scenes (asg bench paper without --table)
 BENCHMARK_SCENES = 30
 
@@ -168,27 +171,31 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
     """Beyond the paper: AttFuse with ACS-A, then each perturbation space alone and all of them
     together, searched by random search, BO and nevergrad at the same budget, on the generator
     benchmark's scenes (``run.scenes`` of them, default 30), at the config's plausibility level;
-    the spaces that place vehicles (TRAFFIC_SPACES) also at the ``traffic`` level. Drop = AP on
-    the normal scenes minus AP after the search."""
+    the spaces that place vehicles (TRAFFIC_SPACES) also at the ``traffic`` level, and the union
+    with WIDE_UNION_MOVERS moved vehicles. Drop = AP on the normal scenes minus AP after the search."""
     from ..pipeline import load_generate_config
     from .paper import pick_scenes
 
     count = run.scenes or BENCHMARK_SCENES
     scene_dir = pick_scenes(run.out / f"benchmark-scenes-{count}", count)
     rows, counts = [], set()
-    runs = [(kinds, None) for kinds in SPACES] + [(kinds, "traffic") for kinds in TRAFFIC_SPACES]
-    for kinds, plausibility in runs:
+    union = next(k for k in SPACES if "," in k)
+    runs = ([(kinds, None, None) for kinds in SPACES] + [(kinds, "traffic", None) for kinds in TRAFFIC_SPACES]
+            + [(union, None, WIDE_UNION_MOVERS)])
+    for kinds, plausibility, movers in runs:
         for search in SPACE_SEARCHES:
             row = {"space": "union" if "," in kinds else kinds, "kinds": kinds.split(","), "search": search}
             try:
                 res = _generator_run(run, "attfuse", acs="attention", search=search, aps=True, kinds=kinds,
-                                     scenes=scene_dir, plausibility=plausibility)
+                                     scenes=scene_dir, plausibility=plausibility, movers=movers)
             except InputError as exc:  # e.g. latency on scenes without a traffic log: say why, measure the rest
-                level = plausibility or load_generate_config().space.plausibility
-                rows.append(row | {"plausibility": level, "error": str(exc)})
+                cfg = load_generate_config()
+                rows.append(row | {"plausibility": plausibility or cfg.space.plausibility,
+                                   "movers": movers or cfg.perturbed, "error": str(exc)})
                 continue
             counts.add(res["scenes"])
-            rows.append(row | {"plausibility": res["plausibility"], "ap": res["challenging"], "normal": res["normal"],
+            rows.append(row | {"plausibility": res["plausibility"], "movers": res["movers"], "ap": res["challenging"],
+                               "normal": res["normal"],
                          "drop": {k: round(res["normal"][k] - res["challenging"][k], 6) for k in THRESHOLDS},
                          "mean_loss": res["mean_loss"], "seconds_per_scene": res["seconds_per_scene"],
                          "implausible_scenes": res["implausible"]})
@@ -217,25 +224,28 @@ def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
 
 
 def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: bool, kinds: str | None = None,
-                   scenes: Path | None = None, plausibility: str | None = None) -> dict:
-    """{"scenes", "normal", "challenging", "mean_loss", "seconds_per_scene", "plausibility",
+                   scenes: Path | None = None, plausibility: str | None = None, movers: int | None = None) -> dict:
+    """{"scenes", "normal", "challenging", "mean_loss", "seconds_per_scene", "plausibility", "movers",
     "implausible"} of one generator configuration on the first scenes of normal's train split
     (or of folder ``scenes``), with the perturbation spaces ``kinds`` (comma-separated; default the
-    config's) at the plausibility level ``plausibility`` (default the config's): an ``asg
-    generate`` folder under OUT/runs/, resumed if there."""
+    config's) at the plausibility level ``plausibility`` and with ``movers`` moved vehicles (default:
+    the config's): an ``asg generate`` folder under OUT/runs/, resumed if there."""
     import statistics
 
     from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
     from ..generate_cmd import with_space_flags
     from ..pipeline import load_generate_config
 
-    cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps), plausibility, kinds)
+    cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
+                           plausibility, kinds)
     source = SceneSource(scenes=scenes or Path("normal"))
     name = f"{model}-acs_{acs}-{search if aps else 'no_aps'}"
     if kinds is not None:
         name = f"{scenes.name if scenes else 'normal'}-{name}-space_{kinds.replace(',', '+')}"
     if plausibility is not None:
         name += f"-plausibility_{plausibility}"
+    if movers is not None:
+        name += f"-movers_{movers}"
     run_dir = run.out / "runs" / name
     picked = load_scenes(source, run.scenes or 10**6, run.seed, run_dir / ".work")
     settings = run_settings(cfg, run.seed, len(picked), source.describe() | {"detector": run.detector_factory})
@@ -246,7 +256,7 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     return {"scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"],
             "mean_loss": round(statistics.fmean(e["loss_final"] for e in entries), 6),
             "seconds_per_scene": round(statistics.median(e["seconds"] for e in entries), 3),
-            "plausibility": cfg.space.plausibility,
+            "plausibility": cfg.space.plausibility, "movers": cfg.perturbed,
             "implausible": sum(any(v for v in e["plausibility"].values()) for e in entries)}
 
 
@@ -357,11 +367,14 @@ def _md_blackbox(rows):
 def _md_spaces(rows):
     return ("AP@0.3 / 0.5 / 0.7 after ACS-A and the search, drop of AP@0.7 from the normal scenes (points), mean "
             "final loss, median seconds a scene.\n\n" +
-            _md_table(["space", "plausibility", "search", "AP", "drop @0.7", "mean loss", "s / scene", "implausible"],
-                      [[r["space"], r["plausibility"], r["search"], _triple(r["ap"]), f"{100 * r['drop']['0.7']:.1f}",
-                        f"{r['mean_loss']:.3f}", f"{r['seconds_per_scene']:.1f}", str(r["implausible_scenes"])]
+            _md_table(["space", "movers", "plausibility", "search", "AP", "drop @0.7", "mean loss", "s / scene",
+                       "implausible"],
+                      [[r["space"], str(r["movers"]), r["plausibility"], r["search"], _triple(r["ap"]),
+                        f"{100 * r['drop']['0.7']:.1f}", f"{r['mean_loss']:.3f}", f"{r['seconds_per_scene']:.1f}",
+                        str(r["implausible_scenes"])]
                        if "error" not in r else
-                       [r["space"], r["plausibility"], r["search"], f"not measured: {r['error']}", "", "", "", ""]
+                       [r["space"], str(r["movers"]), r["plausibility"], r["search"], f"not measured: {r['error']}",
+                        "", "", "", ""]
                        for r in rows]))
 
 

@@ -7,11 +7,13 @@ usage: .venv/bin/python docs/experiments/spaces_bo_variants.py SCENES_DIR OUT VA
   VARIANT: rs | bo | bo:n_initial=10 | bo:kappa=1.0 | ng:optimizer=TwoPointsDE | rs@250 | ...
   (each variant runs in this process on one thread; run two commands side by side for two cores,
   or set WORKERS=2 in the environment for two worker processes: random search and the searches'
-  defaults only, as a variant's changed settings stay in this process)
+  defaults only, as a variant's changed settings stay in this process; MOVERS=M moves M vehicles
+  instead of the configured 3, NQ=N draws a feasible set Q of N members instead of 1000)
 """
 import json
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import asg.pipeline as pipeline
@@ -39,9 +41,15 @@ def run_variant(scenes: Path, out: Path, variant: str) -> dict:
     defaults = pipeline.search_params
     pipeline.search_params = lambda name: defaults(name) | (params if name == search else {})
     try:
+        movers = os.environ.get("MOVERS")
         cfg = with_space_flags(load_generate_config(fusion="attfuse", acs="attention", search=search,
-                                                    budget=int(budget) if budget else None), None, UNION)
-        run_dir = out / variant.replace(":", "_").replace(",", "_").replace("=", "").replace("@", "_budget")
+                                                    budget=int(budget) if budget else None,
+                                                    perturbed=int(movers) if movers else None), None, UNION)
+        n_q = os.environ.get("NQ")
+        if n_q:
+            cfg = replace(cfg, space=replace(cfg.space, n_q=int(n_q)))
+        run_dir = out / (variant.replace(":", "_").replace(",", "_").replace("=", "").replace("@", "_budget")
+                         + (f"_movers{movers}" if movers else "") + (f"_nq{n_q}" if n_q else ""))
         picked = load_scenes(SceneSource(scenes=scenes), 10**6, 1, run_dir / ".work")
         prepare_run(run_dir, run_settings(cfg, 1, len(picked), {"scenes": str(scenes), "variant": variant}))
         workers = int(os.environ.get("WORKERS", "0"))
@@ -51,7 +59,7 @@ def run_variant(scenes: Path, out: Path, variant: str) -> dict:
         agg = generate(cfg, picked, run_dir, seed=1, artifacts=False, executor=executor).summary["aggregate"]
     finally:
         pipeline.search_params = defaults
-    return {"variant": variant, "budget": cfg.budget, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
+    return {"variant": variant, "budget": cfg.budget, "movers": cfg.perturbed, "n_q": cfg.space.n_q, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
 
 
 if __name__ == "__main__":
