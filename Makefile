@@ -5,7 +5,7 @@ PYTHON ?= python3
 .PHONY: setup demo test bench
 setup: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml
+$(VENV)/.installed: pyproject.toml .ci/constraints.txt
 	# Open3D (dev extra: cross-checks and PCD tests) needs libusb; install it from Debian when missing
 	@ldconfig -p | grep -q libusb-1.0 || (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || \
 	  (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1) || \
@@ -17,7 +17,8 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	# torch first, pinned: this machine's CPU wheel (a plain "torch" could pull a multi-GB CUDA build)
 	$(VENV)/bin/pip install --quiet torch==2.13.0
-	$(VENV)/bin/pip install --quiet -e '.[dev]'
+	# the tested versions of everything else (.ci/constraints.txt): the same numbers on a fresh machine
+	$(VENV)/bin/pip install --quiet -c .ci/constraints.txt -e '.[dev]'
 	touch $@
 
 demo: setup
