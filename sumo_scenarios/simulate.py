@@ -152,10 +152,10 @@ def net_has_elevation(net_path: Path) -> bool:
     """Whether any ``shape`` in the ``.net.xml`` has a point with a non-zero z (netconvert writes 2-D
     shapes on a flat net)."""
     for match in re.finditer(rb'shape="([^"]*)"', Path(net_path).read_bytes()):
-        points = match.group(1).split()
-        if match.group(1).count(b",") > len(points):  # some point has three coordinates
+        points = [p.split(b",") for p in match.group(1).split()]
+        if any(len(p) == 3 for p in points):
             try:
-                if any(len(p.split(b",")) == 3 and float(p.split(b",")[2]) != 0.0 for p in points):
+                if any(len(p) == 3 and float(p[2]) != 0.0 for p in points):
                     return True
             except ValueError:
                 raise InputError(f"{net_path}: a shape holds a point that is not numbers "

@@ -154,12 +154,14 @@ def blackbox_table(run: TableRun) -> tuple[list[dict], int]:
 
 
 #: the spaces table: each space alone, then all together (asg.search.spaces)
-SPACES = ("poses", "poses,insert,pose-error,latency,dropout", "pose-error", "latency", "insert", "dropout")
+#: every space together (the "union" rows)
+UNION = "poses,insert,pose-error,latency,dropout"
+SPACES = ("poses", UNION, "pose-error", "latency", "insert", "dropout")
 #: the searches it compares at the same budget
 SPACE_SEARCHES = ("rs", "bo", "ng")
 #: the spaces that place vehicles (moved or inserted), measured at the traffic plausibility level too
 #: (the others move none, so the level does not change them)
-TRAFFIC_SPACES = ("poses", "poses,insert,pose-error,latency,dropout", "insert")
+TRAFFIC_SPACES = ("poses", UNION, "insert")
 #: the union once more with this many moved vehicles instead of the config's (the paper's 3): a
 #: larger space of the same kinds
 WIDE_UNION_MOVERS = 6
@@ -179,12 +181,11 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
     count = run.scenes or BENCHMARK_SCENES
     scene_dir = pick_scenes(run.out / f"benchmark-scenes-{count}", count)
     rows, counts = [], set()
-    union = next(k for k in SPACES if "," in k)
     runs = ([(kinds, None, None) for kinds in SPACES] + [(kinds, "traffic", None) for kinds in TRAFFIC_SPACES]
-            + [(union, None, WIDE_UNION_MOVERS)])
+            + [(UNION, None, WIDE_UNION_MOVERS)])
     for kinds, plausibility, movers in runs:
         for search in SPACE_SEARCHES:
-            row = {"space": "union" if "," in kinds else kinds, "kinds": kinds.split(","), "search": search}
+            row = {"space": "union" if kinds == UNION else kinds, "kinds": kinds.split(","), "search": search}
             try:
                 res = _generator_run(run, "attfuse", acs="attention", search=search, aps=True, kinds=kinds,
                                      scenes=scene_dir, plausibility=plausibility, movers=movers)
@@ -194,11 +195,11 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
                                    "movers": movers or cfg.perturbed, "error": str(exc)})
                 continue
             counts.add(res["scenes"])
-            rows.append(row | {"plausibility": res["plausibility"], "movers": res["movers"], "ap": res["challenging"],
-                               "normal": res["normal"],
-                         "drop": {k: round(res["normal"][k] - res["challenging"][k], 6) for k in THRESHOLDS},
-                         "mean_loss": res["mean_loss"], "seconds_per_scene": res["seconds_per_scene"],
-                         "implausible_scenes": res["implausible"]})
+            rows.append(row | {"plausibility": res["plausibility"], "movers": res["movers"],
+                               "ap": res["challenging"], "normal": res["normal"],
+                               "drop": {k: round(res["normal"][k] - res["challenging"][k], 6) for k in THRESHOLDS},
+                               "mean_loss": res["mean_loss"], "seconds_per_scene": res["seconds_per_scene"],
+                               "implausible_scenes": res["implausible"]})
     return rows, min(counts, default=0)
 
 

@@ -17,12 +17,11 @@ from dataclasses import replace
 from pathlib import Path
 
 import asg.pipeline as pipeline
+from asg.benchmarks.tables import UNION
 from asg.executors import build_executor
 from asg.generate import SceneSource, generate, load_scenes, prepare_run, run_settings
 from asg.generate_cmd import with_space_flags
 from asg.pipeline import load_generate_config
-
-UNION = "poses,insert,pose-error,latency,dropout"
 
 
 def _value(text: str):
