@@ -325,7 +325,22 @@ def test_stale_partials_are_removed_on_rerun(capsys, tmp_path):
     assert not [p for p in stale if p.exists()]
 
 
-def test_sigterm_mid_run_says_so_and_leaves_nothing(tmp_path):
+def _wait_for(condition, what: str, proc: subprocess.Popen, limit_s: float = 300.0) -> None:
+    """Poll ``condition()`` until true (a marker on disk, not a clock); fail if ``proc`` ended first."""
+    deadline = time.time() + limit_s
+    while not condition():
+        assert proc.poll() is None, f"the run ended before {what}"
+        assert time.time() < deadline, f"no {what} after {limit_s} s"
+        time.sleep(0.05)
+
+
+@pytest.mark.parametrize("moment", ["workers starting", "first scene written"])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig):
+    """SIGTERM or Ctrl-C to a two-worker ``asg generate``: exit 143 / 130, no temporary file, no
+    process left behind; the same command then resumes and completes (checked once: it costs the
+    remaining scenes)."""
+    psutil = pytest.importorskip("psutil")
     scenes = tmp_path / "scenes"
     for i in range(3):
         _write(scenes, _scene_dict(f"s{i}"))
@@ -333,19 +348,48 @@ def test_sigterm_mid_run_says_so_and_leaves_nothing(tmp_path):
     tmp.mkdir()
     env = dict(os.environ, TMPDIR=str(tmp))
     argv = [sys.executable, "-m", "asg.cli", "generate", "--scenes", str(scenes), "--out", str(out),
-            "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "400"]
+            "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "150", "--workers", "2"]
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, env=env, text=True, cwd=ROOT)
-    deadline = time.time() + 60
-    while not (out / "run.json").exists() and time.time() < deadline:
-        time.sleep(0.2)
-    time.sleep(3.0)  # models loaded, the first scene under way
-    proc.send_signal(signal.SIGTERM)
+    if moment == "workers starting":
+        _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= 2, "worker processes", proc)
+    else:
+        _wait_for(lambda: any((out / "scenes").glob("s*")), "finished scene", proc)
+    family = psutil.Process(proc.pid).children(recursive=True)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 143, err
-    assert "terminated" in err and "Traceback" not in err
+    code, word = (143, "terminated") if sig == signal.SIGTERM else (130, "interrupted")
+    assert proc.returncode == code, err
+    assert word in err and "Traceback" not in err
+    _, alive = psutil.wait_procs(family, timeout=10)
+    assert not alive, alive  # workers and helpers end with their parent
     leftovers = [p for p in out.rglob("*") if p.name.startswith(".")]
     assert not leftovers, leftovers
     assert not list(tmp.iterdir())  # no folder in the system's temporary directory
+    if sig != signal.SIGTERM or moment != "first scene written":
+        return
+    resumed = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert sorted(p.name for p in (out / "scenes").iterdir()) == ["s0", "s1", "s2"]
+
+
+def test_workers_end_when_their_parent_is_killed(tmp_path):
+    """kill -9 of the parent: its workers end too (Linux's parent-death signal), none writes later."""
+    psutil = pytest.importorskip("psutil")
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the parent-death signal is Linux's")
+    scenes = tmp_path / "scenes"
+    for i in range(3):
+        _write(scenes, _scene_dict(f"s{i}"))
+    out = tmp_path / "out"
+    argv = [sys.executable, "-m", "asg.cli", "generate", "--scenes", str(scenes), "--out", str(out),
+            "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "300", "--workers", "2"]
+    proc = subprocess.Popen(argv, stderr=subprocess.DEVNULL, stdout=subprocess.DEVNULL, cwd=ROOT)
+    _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= 2, "worker processes", proc)
+    workers = psutil.Process(proc.pid).children()
+    proc.kill()
+    proc.wait(timeout=30)
+    _, alive = psutil.wait_procs(workers, timeout=15)
+    assert not alive, alive
 
 
 def test_simulate_removes_stale_partials_beside_its_output(capsys, tmp_path):

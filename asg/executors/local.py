@@ -1,15 +1,20 @@
 """``--executor local``: worker processes on this machine (one worker: this process).
 
 Workers are started fresh (``spawn``), build their state once and ignore Ctrl-C (the parent
-decides); SIGTERM makes a worker unwind, so its half-written files are removed. A worker that dies
+decides); SIGTERM makes a worker unwind, so its half-written files are removed, and then exit at
+once (the pool's own loop would otherwise catch the exit and wait for more work, which made a
+terminated batch wait 30 s a worker). Workers get SIGTERM when their parent dies, however it dies
+(Linux's parent-death signal), so none lives on to write a scene for nobody. A worker that dies
 (killed, out of memory) breaks the pool: the items that had not finished run again on a new pool;
 if no item finishes between MAX_ATTEMPTS breaks in a row, the batch stops with WorkerLost.
 """
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import signal
+import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Iterator, Sequence
@@ -20,19 +25,39 @@ from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads
 _STATE: Any = None
 #: is this worker inside an item (which may hold temporary files) rather than starting or idle?
 _BUSY = False
+#: how long a terminated worker may take to remove its temporary files before it is killed (s)
+STOP_GRACE_S = 3.0
 
 
-def _worker_init(threads: int, job: Job) -> None:
+class _WorkerTerminated(BaseException):
+    """SIGTERM inside an item: unwinds it (its context managers remove its temporary files)."""
+
+
+def _worker_init(threads: int, job: Job, parent_pid: int) -> None:
     global _STATE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    die_with_parent(parent_pid)
     apply_threads(threads)
     _STATE = job.setup(*job.setup_args)
 
 
+def die_with_parent(parent_pid: int) -> None:
+    """Ask Linux for SIGTERM when the parent process ends (``prctl(PR_SET_PDEATHSIG)``); exit now
+    if it has already ended. Elsewhere (no prctl) the pool's own checks remain."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:
+        os._exit(143)
+
+
 def _exit_on_sigterm(signum, frame) -> None:
     if _BUSY:
-        raise SystemExit(143)  # unwinds: context managers remove the item's temporary files
+        raise _WorkerTerminated()
     os._exit(143)  # starting or idle: nothing to clean up, and no traceback from the pool's machinery
 
 
@@ -41,6 +66,8 @@ def _worker_run(job: Job, item: Any) -> Any:
     _BUSY = True
     try:
         return job.run(_STATE, item)
+    except _WorkerTerminated:
+        os._exit(143)  # unwound: the item's temporary files are gone; the pool must not catch this exit
     finally:
         _BUSY = False
 
@@ -87,7 +114,7 @@ class LocalExecutor(Executor):
         """Run ``pending`` on a new pool; yields results; returns (indices finished, pool broke)."""
         pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
                                    mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_worker_init, initargs=(self.threads, job))
+                                   initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
         futures = {pool.submit(_worker_run, job, item): i for i, item in pending.items()}
         finished: list[int] = []
         broken = False
@@ -118,4 +145,7 @@ def _stop(pool: ProcessPoolExecutor) -> None:
         if p.is_alive():
             p.terminate()
     for p in procs:
-        p.join(timeout=30)
+        p.join(timeout=STOP_GRACE_S)
+        if p.is_alive():  # stuck in native code: cleanup is no longer worth a scheduler's kill of us all
+            p.kill()
+            p.join(timeout=STOP_GRACE_S)
