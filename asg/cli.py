@@ -188,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON only")
     _executor_args(p)
 
-    bench = sub.add_parser("bench", help="benchmarks: simulate, lidar, detect, generate, scale, paper",
+    bench = sub.add_parser("bench", help="benchmarks: simulate, lidar, detect, generate, train, scale, paper",
                            description="Speed benchmarks and the paper's tables.")
     bsub = bench.add_subparsers(dest="bench_command", metavar="WHAT", parser_class=_Parser)
     p = _add(bsub, "simulate", "10 simulated minutes of a dense town at 0.1 s steps", commands.bench_simulate)
@@ -205,6 +205,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = _add(bsub, "generate", "seconds per scene of AttFuse + ACS-A + BO, BO overhead per suggestion", commands.bench_generate)
     p.add_argument("--scenes", type=COUNT, default=5)
     p.add_argument("--budget", type=COUNT, default=50)
+    p.add_argument("--json", action="store_true", help="print JSON only")
+    p = _add(bsub, "train", "seconds a training step of AttFuse takes (batch 4, 2 threads) and its phases' shares",
+             commands.bench_train)
+    p.add_argument("--steps", type=COUNT, default=12, help="steps timed after 3 warm-up steps (median)")
     p.add_argument("--json", action="store_true", help="print JSON only")
     p = _add(bsub, "scale", "scenes per hour of the generator benchmark: 1 worker (1 thread, all threads), "
              "2 workers, 2 Ray actors", commands.bench_scale)

@@ -372,6 +372,13 @@ def bench_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def bench_train(args: argparse.Namespace) -> int:
+    from .benchmarks.train import bench_train as run
+
+    _print_result("asg bench train", run(steps=args.steps), args.json)
+    return 0
+
+
 def bench_scale(args: argparse.Namespace) -> int:
     from .benchmarks.scale import bench_scale as run
 

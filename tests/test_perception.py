@@ -398,8 +398,7 @@ def test_canvases_and_fused_maps_are_channels_last():
 
 def test_strided_conv_of_pillars_is_the_dense_convolution():
     """The first convolution computed from the occupied pillars alone equals the dense one on the
-    canvas, pillars on the grid's edges included; and the model's inference (no gradients, the
-    sparse path) equals its training path (the dense canvas)."""
+    canvas, pillars on the grid's edges included, and so do its gradients (training uses it too)."""
     from asg.perception.pillars import Pillars, strided_conv_of_pillars
 
     torch.manual_seed(0)
@@ -417,10 +416,38 @@ def test_strided_conv_of_pillars_is_the_dense_convolution():
     with pytest.raises(ValueError, match="3x3 convolution of stride 2"):
         strided_conv_of_pillars(torch.nn.Conv2d(c_in, c_out, 3, stride=1, padding=1), pillars)
 
-    model = AttFuse(replace(TINY, attfuse_fusion="stage1")).eval()
-    clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5]]
+    # training runs the same sparse path: its gradients are the dense convolution's
+    conv = torch.nn.Conv2d(c_in, c_out, 3, stride=2, padding=1, bias=False)
+    grads = []
+    for sparse_path in (True, False):
+        feats = [f.detach().clone().requires_grad_(True) for f in pillars.features]
+        conv.zero_grad()
+        p = Pillars(cells, feats, n)
+        out = strided_conv_of_pillars(conv, p) if sparse_path else conv(p.canvas())
+        (out * torch.linspace(-1, 1, out.numel()).view(out.shape)).sum().backward()
+        grads.append([conv.weight.grad.clone()] + [f.grad.clone() for f in feats])
+    for a, b in zip(*grads):
+        assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_pillar_max_is_max_pooling_with_its_gradient():
+    """The per-pillar maximum equals index_reduce's amax; with gradients it flows to each pillar's
+    winning point per channel, as max-pooling's (no ties among random features)."""
+    from asg.perception.pillars import pillar_max
+
+    torch.manual_seed(1)
+    h = torch.randn(50, 6)
+    pillar = torch.randint(0, 9, (50,))
+    pillar[pillar == 4] = 5  # pillar 4 holds no point: 0
+    reference = torch.zeros(9, 6).index_reduce_(0, pillar, h, "amax", include_self=False)
     with torch.no_grad():
-        inference = model(clouds)
-    training_path = model(clouds)  # gradients on: the dense canvas
-    for a, b in zip(inference, training_path):
-        assert torch.allclose(a, b.detach(), atol=1e-4)
+        assert torch.equal(pillar_max(h, pillar, 9), reference)
+    x = h.clone().requires_grad_(True)
+    pooled = pillar_max(x, pillar, 9)
+    assert torch.equal(pooled.detach(), reference)
+    weights = torch.randn(9, 6)
+    (pooled * weights).sum().backward()
+    y = h.clone().requires_grad_(True)
+    (torch.zeros(9, 6).index_reduce_(0, pillar, y, "amax", include_self=False) * weights).sum().backward()
+    assert torch.allclose(x.grad, y.grad)
+    assert int((x.grad != 0).sum()) == int((reference != 0).sum())  # one point a pillar and channel

@@ -55,10 +55,10 @@ class MixedBatches:
         self.sources = sources
         self.shares = np.asarray(shares, dtype=float) / float(np.sum(shares))
 
-    def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg):
+    def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg, timer=None):
         which = rng.choice(len(self.sources), size=batch, p=self.shares)
         examples = [self.sources[int(s)].items[int(rng.integers(len(self.sources[int(s)].items)))] for s in which]
-        return draw_examples(examples, rng, anchors, cfg)
+        return draw_examples(examples, rng, anchors, cfg, timer)
 
 
 def finetuned_name(fusion: str) -> str:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import time
+from contextlib import contextmanager
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,19 +62,23 @@ class _Batches:
             if kind == "early":
                 self.items = [([np.vstack(clouds)], b) for clouds, b in self.items]
 
-    def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg):
+    def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg, timer: "PhaseTimer | None" = None):
         """A batch: clouds (per sample, a list of (N, 4) tensors), labels (B, A), residual targets
         (B, A, 7), direction bins (B, A) and the augmented boxes (per sample, (M, 7))."""
         picks = rng.integers(len(self.items), size=batch)
-        return draw_examples([self.items[int(k)] for k in picks], rng, anchors, cfg)
+        return draw_examples([self.items[int(k)] for k in picks], rng, anchors, cfg, timer)
 
 
-def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray, cfg):
-    """A batch of (clouds, boxes) examples, augmented with ``rng``: see :meth:`_Batches.draw`."""
+def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray, cfg, timer: "PhaseTimer | None" = None):
+    """A batch of (clouds, boxes) examples, augmented with ``rng``: see :meth:`_Batches.draw`.
+    ``timer``: where the augmentation ("draw") and the target assignment ("targets") are timed."""
+    timer = timer or PhaseTimer(enabled=False)
     clouds, labels, targets, dirs, gt = [], [], [], [], []
     for cl, boxes in examples:
-        cl, boxes = augment(cl, boxes, rng)
-        lab, res, d = assign_targets(anchors, boxes, cfg)
+        with timer.phase("draw"):
+            cl, boxes = augment(cl, boxes, rng)
+        with timer.phase("targets"):
+            lab, res, d = assign_targets(anchors, boxes, cfg)
         clouds.append([torch.from_numpy(c) for c in cl])
         labels.append(lab)
         targets.append(res)
@@ -81,6 +86,58 @@ def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray,
         gt.append(boxes)
     return (clouds, torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
             torch.from_numpy(np.stack(dirs)), gt)
+
+
+class PhaseTimer:
+    """Wall seconds spent in named phases of a training step (``enabled=False``: a no-op)."""
+
+    def __init__(self, enabled: bool = True):
+        self.enabled = enabled
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def phase(self, name: str):
+        if not self.enabled:
+            yield
+            return
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t
+
+
+def train_step(model: torch.nn.Module, opt, sched, batch, timer: PhaseTimer | None = None) -> dict[str, torch.Tensor]:
+    """One optimiser step of ``model`` on ``batch`` (what :func:`draw_examples` returns); the
+    losses by name ("total" includes the branches'). ``timer`` splits it into "forward" (the
+    network, of which "voxelise" is the pillar encoder's part), "loss", "backward" and "optimiser"."""
+    timer = timer or PhaseTimer(enabled=False)
+    clouds, labels, targets, dirs, gt = batch
+    attention = isinstance(model, AttFuse)
+    encode = model.encoder.encode
+    if timer.enabled:  # the encoder's share of the forward pass, timed apart
+        def timed_encode(c):
+            with timer.phase("voxelise"):
+                return encode(c)
+        model.encoder.encode = timed_encode
+    try:
+        with timer.phase("forward"):
+            cls, box, d, features = model(clouds if attention else [c[0] for c in clouds])
+    finally:
+        model.encoder.__dict__.pop("encode", None)
+    with timer.phase("loss"):
+        loss = detection_loss(cls, box, d, labels, targets, dirs)
+        loss.update(_branch_losses(model, cls, box, features, labels, gt))
+        loss["total"] = loss["total"] + loss["iou"] + loss["refine"]
+    with timer.phase("backward"):
+        opt.zero_grad()
+        loss["total"].backward()
+    with timer.phase("optimiser"):
+        torch.nn.utils.clip_grad_norm_(list(model.parameters()), 10.0)
+        opt.step()
+        if sched is not None:
+            sched.step()
+    return loss
 
 
 def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, log: Callable[[str], None] = print,
@@ -185,24 +242,13 @@ def run_steps(model: torch.nn.Module, opt, sched, batches, rng: np.random.Genera
     """Train ``model`` from ``steps.done`` to ``steps.total`` on batches drawn from ``batches``
     (anything with ``draw(rng, batch, anchors, cfg)``), checkpointing to ``ckpt``; returns the
     chunk's wall time so far (``wall_s`` plus this run's). Leaves the model in eval mode."""
-    params = list(model.parameters())
     anchors = model.anchors.numpy()
-    attention = isinstance(model, AttFuse)
     model.train()
     started = time.perf_counter()
     losses: list[float] = []
     step, total = steps.done, steps.total
     while step < total:
-        clouds, labels, targets, dirs, gt = batches.draw(rng, steps.batch_size, anchors, cfg)
-        cls, box, d, features = model(clouds if attention else [c[0] for c in clouds])
-        loss = detection_loss(cls, box, d, labels, targets, dirs)
-        loss.update(_branch_losses(model, cls, box, features, labels, gt))
-        loss["total"] = loss["total"] + loss["iou"] + loss["refine"]
-        opt.zero_grad()
-        loss["total"].backward()
-        torch.nn.utils.clip_grad_norm_(params, 10.0)
-        opt.step()
-        sched.step()
+        loss = train_step(model, opt, sched, batches.draw(rng, steps.batch_size, anchors, cfg))
         step += 1
         losses.append(float(loss["total"].detach()))
         if progress:

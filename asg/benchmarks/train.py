@@ -1,0 +1,57 @@
+"""``asg bench train``: seconds a training step of AttFuse takes (batch 4, two threads), median over
+repeated steps on detector-train frames, and each phase's share of it: data drawing (picking and
+augmenting the examples), voxelisation (the pillar encoder), the rest of the forward pass, target
+assignment, the losses, the backward pass and the optimiser step."""
+from __future__ import annotations
+
+import itertools
+import statistics
+import time
+
+import numpy as np
+
+#: steps timed after the warm-up, and warm-up steps (allocator, oneDNN kernels), by default
+STEPS, WARMUP = 12, 3
+
+
+def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threads: int = 2, seed: int = 0) -> dict:
+    import torch
+
+    from ..datasets import iter_frames
+    from ..perception.config import load_detector_config
+    from ..perception.data import make_sample
+    from ..perception.model import AttFuse
+    from ..perception.train import BRANCH_KEYS, PhaseTimer, _Batches, train_step
+    from ..perception.weights_io import WEIGHTS_DIR, load_state
+    from ..sensors import load_lidar_spec
+
+    torch.set_num_threads(threads)
+    torch.manual_seed(seed)
+    cfg = load_detector_config()
+    spec = load_lidar_spec("v2xp")
+    samples = [make_sample(s, spec) for s in itertools.islice(iter_frames("detector-train", "train"), frames)]
+    batches = _Batches("attfuse", samples, "all")
+    model = AttFuse(cfg)
+    load_state(model, WEIGHTS_DIR / "attfuse.pt", allow_missing=BRANCH_KEYS)  # the shipped weights' real activations
+    model.train()
+    opt = torch.optim.Adam(model.parameters(), lr=1e-5)
+    anchors = model.anchors.numpy()
+    rng = np.random.default_rng(seed)
+    totals, phases = [], []
+    for k in range(WARMUP + steps):
+        timer = PhaseTimer()
+        t = time.perf_counter()
+        batch = batches.draw(rng, batch_size, anchors, cfg, timer)
+        train_step(model, opt, None, batch, timer)
+        if k >= WARMUP:
+            totals.append(time.perf_counter() - t)
+            phases.append(timer.seconds)
+    median = statistics.median(totals)
+    share = {name: statistics.median(p[name] for p in phases) for name in ("draw", "targets", "voxelise", "forward",
+                                                                          "loss", "backward", "optimiser")}
+    share["forward"] -= share["voxelise"]  # "forward" was timed around the encoder too
+    return {"model": "attfuse", "batch_size": batch_size, "threads": threads, "steps": len(totals),
+            "examples": len(batches.items), "seconds_per_step": round(median, 3),
+            "seconds_per_step_min": round(min(totals), 3),
+            "phase_share": {k: round(v / median, 3) for k, v in share.items()},
+            "goal_seconds_per_step": 0.7}
