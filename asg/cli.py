@@ -180,6 +180,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="start the output folder over")
     _executor_args(p)
 
+    p = _add(sub, "harden", "iterated adversarial training: each round attacks the current weights on fresh training "
+             "scenes, fine-tunes on them and evaluates (runs/harden/FUSION/)", commands.harden)
+    p.add_argument("--fusion", required=True, help="the model to harden: attfuse, early, none or late")
+    p.add_argument("--rounds", type=_whole(1, 50, "--rounds"), required=True, help="rounds to run (resumable)")
+    p.add_argument("--data", default=None, choices=("adversarial", "random", "normal"),
+                   help="what a round trains on: adversarial (default), or a control at equal compute: random "
+                        "(one plausible random perturbation a scene) or normal (the scenes unperturbed)")
+    p.add_argument("--space", default=None, metavar="KIND[,KIND]",
+                   help="the perturbation spaces of the attacks (default configs/generate.yaml's)")
+    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
+                   help="start from this weights file, or a harden card (its last round), not the shipped weights")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/harden/FUSION[-DATA])")
+    p.add_argument("--config", type=Path, default=None,
+                   help="a yaml with a 'harden' block (default configs/detectors/train.yaml's)")
+    p.add_argument("--threads", type=_whole(1, 256, "--threads"), default=2, help="training threads")
+    p.add_argument("--force", action="store_true", help="start the output folder over")
+    _executor_args(p)
+
     p = _add(sub, "evaluate", "AP of a detector on a scene set", commands.evaluate)
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse")
     p.add_argument("--set", default="normal", help="normal (train split), normal-val, normal-all, or a folder of scenes")

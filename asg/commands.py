@@ -250,6 +250,38 @@ def export(args: argparse.Namespace) -> int:
     return 0
 
 
+def harden(args: argparse.Namespace) -> int:
+    from .generate_cmd import executor_from_args
+    from .perception.train_config import weights_for
+    from .workflows.harden import default_out, harden as run, load_harden_config
+
+    weights_for(args.fusion)  # one line for an unknown fusion
+    space = tuple(k.strip() for k in args.space.split(",") if k.strip()) if args.space else None
+    config = load_harden_config(args.config, data=args.data)
+    out = args.out or default_out(args.fusion, config.data)
+    with progress_bar() as bar, executor_from_args(args, 10**6) as executor:
+        task = bar.add_task(f"hardening {args.fusion}", total=None)
+
+        def report(step: int, total: int, loss: float) -> None:
+            bar.update(task, completed=step, total=total, description=f"hardening {args.fusion} loss {loss:.3f}")
+
+        card = run(args.fusion, args.rounds, out, weights=args.weights, config=config, space=space,
+                   executor=executor, threads=args.threads, force=args.force, log=console.print, progress=report)
+    rows = card["rounds"]
+    sets = list(rows[0]["evaluation"]) if rows else []
+    table = Table(title=f"asg harden --fusion {args.fusion} ({card['data']}): AP@0.7 by round")
+    for col in ("round", *sets, *(["re-attacked"] if rows and "reattack" in rows[0] else [])):
+        table.add_column(col, justify="right")
+    for row in rows:
+        cells = [f"{100 * row['evaluation'][s]['0.7']:.1f}" for s in sets]
+        if "reattack" in row:
+            cells.append(f"{100 * row['reattack']['challenging']['0.7']:.1f}")
+        table.add_row(str(row["round"]), *cells)
+    stdout.print(table)
+    console.print(f"card and weights: {out}/card.json, {out}/round-K/weights.pt")
+    return 0
+
+
 def finetune(args: argparse.Namespace) -> int:
     from .generate_cmd import executor_from_args
     from .perception.finetune import finetune as run

@@ -19,20 +19,27 @@ Frame = tuple[np.ndarray, np.ndarray, np.ndarray]  # pred_boxes (N, 7), pred_sco
 def match_frame(pred_boxes: np.ndarray, pred_scores: np.ndarray, gt_boxes: np.ndarray,
                 iou_threshold: float) -> np.ndarray:
     """(N,) bool: which detections are true positives, greedy in descending score."""
+    return greedy_match(pred_boxes, pred_scores, gt_boxes, iou_threshold) >= 0
+
+
+def greedy_match(pred_boxes: np.ndarray, pred_scores: np.ndarray, gt_boxes: np.ndarray,
+                 iou_threshold: float) -> np.ndarray:
+    """The greedy matching of :func:`match_frame`: (N,) int, the ground-truth box each detection
+    found (index into ``gt_boxes``), -1 for a false positive."""
     pred_boxes = np.asarray(pred_boxes, dtype=float).reshape(-1, 7)
     gt_boxes = np.asarray(gt_boxes, dtype=float).reshape(-1, 7)
-    tp = np.zeros(len(pred_boxes), dtype=bool)
+    found = np.full(len(pred_boxes), -1, dtype=int)
     if not len(pred_boxes) or not len(gt_boxes):
-        return tp
+        return found
     iou = bev_iou_matrix(pred_boxes, gt_boxes)
     taken = np.zeros(len(gt_boxes), dtype=bool)
     for i in np.argsort(-np.asarray(pred_scores), kind="stable"):
         cand = np.where(taken, -1.0, iou[i])
         j = int(np.argmax(cand))
         if cand[j] >= iou_threshold:
-            tp[i] = True
+            found[i] = j
             taken[j] = True
-    return tp
+    return found
 
 
 def voc_ap(recall: np.ndarray, precision: np.ndarray) -> float:

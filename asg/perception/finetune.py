@@ -135,28 +135,47 @@ def claim(out: Path, settings: dict, force: bool) -> None:
 def training_sources(name: str, on: str, fcfg: FinetuneConfig, log: Callable[[str], None]) -> MixedBatches:
     """The challenging set and the train split of each ``mix_with`` set, rendered, as mixed batches."""
     from ..challenging import challenging_scenes
+
+    return mixed_sources(name, {on: list(challenging_scenes(on))}, fcfg, log)
+
+
+def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: Callable[[str], None]) -> MixedBatches:
+    """Mixed batches of ``first`` ({label: scenes}: ``challenging_share`` of each batch, split
+    evenly among the labels that hold scenes) and the train split of each ``mix_with`` set (the
+    rest, in equal shares), every scene rendered with the LiDAR."""
     from ..datasets import build_dataset, dataset_path
 
     spec = load_lidar_spec("v2xp")
     network = NETWORK_OF_WEIGHTS[name]
     t0 = time.perf_counter()
-    sources = [_Batches(network, [make_sample(s, spec) for s in challenging_scenes(on)], fcfg.views)]
+    labels = [k for k, v in first.items() if v]
+    sources = [_Batches(network, [make_sample(s, spec) for s in first[k]], fcfg.views) for k in labels]
     for mix in fcfg.mix_with:
         if not (dataset_path(mix) / "index.json").is_file():
             log(f"building data set {mix} ...")
             build_dataset(mix)
         sources.append(_Batches(network, [make_sample(s, spec) for s in iter_frames(mix, "train")], fcfg.views))
     rest = (1.0 - fcfg.challenging_share) / max(len(fcfg.mix_with), 1)
-    shares = [fcfg.challenging_share] + [rest] * len(fcfg.mix_with)
-    counts = ", ".join(f"{n} {len(b.items)}" for n, b in zip((on, *fcfg.mix_with), sources))
+    shares = [fcfg.challenging_share / max(len(labels), 1)] * len(labels) + [rest] * len(fcfg.mix_with)
+    batches = MixedBatches(sources, shares)
+    batches.labels = (*labels, *fcfg.mix_with)
+    counts = ", ".join(f"{n} {len(b.items)}" for n, b in zip(batches.labels, sources))
     log(f"training examples: {counts} ({time.perf_counter() - t0:.0f} s to render)")
-    return MixedBatches(sources, shares)
+    return batches
 
 
 def train_chunk(name: str, on: str, start: Path, weights_out: Path, ckpt: Path, fcfg: FinetuneConfig, total: int,
                 threads: int, log: Callable[[str], None], progress) -> dict:
     """Train ``total`` steps from ``start`` (resuming ``ckpt``), write ``weights_out``; the record
     of the chunk for the card."""
+    return fit_chunk(name, start, weights_out, ckpt, fcfg, total, threads, log, progress,
+                     lambda: training_sources(name, on, fcfg, log)) | {"on": on}
+
+
+def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: FinetuneConfig, total: int,
+              threads: int, log: Callable[[str], None], progress, sources: Callable[[], MixedBatches]) -> dict:
+    """Train ``total`` steps from the weights ``start`` on the batches ``sources()`` draws
+    (resuming ``ckpt``), write ``weights_out``; the record of the chunk for a card."""
     cfg = load_detector_config()
     torch.set_num_threads(threads)
     torch.manual_seed(fcfg.seed)
@@ -175,15 +194,15 @@ def train_chunk(name: str, on: str, start: Path, weights_out: Path, ckpt: Path, 
         rng.bit_generator.state = json.loads(state["rng"])
         torch.set_rng_state(state["torch_rng"])
         log(f"resumed fine-tuning at step {step}")
-    batches = training_sources(name, on, fcfg, log)
+    batches = sources()
     wall_s = run_steps(model, opt, sched, batches, rng, Steps(step, total, fcfg.batch_size, fcfg.checkpoint_every),
                        cfg, ckpt, wall_s, {}, log, progress)
     with atomic_path(weights_out) as tmp:
         torch.save(model.state_dict(), tmp)
     ckpt.unlink(missing_ok=True)
     log(f"wrote {weights_out} after {total} steps, {wall_s / 60:.1f} min of training")
-    return {"on": on, "mix_with": list(fcfg.mix_with), "challenging_share": fcfg.challenging_share,
-            "examples": {n: len(b.items) for n, b in zip((on, *fcfg.mix_with), batches.sources)},
+    return {"mix_with": list(fcfg.mix_with), "challenging_share": fcfg.challenging_share,
+            "examples": {n: len(b.items) for n, b in zip(batches.labels, batches.sources)},
             "steps": total, "batch_size": fcfg.batch_size, "lr": fcfg.lr, "schedule": fcfg.schedule,
             "seed": fcfg.seed, "views": fcfg.views, "threads": threads, "wall_s": round(wall_s, 1)}
 

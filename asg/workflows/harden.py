@@ -1,0 +1,316 @@
+"""``asg harden --fusion F --rounds R``: iterated adversarial training, and its controls.
+
+Each round k = 1..R, into ``OUT/round-k/`` (resumable stage by stage; a finished round is a row
+of ``OUT/card.json`` and is never run again):
+
+1. **scenes**: ``scenes_per_round`` fresh training scenes: a seeded shuffle of the train splits of
+   the ``pool`` sets (never a val or held-out set), round k taking the k-th slice, so no scene is
+   used twice;
+2. **data** (``--data``, the hardening or a control at equal compute):
+   ``adversarial``: the generator (ACS + APS, configs/generate.yaml, ``--space`` if given) run
+   against the current weights on those scenes; ``random``: the same scenes with one uniformly
+   drawn plausible perturbation each (the same space, plausibility level and movers, no search);
+   ``normal``: the scenes as they are (more normal frames);
+3. **train**: one chunk from the current weights on batches that mix this round's scenes (and, with
+   ``keep_previous``, every earlier round's) with the train splits of ``mix_with`` (against
+   forgetting), train.yaml's ``harden`` block; writes ``round-k/weights.pt``;
+4. **evaluate** on fixed sets: ``eval_sets``, ``challenging-F-val`` (the val split attacked against
+   the original model) and, with ``noisy``, normal-val under the standard noisy V2X setting
+   (asg.workflows.noisy); with ``reattack``, the paper's protocol run on normal-val against the
+   round's weights (the original's own attack is challenging-F-val).
+
+Round 0 of the card is the start weights on the same evaluation. ``OUT/run.json`` records the
+settings: a rerun with other settings is refused (``force`` starts over).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Callable, Literal
+
+import numpy as np
+
+from sumo_scenarios.atomic import write_text_atomic
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import runs_dir
+
+from ..perception.finetune import claim, fit_chunk, mixed_sources
+from ..perception.train_config import FinetuneConfig, _block, weights_for
+from ..perception.weights_io import WEIGHTS_DIR
+from ..scene import Scene, load_scene
+from sumo_scenarios.strict import from_mapping
+
+#: the train.yaml block of ``asg harden``
+HARDEN_BLOCK = "harden"
+#: what a round trains on (see the module's docstring)
+DATA_KINDS = ("adversarial", "random", "normal")
+#: the name of the noisy evaluation set in a card
+NOISY_SET = "normal-val-noisy"
+#: the seed of the attacks and of the noise (as the challenging sets')
+ATTACK_SEED = 1
+#: at most this many rounds in one run
+MAX_ROUNDS = 50
+
+
+@dataclass(frozen=True)
+class HardenConfig(FinetuneConfig):
+    """train.yaml's ``harden`` block: a fine-tuning chunk per round (FinetuneConfig's fields, the
+    round's scenes taking ``challenging_share`` of each batch) and what each round attacks."""
+
+    scenes_per_round: int = 219
+    #: data sets whose train split gives each round fresh scenes
+    pool: tuple[str, ...] = ("normal", "detector-train")
+    data: Literal["adversarial", "random", "normal"] = "adversarial"
+    #: a round trains on every earlier round's scenes too (each label an equal part of the share)
+    keep_previous: bool = True
+    #: evaluate under the standard noisy V2X setting too
+    noisy: bool = True
+    #: attack each round's weights again on normal-val (the paper's protocol)
+    reattack: bool = True
+
+
+def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
+    """train.yaml's ``harden`` block (or ``path``'s), then non-None ``overrides``; checked."""
+    from sumo_scenarios import checks
+
+    data = dict(_block(HARDEN_BLOCK, path))
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    cfg = from_mapping(HardenConfig, data, f"train.yaml:{HARDEN_BLOCK}")
+    where = f"train.yaml:{HARDEN_BLOCK}"
+    checks.number(cfg.challenging_share, f"{where}.challenging_share", 0.0, 1.0)
+    checks.number(cfg.scenes_per_round, f"{where}.scenes_per_round", 1, 100_000)
+    checks.number(cfg.steps, f"{where}.steps", 1, 10_000_000)
+    checks.number(cfg.batch_size, f"{where}.batch_size", 1, 1024)
+    checks.number(cfg.lr, f"{where}.lr", 0.0, 1.0, lo_open=True)
+    checks.number(cfg.checkpoint_every, f"{where}.checkpoint_every", 1, 10_000_000)
+    if cfg.data not in DATA_KINDS:
+        raise InputError(f"--data must be one of {', '.join(DATA_KINDS)}, got {cfg.data!r}")
+    if not cfg.pool:
+        raise InputError(f"{where}.pool names no data set to draw training scenes from")
+    return cfg
+
+
+def default_out(fusion: str, data: str) -> Path:
+    return runs_dir() / "harden" / (fusion if data == "adversarial" else f"{fusion}-{data}")
+
+
+def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path | None = None,
+           config: HardenConfig | None = None, space: tuple[str, ...] | None = None, executor=None,
+           threads: int = 2, force: bool = False, detector_factory: str | None = None,
+           log: Callable[[str], None] = print, progress: Callable[[int, int, float], None] | None = None) -> dict:
+    """Run (or resume) ``rounds`` rounds of hardening ``fusion``; returns the card.
+
+    ``weights``: start from this weights file (or a card: its last round's weights) instead of the
+    shipped ones. ``space``: the perturbation spaces the adversarial rounds search (default
+    configs/generate.yaml's). ``detector_factory``: stand-in target for the attacks (tests)."""
+    if not isinstance(rounds, int) or not 1 <= rounds <= MAX_ROUNDS:
+        raise InputError(f"--rounds must be a whole number from 1 to {MAX_ROUNDS}, got {rounds!r}")
+    cfg = config or load_harden_config()
+    name = weights_for(fusion)
+    start = _start_weights(weights, name)
+    out = Path(out) if out is not None else default_out(fusion, cfg.data)
+    from ..generate import file_digest
+
+    pool = _pool(cfg)
+    if rounds * cfg.scenes_per_round > len(pool):
+        raise InputError(f"{rounds} rounds of {cfg.scenes_per_round} fresh scenes need {rounds * cfg.scenes_per_round}; "
+                         f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
+    settings = {"fusion": fusion, "start_weights": str(start), "start_sha256": file_digest(start),
+                "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory}
+    claim(out, settings, force)
+    card_path = out / "card.json"
+    card = json.loads(card_path.read_text()) if card_path.is_file() else {
+        "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
+        "rounds": []}
+    current = start
+    for k in range(rounds + 1):
+        done = {row["round"]: row for row in card["rounds"]}
+        round_dir = out / f"round-{k}"
+        if k in done:
+            current = out / done[k]["weights"] if k else start
+            continue
+        row: dict = {"round": k}
+        if k:
+            scenes = pool[(k - 1) * cfg.scenes_per_round: k * cfg.scenes_per_round]
+            made, row["data"] = round_data(fusion, current, scenes, cfg, space, round_dir / "attack", executor,
+                                           detector_factory, log)
+            _save_scenes(made, round_dir / "scenes")
+            first = {f"round-{j}": _load_scenes(out / f"round-{j}" / "scenes")
+                     for j in (range(1, k + 1) if cfg.keep_previous else [k])}
+            weights_out = round_dir / "weights.pt"
+            if not weights_out.is_file():
+                row["trained"] = fit_chunk(name, current, weights_out, round_dir / "last.pt", cfg, cfg.steps, threads,
+                                           log, progress, lambda: mixed_sources(name, first, cfg, log))
+            current = weights_out
+            row["weights"] = str(weights_out.relative_to(out))
+        log(f"round {k}: evaluating {current} ...")
+        row["evaluation"] = evaluate_round(fusion, current, cfg, round_dir / "eval", executor, log)
+        if cfg.reattack:
+            row["reattack"] = reattack_round(fusion, current if k else None, round_dir / "reattack", executor,
+                                             detector_factory, log)
+        card["rounds"].append(row)
+        write_text_atomic(card_path, json.dumps(card, indent=1))
+    return card
+
+
+def _start_weights(weights: Path | None, name: str) -> Path:
+    """The weights file to start from: ``weights`` (a .pt, or a harden card: its last round's) or
+    the shipped ``name``; InputError if missing or not loadable into the network."""
+    from ..perception.config import load_detector_config
+    from ..perception.model import AttFuse, PointPillars
+    from ..perception.train import BRANCH_KEYS
+    from ..perception.train_config import NETWORK_OF_WEIGHTS
+    from ..perception.weights_io import load_state
+
+    if weights is None:
+        return WEIGHTS_DIR / f"{name}.pt"
+    path = Path(weights)
+    if path.suffix == ".json" and path.is_file():
+        try:
+            card = json.loads(path.read_text())
+            last = card["rounds"][-1]
+            path = path.parent / last["weights"] if last.get("weights") else Path(card["start"]["weights"])
+        except (ValueError, KeyError, IndexError, TypeError):
+            raise InputError(f"--weights {weights}: not a harden card (card.json) with a finished round") from None
+    if not path.is_file():
+        raise InputError(f"--weights {path}: no such file; give a .pt written by asg train, finetune or harden")
+    cfg = load_detector_config()
+    model = AttFuse(cfg) if NETWORK_OF_WEIGHTS[name] == "attfuse" else PointPillars(cfg)
+    load_state(model, path, allow_missing=BRANCH_KEYS)  # one clear line for a corrupt or foreign file
+    return path
+
+
+def _pool(cfg: HardenConfig) -> list[Scene]:
+    """Every train-split scene of the pool sets, in a seeded order (the rounds' slices)."""
+    from ..datasets import build_dataset, dataset_path, iter_frames
+
+    scenes: list[Scene] = []
+    for name in cfg.pool:
+        if not (dataset_path(name) / "index.json").is_file():
+            build_dataset(name)
+        scenes += list(iter_frames(name, "train"))
+    order = np.random.default_rng([cfg.seed, 7]).permutation(len(scenes))
+    return [scenes[int(i)] for i in order]
+
+
+def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfig, space, run_dir: Path, executor,
+               detector_factory: str | None, log: Callable[[str], None]) -> tuple[list[Scene], dict]:
+    """The round's training scenes (see ``cfg.data``) and a record of how they were made."""
+    from ..generate import generate, prepare_run, run_settings
+    from ..pipeline import load_generate_config
+
+    gen_cfg = load_generate_config(fusion=fusion, weights=str(weights))
+    if space:
+        gen_cfg = replace(gen_cfg, space=replace(gen_cfg.space, kinds=tuple(space))).validate()
+    if cfg.data == "normal":
+        return list(scenes), {"kind": "normal", "scenes": len(scenes)}
+    if cfg.data == "random":
+        made = [random_draw(s, gen_cfg, ATTACK_SEED) for s in scenes]
+        return made, {"kind": "random", "scenes": len(made), "moved": sum(m is not s for m, s in zip(made, scenes))}
+    log(f"attacking {len(scenes)} scenes against {weights} ...")
+    prepare_run(run_dir, run_settings(gen_cfg, ATTACK_SEED, len(scenes), {"harden": str(run_dir)} | {"detector": detector_factory}))
+    run = generate(gen_cfg, scenes, run_dir, seed=ATTACK_SEED, detector_factory=detector_factory, executor=executor,
+                   artifacts=False)
+    ids = [e["scene_id"] for e in run.summary["scenes"]]
+    made = [load_scene(run_dir / "scenes" / i / "final.yaml") for i in ids]
+    agg = run.summary["aggregate"]
+    return made, {"kind": "adversarial", "scenes": len(made), "skipped": len(run.skipped),
+                  "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"]}
+
+
+def random_draw(scene: Scene, gen_cfg, seed: int) -> Scene:
+    """``scene`` with one plausible perturbation drawn uniformly from the members of the feasible
+    set the search would use (same movers by the occlusion heuristic, same spaces and plausibility
+    level), its collaborators as they are; the scene itself when nothing can move."""
+    from ..pipeline import Generator
+    from ..search import EmptyFeasibleSet, FeasibleSet, SearchSpace
+
+    rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
+    gen = Generator(gen_cfg, target=None)
+    perturbed = gen.pick_perturbed(scene, []) if "poses" in gen_cfg.space.kinds else []
+    try:
+        space = SearchSpace(scene, perturbed, gen_cfg.space)
+        if space.dim == 0:
+            return scene
+        members = FeasibleSet(space, rng).members
+    except (EmptyFeasibleSet, InputError):
+        return scene
+    if len(members) < 2:
+        return scene
+    return space.apply(members[1 + int(rng.integers(len(members) - 1))])  # members[0] is the scene itself
+
+
+def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, executor,
+                   log: Callable[[str], None]) -> dict:
+    """{set: {"0.3", "0.5", "0.7": AP, "frames": N}} of ``weights`` on the fixed evaluation sets,
+    each result cached in ``cache``."""
+    from ..challenging import build_challenging, set_name
+    from ..datasets import data_root
+    from ..perception.evaluate import evaluate
+
+    own_val = set_name(fusion, "val")
+    if not (data_root() / own_val / "index.json").is_file():
+        log(f"building {own_val} (the original model attacked on normal-val) ...")
+        build_challenging(fusion, "val", executor=executor)
+    sets = {s: s for s in (*cfg.eval_sets, own_val)}
+    if cfg.noisy:
+        sets[NOISY_SET] = str(noisy_val_set())
+    table = {}
+    for label, set_arg in sets.items():
+        hit = cache / f"{label}.json"
+        if hit.is_file():
+            table[label] = json.loads(hit.read_text())
+            continue
+        result = evaluate(fusion, set_arg, weights_file=str(weights), executor=executor)
+        table[label] = {k: round(v, 4) for k, v in result["ap"].items()} | {"frames": result["frames"]}
+        cache.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(hit, json.dumps(table[label]))
+        log(f"  {label}: AP@0.7 {table[label]['0.7']:.3f} ({result['frames']} frames)")
+    return table
+
+
+def noisy_val_set() -> Path:
+    """normal-val under the standard noisy V2X setting (built once under the data root)."""
+    from ..datasets import data_root
+    from ..perception.evaluate import scenes_of
+    from .noisy import write_noisy_set
+
+    return write_noisy_set(scenes_of("normal-val"), data_root() / NOISY_SET, seed=ATTACK_SEED)
+
+
+def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detector_factory: str | None,
+                   log: Callable[[str], None]) -> dict:
+    """The paper's protocol on normal-val against ``weights`` (None: the original, whose own attack
+    is challenging-F-val): {"frames", "normal", "challenging"} AP by threshold."""
+    from ..challenging import build_challenging, set_name
+    from ..datasets import data_root
+
+    if weights is None:
+        index = json.loads((data_root() / set_name(fusion, "val") / "index.json").read_text())
+    else:
+        log(f"re-attacking {weights} on normal-val ...")
+        built = build_challenging(fusion, "val", executor=executor, weights_file=str(weights), out=out,
+                                  detector_factory=detector_factory)
+        index = json.loads((built / "index.json").read_text())
+    return {"frames": index["frames"], "normal": index["ap_normal"], "challenging": index["ap_challenging"]}
+
+
+def _save_scenes(scenes: list[Scene], folder: Path) -> None:
+    """The round's training scenes, one yaml each (kept: a resumed round trains on the same)."""
+    from sumo_scenarios.atomic import atomic_dir
+    from ..scene import save_scene
+
+    if (folder / ".complete").is_file():
+        return
+    if folder.exists():
+        shutil.rmtree(folder)
+    with atomic_dir(folder) as work:
+        for s in scenes:
+            save_scene(s, work / f"{s.scene_id}.yaml")
+        (work / ".complete").write_text("")
+
+
+def _load_scenes(folder: Path) -> list[Scene]:
+    return [load_scene(p) for p in sorted(folder.glob("*.yaml"))]

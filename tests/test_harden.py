@@ -1,0 +1,107 @@
+"""``asg harden``: rounds of attack, fine-tuning and evaluation on a tiny synthetic data root (the
+attacks by the fake oracle, the training real AttFuse steps); resume without repeating a finished
+round; the controls draw the scenes they claim; bad input is one line with exit 2."""
+import json
+from dataclasses import replace
+
+import pytest
+
+from asg.challenging import build_challenging
+from asg.scene.recheck import recheck
+from asg.workflows.harden import harden, load_harden_config
+from sumo_scenarios.errors import InputError
+
+from test_cli import assert_one_line_error, run
+from test_tables import write_set
+
+#: two steps a round, one scene a round from the normal train split, mixed with normal
+TINY = replace(load_harden_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
+               eval_sets=("normal-val",), scenes_per_round=1, pool=("normal",), noisy=False, reattack=False)
+ORACLE = "fakes:oracle_factory"
+
+
+@pytest.fixture
+def data_root(tmp_path, monkeypatch):
+    """ASG_DATA with a 'normal' set (train n0, n1; val n2) and its val challenging set (oracle)."""
+    root = tmp_path / "data"
+    write_set(root, "normal", {"train": ["n0", "n1"], "val": ["n2"]})
+    monkeypatch.setenv("ASG_DATA", str(root))
+    build_challenging("attfuse", "val", detector_factory=ORACLE)
+    return root
+
+
+def _quiet(*_):
+    pass
+
+
+def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
+    out = tmp_path / "h"
+
+    def stop_in_round_two(step, total, loss):
+        if (out / "round-1" / "weights.pt").is_file() and step == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        harden("attfuse", 2, out, config=TINY, detector_factory=ORACLE, log=_quiet, progress=stop_in_round_two)
+    card = json.loads((out / "card.json").read_text())
+    assert [r["round"] for r in card["rounds"]] == [0, 1]  # round 2 stopped: not in the card
+    first = (out / "round-1" / "weights.pt").stat().st_mtime_ns
+    card = harden("attfuse", 2, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    assert (out / "round-1" / "weights.pt").stat().st_mtime_ns == first  # round 1 not run again
+    assert [r["round"] for r in card["rounds"]] == [0, 1, 2]
+    for row in card["rounds"]:
+        assert set(row["evaluation"]) == {"normal-val", "challenging-attfuse-val"}
+        assert all(0.0 <= row["evaluation"][s]["0.7"] <= 1.0 for s in row["evaluation"])
+    r1, r2 = card["rounds"][1:]
+    assert r1["data"]["kind"] == "adversarial" and r1["data"]["scenes"] == 1
+    assert r2["trained"]["examples"] == {"round-1": 3, "round-2": 3, "normal": 6}  # keep_previous, 3 views a scene
+    assert r2["weights"] == "round-2/weights.pt" and (out / "round-2" / "weights.pt").is_file()
+    assert not list(out.rglob("last.pt"))
+    # the two rounds drew different scenes of the pool
+    ids = [sorted(p.stem for p in (out / f"round-{k}" / "scenes").glob("*.yaml")) for k in (1, 2)]
+    assert len(ids[0]) == len(ids[1]) == 1 and ids[0] != ids[1]
+    with pytest.raises(InputError, match="other settings"):
+        harden("attfuse", 2, out, config=replace(TINY, lr=0.001), detector_factory=ORACLE, log=_quiet)
+    # a card starts a new run from its last round's weights
+    follow = harden("attfuse", 1, tmp_path / "next", weights=out / "card.json", config=replace(TINY, seed=9),
+                    detector_factory=ORACLE, log=_quiet)
+    assert follow["start"]["weights"].endswith("round-2/weights.pt")
+
+
+@pytest.mark.parametrize("data", ["random", "normal"])
+def test_the_controls_draw_the_scenes_they_claim(tmp_path, data_root, data):
+    from asg.datasets import iter_frames
+    from asg.scene import load_scene
+
+    cfg = replace(TINY, data=data, scenes_per_round=2, steps=1)
+    card = harden("attfuse", 1, tmp_path / data, config=cfg, log=_quiet)
+    made = {p.stem: load_scene(p) for p in (tmp_path / data / "round-1" / "scenes").glob("*.yaml")}
+    pool = {s.scene_id: s for s in iter_frames("normal", "train")}
+    assert set(made) == set(pool) and card["rounds"][1]["data"]["scenes"] == 2
+    for sid, scene in made.items():
+        moved = [a.agent_id for a, b in zip(scene.agents, pool[sid].agents) if (a.x_m, a.y_m, a.yaw_rad) != (b.x_m, b.y_m, b.yaw_rad)]
+        if data == "normal":
+            assert scene.to_dict() == pool[sid].to_dict()
+        else:
+            assert moved and len(moved) <= 3  # one draw moving the heuristic's movers (m = 3)
+            assert scene.collaborators == pool[sid].collaborators
+            assert recheck(pool[sid], scene, "paper", 30.0).ok  # the space's plausibility level
+
+
+def test_bad_rounds_and_weights_are_one_line(capsys, tmp_path, data_root):
+    for argv, what in ((["--rounds", "0"], "--rounds"), (["--rounds", "x"], "--rounds"),
+                       (["--rounds", "1", "--weights", str(tmp_path / "missing.pt")], "no such file")):
+        code, err = run(capsys, "harden", "--fusion", "attfuse", *argv, "--out", str(tmp_path / "o"))
+        assert code == 2
+        assert_one_line_error(err, what)
+    foreign = tmp_path / "foreign.pt"
+    foreign.write_bytes(b"not torch")
+    code, err = run(capsys, "harden", "--fusion", "attfuse", "--rounds", "1", "--weights", str(foreign),
+                    "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "foreign.pt")
+    config = tmp_path / "train.yaml"
+    config.write_text("harden: {pool: [normal], scenes_per_round: 1}\n")
+    too_many = run(capsys, "harden", "--fusion", "attfuse", "--rounds", "3", "--config", str(config),
+                   "--out", str(tmp_path / "o"))
+    assert too_many[0] == 2 and "fresh scenes" in too_many[1]
