@@ -146,13 +146,23 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
             current = weights_out
             row["weights"] = str(weights_out.relative_to(out))
         log(f"round {k}: evaluating {current} ...")
-        row["evaluation"] = evaluate_round(fusion, current, cfg, round_dir / "eval", executor, log)
+        row["evaluation"] = evaluate_round(fusion, current, cfg, _eval_cache(out, k, current), executor, log)
         if cfg.reattack:
             row["reattack"] = reattack_round(fusion, current if k else None, round_dir / "reattack", executor,
                                              detector_factory, log)
         card["rounds"].append(row)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
+
+
+def _eval_cache(out: Path, k: int, weights: Path) -> Path:
+    """Where round ``k``'s evaluations are cached: the round's folder, but for round 0 (the start
+    weights) a folder of the data root named by the weights' digest, shared by every run (and
+    control) that starts from the same weights."""
+    from ..datasets import data_root
+    from ..generate import file_digest
+
+    return out / f"round-{k}" / "eval" if k else data_root() / ".harden-start" / file_digest(weights)[:16]
 
 
 def _start_weights(weights: Path | None, name: str) -> Path:
