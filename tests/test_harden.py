@@ -105,3 +105,11 @@ def test_bad_rounds_and_weights_are_one_line(capsys, tmp_path, data_root):
     too_many = run(capsys, "harden", "--fusion", "attfuse", "--rounds", "3", "--config", str(config),
                    "--out", str(tmp_path / "o"))
     assert too_many[0] == 2 and "fresh scenes" in too_many[1]
+
+
+def test_the_pool_gives_every_scene_its_own_id(data_root):
+    from asg.workflows.harden import _pool
+
+    write_set(data_root, "other", {"train": ["n0", "n1", "x"]})  # ids that repeat the normal set's
+    ids = [s.scene_id for s in _pool(replace(TINY, pool=("normal", "other")))]
+    assert sorted(ids) == ["n0", "n0_2", "n1", "n1_2", "x"]

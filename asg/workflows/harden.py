@@ -197,10 +197,17 @@ def _pool(cfg: HardenConfig) -> list[Scene]:
     from ..datasets import build_dataset, dataset_path, iter_frames
 
     scenes: list[Scene] = []
+    seen: dict[str, int] = {}
     for name in cfg.pool:
         if not (dataset_path(name) / "index.json").is_file():
             build_dataset(name)
-        scenes += list(iter_frames(name, "train"))
+        for scene in iter_frames(name, "train"):
+            # ids repeat across a set's logs (the same town, seed and time at two densities) and
+            # across sets: a repeat gets a suffix, so that each scene has its own folder
+            seen[scene.scene_id] = seen.get(scene.scene_id, 0) + 1
+            if seen[scene.scene_id] > 1:
+                scene = Scene.from_dict(scene.to_dict() | {"scene_id": f"{scene.scene_id}_{seen[scene.scene_id]}"})
+            scenes.append(scene)
     order = np.random.default_rng([cfg.seed, 7]).permutation(len(scenes))
     return [scenes[int(i)] for i in order]
 

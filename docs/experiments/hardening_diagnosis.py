@@ -6,7 +6,8 @@ falls in a visibility bucket by its fused LiDAR points (0, 1-9, 10-49, 50+); rec
 the share matched at IoU 0.7 (and 0.5) by the greedy matching AP uses. "AP@0.7 >= k points" scores
 only the vehicles with at least k points: a detection matched to a vehicle with fewer is neither
 a true nor a false positive ("don't care", as KITTI's ignored boxes), so the gap between the full
-AP and it is what vehicles that no LiDAR ray (or too few) reached cost.
+AP and it is what vehicles that no LiDAR ray (or too few) reached cost. On a challenging set, recall
+is also split by whether the attack moved the vehicle ("moved": the run folder's summary).
 
 usage: .venv/bin/python docs/experiments/hardening_diagnosis.py OUT.json SETS MODEL [MODEL ...]
   SETS: comma-separated (e.g. normal-val,challenging-attfuse-val,heuristic)
@@ -43,18 +44,24 @@ def detectors(models: list[str]) -> dict:
 def diagnose(set_name: str, dets: dict) -> dict:
     spec = load_lidar_spec("v2xp")
     points = []  # per frame (M,) fused points of each vehicle in range
+    moved_flags = []  # per frame (M,) bool: did the attack move the vehicle (challenging sets)
+    moved_ids = _moved_by_scene(set_name)
     per_model = {m: {t: [] for t in THRESHOLDS} for m in dets}  # per frame (scores, found gt index)
     for scene in scenes_of(set_name):
         sample = Sample(scene.scene_id, simulate_frame(scene, spec))
         gt = sample.gt_eval()
-        points.append(sample.frame.points_in_boxes()["fused"][_in_range_mask(sample)])
+        mask = _in_range_mask(sample)
+        points.append(sample.frame.points_in_boxes()["fused"][mask])
+        ids = np.asarray(sample.frame.gt_ids)[mask]
+        moved_flags.append(np.isin(ids, list(moved_ids.get(scene.scene_id, ()))))
         assert len(points[-1]) == len(gt)
         for m, det in dets.items():
             boxes, scores = det.detect(sample.frame)
             for t in THRESHOLDS:
                 per_model[m][t].append((np.asarray(scores, float), greedy_match(boxes, scores, gt, t)))
     n_points = np.concatenate(points) if points else np.zeros(0, int)
-    result = {"frames": len(points), "vehicles": int(len(n_points)),
+    moved_all = np.concatenate(moved_flags) if moved_flags else np.zeros(0, bool)
+    result = {"frames": len(points), "vehicles": int(len(n_points)), "moved": int(moved_all.sum()),
               "buckets": {bucket_name(lo, hi): int(np.sum(_in_bucket(n_points, lo, hi))) for lo, hi in BUCKETS},
               "models": {}}
     for m in dets:
@@ -66,12 +73,28 @@ def diagnose(set_name: str, dets: dict) -> dict:
                 found[offset + match[match >= 0]] = True
                 offset += len(pts)
             row[f"recall@{t:g}"] = {bucket_name(lo, hi): _share(found, _in_bucket(n_points, lo, hi)) for lo, hi in BUCKETS}
+            if moved_ids:
+                moved = np.concatenate(moved_flags)
+                row[f"recall@{t:g}_moved"] = {bucket_name(lo, hi): _share(found, _in_bucket(n_points, lo, hi) & moved)
+                                              for lo, hi in BUCKETS}
+                row[f"recall@{t:g}_unmoved"] = {bucket_name(lo, hi): _share(found, _in_bucket(n_points, lo, hi) & ~moved)
+                                                for lo, hi in BUCKETS}
             row[f"ap@{t:g}"] = round(100 * ap_from_matches([s for s, _ in per_model[m][t]],
                                                            [mt >= 0 for _, mt in per_model[m][t]], len(n_points)), 2)
             for k in MIN_POINTS:
                 row[f"ap@{t:g}_min{k}"] = _ap_ignoring(per_model[m][t], points, k)
         result["models"][m] = row
     return result
+
+
+def _moved_by_scene(set_name: str) -> dict[str, list[str]]:
+    """{scene id: ids of the vehicles the attack moved} of a built challenging set, else {}."""
+    from asg.datasets import data_root
+
+    summary = data_root() / set_name / "run" / "summary.json"
+    if not set_name.startswith("challenging-") or not summary.is_file():
+        return {}
+    return {e["scene_id"]: list(e.get("moved") or []) for e in json.loads(summary.read_text())["scenes"]}
 
 
 def _in_range_mask(sample: Sample) -> np.ndarray:
@@ -110,6 +133,9 @@ def main(out: str, sets: str, models: list[str]) -> None:
         for m, row in r["models"].items():
             print(f"  {m:14s} AP@0.7 {row['ap@0.7']:5.1f} (>=1 pt {row['ap@0.7_min1']:5.1f}, >=10 pts "
                   f"{row['ap@0.7_min10']:5.1f})  recall@0.7 by bucket {row['recall@0.7']}  recall@0.5 {row['recall@0.5']}")
+            if "recall@0.7_moved" in row:
+                print(f"  {'':14s} moved ({r['moved']}): recall@0.7 {row['recall@0.7_moved']} @0.5 {row['recall@0.5_moved']}; "
+                      f"unmoved: recall@0.7 {row['recall@0.7_unmoved']}")
 
 
 if __name__ == "__main__":
