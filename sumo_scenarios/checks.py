@@ -17,7 +17,7 @@ from .errors import InputError
 MAX_COORD_M = 1.0e6
 
 #: ids that become file or folder names: letters, digits and ``_ - . # : +``, not starting with a dot
-_SAFE_ID = re.compile(r"^[A-Za-z0-9_\-#:+][A-Za-z0-9_.\-#:+]{0,127}$")
+_SAFE_ID = re.compile(r"[A-Za-z0-9_\-#:+][A-Za-z0-9_.\-#:+]{0,127}")
 
 
 def number(value: Any, where: str, lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False) -> float:
@@ -25,7 +25,10 @@ def number(value: Any, where: str, lo: float = -math.inf, hi: float = math.inf, 
     (``lo < value`` when ``lo_open``)."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise InputError(f"{where}: expected a number, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an integer too large for a float (hundreds of digits)
+        raise InputError(f"{where}: {str(value)[:20]}... ({len(str(value))} digits) is out of range") from None
     if not math.isfinite(v):
         raise InputError(f"{where}: {v} is not a finite number")
     if v < lo or v > hi or (lo_open and v <= lo):
@@ -45,6 +48,8 @@ def points_xy(value: Any, where: str, min_points: int) -> np.ndarray:
         xy = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise InputError(f"{where}: expected a list of [x, y] points, got {str(value)[:60]}") from None
+    except OverflowError:
+        raise InputError(f"{where}: a coordinate is an integer too large for a number; check the file") from None
     if xy.ndim != 2 or xy.shape[1] != 2:
         raise InputError(f"{where}: expected a list of [x, y] points, got shape {xy.shape}")
     if len(xy) < min_points:
@@ -58,7 +63,7 @@ def safe_id(value: Any, where: str) -> str:
     """An id that may become a file or folder name: refused if it could leave its folder
     (``/``, ``..``, an absolute path), is hidden, empty, over 128 characters or has other characters."""
     text = str(value)
-    if not _SAFE_ID.match(text):
+    if not _SAFE_ID.fullmatch(text):  # fullmatch: "$" would accept a final newline
         raise InputError(f"{where}: id {text[:60]!r} is not a safe name (letters, digits and _ - . # : + "
                          f"only, at most 128, not starting with a dot); rename it")
     return text

@@ -34,6 +34,8 @@ def read_yaml(path: str | Path) -> Any:
         raise InputError(f"{p}: not UTF-8 text; save it as UTF-8") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot be read ({exc.strerror}); check its permissions") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (its int_max_str_digits)
+        raise InputError(f"{p}: a number is out of range ({str(exc).split(';')[0]}); fix the file") from None
 
 
 def _check_value(value: Any, hint: Any, where: str) -> Any:

@@ -467,3 +467,29 @@ def test_extract_picks_collaborators_and_evaluate_says_when_none(capsys, tmp_pat
     captured = capsys.readouterr()
     assert "name no collaborator" in captured.err
     assert json.loads(captured.out)["without_collaborators"] == 1
+
+
+@pytest.mark.parametrize("digits", [400, 5000])
+def test_integers_too_big_for_a_float_are_one_line(capsys, tmp_path, digits):
+    """A coordinate written as an integer of hundreds (OverflowError in float()) or thousands of
+    digits (beyond Python's integer-string limit, raised inside the YAML parser) is one line."""
+    from test_cli import assert_one_line_error, run
+
+    scenes = tmp_path / "scenes"
+    path = _write(scenes, _scene_dict("s0"))
+    text = path.read_text()
+    first_x = text.index("x_m: ") + len("x_m: ")
+    end = text.index("\n", first_x)
+    path.write_text(text[:first_x] + "9" * digits + text[end:])
+    code, err = run(capsys, "generate", "--scenes", str(scenes), "--out", str(tmp_path / "out"), *GEN)
+    assert code == 2
+    assert_one_line_error(err, "s0.yaml")
+
+
+def test_an_id_ending_in_a_newline_is_not_safe():
+    from sumo_scenarios.checks import safe_id
+    from sumo_scenarios.errors import InputError
+
+    assert safe_id("ok_1", "scene") == "ok_1"
+    with pytest.raises(InputError, match="not a safe name"):
+        safe_id("evil\n", "scene")

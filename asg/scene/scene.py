@@ -176,6 +176,8 @@ def load_scene(path: str | Path) -> Scene:
         raise InputError(f"{p}: not UTF-8 text; give a scene yaml written by 'asg scenes extract'") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot be read ({exc.strerror}); check its permissions") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (its int_max_str_digits)
+        raise InputError(f"{p}: a number is out of range ({str(exc).split(';')[0]}); fix the file") from None
     return Scene.from_dict(data, str(p))
 
 
