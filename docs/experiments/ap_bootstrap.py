@@ -5,7 +5,10 @@ detections' true-positive flags are fixed by `asg.objective.ap.match_frame` (the
 per frame). A resample draws SET's frames with replacement, the same draw for every model, and
 recomputes the global-sort AP from those flags (exactly `average_precision` on the drawn frames).
 Prints each model's AP, and for each pair the gap and its 5-95 % interval over the resamples.
-usage: .venv/bin/python docs/experiments/ap_bootstrap.py SET [RESAMPLES]   (SET: normal or normal-val)
+usage: .venv/bin/python docs/experiments/ap_bootstrap.py SET [RESAMPLES] [MODEL ...]
+  SET: any --set of asg evaluate (normal-val, heuristic, challenging-attfuse-val, a folder of scenes);
+  MODEL: a shipped name, or NAME=path/to/weights.pt (AttFuse network; e.g. fine-tuned or hardened
+  weights); default the four shipped models. Intervals: 5-95 % and 2.5-97.5 % of the resamples.
 """
 import itertools
 import sys
@@ -22,11 +25,20 @@ MODELS = ("none", "late", "early", "attfuse")
 THRESHOLDS = (0.3, 0.5, 0.7)
 
 
-def per_frame_flags(set_name: str) -> dict:
+def build_models(models) -> dict:
+    """{label: detector} from shipped names or NAME=weights.pt (AttFuse network)."""
+    out = {}
+    for m in models:
+        name, _, path = m.partition("=")
+        out[name] = build_detector("attfuse", weights_file=path) if path else build_detector(name)
+    return out
+
+
+def per_frame_flags(set_name: str, models=MODELS) -> dict:
     """{(model, threshold): [(scores (N,), tp (N,) bool, n_gt), ...] one entry per frame}."""
     spec = load_lidar_spec("v2xp")
-    detectors = {m: build_detector(m) for m in MODELS}
-    flags = {(m, t): [] for m in MODELS for t in THRESHOLDS}
+    detectors = build_models(models)
+    flags = {(m, t): [] for m in detectors for t in THRESHOLDS}
     for scene in scenes_of(set_name):
         sample = Sample(scene.scene_id, simulate_frame(scene, spec))
         gt = sample.gt_eval()
@@ -43,24 +55,26 @@ def ap_of(frames: list, idx: np.ndarray) -> float:
     return ap_from_matches([f[0] for f in picked], [f[1] for f in picked], sum(f[2] for f in picked))
 
 
-def main(set_name: str, resamples: int) -> None:
-    flags = per_frame_flags(set_name)
-    n = len(flags[MODELS[0], THRESHOLDS[0]])
+def main(set_name: str, resamples: int, models=MODELS) -> None:
+    flags = per_frame_flags(set_name, models)
+    names = [m.partition("=")[0] for m in models]
+    n = len(flags[names[0], THRESHOLDS[0]])
     rng = np.random.default_rng(0)
     draws = [rng.integers(0, n, n) for _ in range(resamples)]
     print(f"{set_name}: {n} frames, {resamples} paired resamples; AP in %")
     for t in THRESHOLDS:
-        full = {m: 100 * ap_of(flags[m, t], np.arange(n)) for m in MODELS}
-        boot = {m: np.array([100 * ap_of(flags[m, t], d) for d in draws]) for m in MODELS}
-        print(f"AP@{t:g}: " + ", ".join(f"{m} {full[m]:.2f}" for m in MODELS))
-        for a, b in itertools.combinations(MODELS, 2):
+        full = {m: 100 * ap_of(flags[m, t], np.arange(n)) for m in names}
+        boot = {m: np.array([100 * ap_of(flags[m, t], d) for d in draws]) for m in names}
+        print(f"AP@{t:g}: " + ", ".join(f"{m} {full[m]:.2f}" for m in names))
+        for a, b in itertools.combinations(names, 2):
             gap = boot[b] - boot[a]
             lo, hi = np.percentile(gap, [5, 95])
-            print(f"  {b} - {a}: {full[b] - full[a]:+.2f}  [{lo:+.2f}, {hi:+.2f}]  "
+            lo95, hi95 = np.percentile(gap, [2.5, 97.5])
+            print(f"  {b} - {a}: {full[b] - full[a]:+.2f}  [{lo:+.2f}, {hi:+.2f}] (95 %: [{lo95:+.2f}, {hi95:+.2f}])  "
                   f"{b} ahead in {100 * np.mean(gap > 0):.0f} % of resamples")
 
 
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3):
+    if len(sys.argv) < 2:
         raise SystemExit(__doc__)
-    main(sys.argv[1], int(sys.argv[2]) if len(sys.argv) == 3 else 1000)
+    main(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 1000, tuple(sys.argv[3:]) or MODELS)

@@ -21,8 +21,8 @@ import numpy as np
 from asg.objective.ap import ap_from_matches, greedy_match
 from asg.perception.data import Sample
 from asg.perception.evaluate import scenes_of
-from asg.perception.fusion import build_detector
 from asg.sensors import load_lidar_spec, simulate_frame
+from ap_bootstrap import build_models  # this folder's
 
 BUCKETS = ((0, 0), (1, 9), (10, 49), (50, None))
 THRESHOLDS = (0.5, 0.7)
@@ -31,14 +31,6 @@ MIN_POINTS = (1, 10)
 
 def bucket_name(lo: int, hi: int | None) -> str:
     return f"{lo}+" if hi is None else (f"{lo}" if lo == hi else f"{lo}-{hi}")
-
-
-def detectors(models: list[str]) -> dict:
-    out = {}
-    for m in models:
-        name, _, path = m.partition("=")
-        out[name] = build_detector("attfuse", weights_file=path) if path else build_detector(name)
-    return out
 
 
 def diagnose(set_name: str, dets: dict) -> dict:
@@ -124,7 +116,7 @@ def _ap_ignoring(frames: list, points: list, k: int) -> float:
 
 
 def main(out: str, sets: str, models: list[str]) -> None:
-    dets = detectors(models)
+    dets = build_models(models)
     report = {s: diagnose(s, dets) for s in sets.split(",")}
     with open(out, "w") as f:
         json.dump(report, f, indent=1)
