@@ -108,3 +108,32 @@ def test_bad_weights_are_one_line(capsys, tmp_path, data_root):
         assert code == 2, argv
         assert_one_line_error(err, needle)
     assert not (tmp_path / "g").exists()
+
+
+@pytest.mark.parametrize("bad", ["steps: 0", "batch_size: -1", "lr: -0.1", "lr: 1.0e+30", "weight_decay: -1",
+                                 "pct_start: 5", "checkpoint_every: 0", "div_factor: 0", "seed: -3",
+                                 "mix_with: ['../..']"])
+def test_bad_finetune_settings_are_refused_when_loaded(tmp_path, bad):
+    from asg.perception.train_config import load_finetune_config
+    from asg.workflows.harden import load_harden_config
+
+    key = bad.split(":")[0]
+    for block, load in (("finetune", load_finetune_config), ("harden", load_harden_config)):
+        config = tmp_path / f"{block}.yaml"
+        config.write_text(f"{block}:\n  {bad}\n")
+        with pytest.raises(InputError, match=key):
+            load(config)
+
+
+def test_weights_with_nan_are_refused(tmp_path):
+    from asg.perception.config import load_detector_config
+    from asg.perception.model import AttFuse
+    from asg.perception.weights_io import load_state
+
+    state = torch.load(WEIGHTS_DIR / "attfuse.pt", weights_only=True)
+    key = next(k for k, v in state.items() if v.is_floating_point())
+    state[key] = torch.full_like(state[key], float("nan"))
+    path = tmp_path / "diverged.pt"
+    torch.save(state, path)
+    with pytest.raises(InputError, match="NaN or infinite"):
+        load_state(AttFuse(load_detector_config()), path)

@@ -250,6 +250,9 @@ def run_steps(model: torch.nn.Module, opt, sched, batches, rng: np.random.Genera
     while step < total:
         loss = train_step(model, opt, sched, batches.draw(rng, steps.batch_size, anchors, cfg))
         step += 1
+        if not bool(torch.isfinite(loss["total"].detach())):  # diverged: stop before writing such weights
+            raise InputError(f"training diverged at step {step} (the loss is not finite); lower the learning "
+                             "rate (lr) in train.yaml")
         losses.append(float(loss["total"].detach()))
         if progress:
             progress(step, total, losses[-1])

@@ -64,18 +64,43 @@ FINETUNE_BLOCK = "finetune"
 
 
 def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
-    """The training settings of ``weights`` (its train.yaml block)."""
-    return from_mapping(TrainConfig, _block(weights, path), f"train.yaml:{weights}")
+    """The training settings of ``weights`` (its train.yaml block), every number checked."""
+    return check_train_config(from_mapping(TrainConfig, _block(weights, path), f"train.yaml:{weights}"),
+                              f"train.yaml:{weights}")
 
 
 def load_finetune_config(path: Path | None = None) -> FinetuneConfig:
-    """The fine-tuning settings (train.yaml's ``finetune`` block), share checked in [0, 1]."""
+    """The fine-tuning settings (train.yaml's ``finetune`` block), every number checked."""
+    return check_train_config(from_mapping(FinetuneConfig, _block(FINETUNE_BLOCK, path), f"train.yaml:{FINETUNE_BLOCK}"),
+                              f"train.yaml:{FINETUNE_BLOCK}")
+
+
+def check_train_config(cfg: TrainConfig, where: str):
+    """``cfg`` if every setting is in range (one InputError naming the first that is not): at
+    least one step, example and checkpoint interval; a learning rate in (0, 1]; weight decay in
+    [0, 1]; schedule fractions in (0, 1); a seed of 0 or more; for fine-tuning, a share in [0, 1]
+    and data set names (safe names) to mix with. Checked when loaded, before any work."""
     from sumo_scenarios import checks
 
-    cfg = from_mapping(FinetuneConfig, _block(FINETUNE_BLOCK, path), f"train.yaml:{FINETUNE_BLOCK}")
-    checks.number(cfg.challenging_share, "train.yaml:finetune.challenging_share", 0.0, 1.0)
-    if cfg.challenging_share < 1.0 and not cfg.mix_with:
-        raise InputError("train.yaml:finetune: challenging_share below 1 needs sets in mix_with")
+    checks.number(cfg.steps, f"{where}.steps", 1, 10_000_000)
+    checks.number(cfg.batch_size, f"{where}.batch_size", 1, 1024)
+    checks.number(cfg.lr, f"{where}.lr", 0.0, 1.0, lo_open=True)
+    checks.number(cfg.weight_decay, f"{where}.weight_decay", 0.0, 1.0)
+    checks.number(cfg.pct_start, f"{where}.pct_start", 0.0, 1.0, lo_open=True)
+    checks.number(cfg.div_factor, f"{where}.div_factor", 0.0, 1e6, lo_open=True)
+    checks.number(cfg.seed, f"{where}.seed", 0, 2**32 - 1)
+    checks.number(cfg.checkpoint_every, f"{where}.checkpoint_every", 1, 10_000_000)
+    for f in cfg.decay_at:
+        checks.number(f, f"{where}.decay_at", 0.0, 1.0, lo_open=True)
+    if cfg.pct_start >= 1.0:
+        raise InputError(f"{where}.pct_start: {cfg.pct_start:g} leaves no steps to anneal; give a fraction below 1")
+    if isinstance(cfg, FinetuneConfig):
+        checks.number(cfg.challenging_share, f"{where}.challenging_share", 0.0, 1.0)
+        for key in ("mix_with", "eval_sets"):
+            for name in getattr(cfg, key):
+                checks.safe_id(name, f"{where}.{key}: data set")
+        if cfg.challenging_share < 1.0 and not cfg.mix_with:
+            raise InputError(f"{where}: challenging_share below 1 needs sets in mix_with")
     return cfg
 
 

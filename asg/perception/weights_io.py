@@ -48,6 +48,10 @@ def load_state(model: nn.Module, path: str | Path, allow_missing: str | tuple[st
     if missing or unexpected:
         what = f"missing {missing[0]}" if missing else f"unexpected {unexpected[0]}"
         raise InputError(f"{p}: weights do not match this model ({what}){_MISMATCH_HINT}")
+    broken = next((k for k, v in state.items() if isinstance(v, torch.Tensor) and v.is_floating_point()
+                   and not bool(torch.isfinite(v).all())), None)
+    if broken is not None:  # a diverged training run: detections from these would be noise
+        raise InputError(f"{p}: weights hold NaN or infinite values ({broken}); retrain with a lower learning rate")
     try:
         model.load_state_dict(state)
     except RuntimeError as exc:

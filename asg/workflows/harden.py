@@ -37,7 +37,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
 from ..perception.finetune import claim, fit_chunk, mixed_sources
-from ..perception.train_config import FinetuneConfig, _block, weights_for
+from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR
 from ..scene import Scene, load_scene
 from sumo_scenarios.strict import from_mapping
@@ -77,14 +77,11 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
 
     data = dict(_block(HARDEN_BLOCK, path))
     data.update({k: v for k, v in overrides.items() if v is not None})
-    cfg = from_mapping(HardenConfig, data, f"train.yaml:{HARDEN_BLOCK}")
     where = f"train.yaml:{HARDEN_BLOCK}"
-    checks.number(cfg.challenging_share, f"{where}.challenging_share", 0.0, 1.0)
+    cfg = check_train_config(from_mapping(HardenConfig, data, where), where)
     checks.number(cfg.scenes_per_round, f"{where}.scenes_per_round", 1, 100_000)
-    checks.number(cfg.steps, f"{where}.steps", 1, 10_000_000)
-    checks.number(cfg.batch_size, f"{where}.batch_size", 1, 1024)
-    checks.number(cfg.lr, f"{where}.lr", 0.0, 1.0, lo_open=True)
-    checks.number(cfg.checkpoint_every, f"{where}.checkpoint_every", 1, 10_000_000)
+    for name in cfg.pool:
+        checks.safe_id(name, f"{where}.pool")
     if cfg.data not in DATA_KINDS:
         raise InputError(f"--data must be one of {', '.join(DATA_KINDS)}, got {cfg.data!r}")
     if not cfg.pool:
