@@ -59,11 +59,16 @@ def points_xy(value: Any, where: str, min_points: int) -> np.ndarray:
     return xy
 
 
+def is_safe_id(text: str) -> bool:
+    """Could ``text`` be a file or folder name in a folder of ours (see :func:`safe_id`)?"""
+    return bool(_SAFE_ID.fullmatch(text))
+
+
 def safe_id(value: Any, where: str) -> str:
     """An id that may become a file or folder name: refused if it could leave its folder
     (``/``, ``..``, an absolute path), is hidden, empty, over 128 characters or has other characters."""
     text = str(value)
-    if not _SAFE_ID.fullmatch(text):  # fullmatch: "$" would accept a final newline
+    if not is_safe_id(text):  # the whole text: "$" would accept a final newline
         raise InputError(f"{where}: id {text[:60]!r} is not a safe name (letters, digits and _ - . # : + "
                          f"only, at most 128, not starting with a dot); rename it")
     return text

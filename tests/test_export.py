@@ -161,3 +161,17 @@ def test_unsafe_or_bad_export_input_is_one_line(capsys, scenes_dir, tmp_path):
         assert code == 2, argv
         assert_one_line_error(err, needle)
     assert not list(tmp_path.parent.glob("escape*"))
+
+
+@pytest.mark.parametrize("fmt", ["sumo", "openscenario"])
+def test_a_town_that_is_a_path_is_not_read(capsys, scenes_dir, tmp_path, fmt):
+    """A scene whose ``town`` climbs out of nets/ is refused, not read from where it points."""
+    folder, _ = scenes_dir
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    text = next(folder.glob("*.yaml")).read_text()
+    town = text.split("\ntown: ")[1].split("\n")[0]
+    (bad / "x.yaml").write_text(text.replace(f"\ntown: {town}\n", f"\ntown: ../nets/{town}\n"))
+    code, err = run(capsys, "export", str(bad), "--format", fmt, "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "not a bundled town")

@@ -63,8 +63,10 @@ def net_of(scene: Scene, net: Path | None) -> Path:
         if not Path(net).is_file():
             raise InputError(f"--net {net}: file not found")
         return Path(net)
+    from sumo_scenarios.checks import is_safe_id
+
     bundled = nets_dir() / f"{scene.town}.net.xml"
-    if not bundled.is_file():
+    if not is_safe_id(scene.town) or not bundled.is_file():  # a name, never a path out of nets/
         raise InputError(f"scene {scene.scene_id} comes from '{scene.town}', which is not a bundled town; "
                          "give its SUMO net with --net PATH")
     return bundled
