@@ -79,11 +79,37 @@ def test_opv2v_reads_back_as_opencood_reads_it(scenes_dir, tmp_path):
             _assert_same_boxes(boxes, mirrored, atol=1e-3)
 
 
+def openpcdet_info_builder_reads(root, frames: int) -> None:
+    """What OpenPCDet's ``create_kitti_infos`` reads before it looks at a label, as its
+    ``KittiDataset`` does it (8cacccec): the split lists ``ImageSets/{train,val,test}.txt``, each
+    listed frame's ``training/image_2/NNNNNN.png`` (its shape: ``io.imread(f).shape[:2]``), calib
+    and velodyne; then the field-of-view flag it counts points in boxes with."""
+    from PIL import Image
+
+    from asg.io.export.kitti import IMAGE_WH, P2
+
+    splits = {s: (root / "ImageSets" / f"{s}.txt").read_text().split() for s in ("train", "val", "test")}
+    assert len(splits["train"]) == len(splits["val"]) == frames and splits["test"] == []
+    for idx in splits["train"]:
+        image = root / "training" / "image_2" / f"{idx}.png"
+        assert image.exists()  # KittiDataset.get_image_shape asserts this
+        shape = np.asarray(Image.open(image)).shape[:2]
+        assert tuple(shape) == (IMAGE_WH[1], IMAGE_WH[0])
+        points = np.fromfile(root / "training" / "velodyne" / f"{idx}.bin", dtype=np.float32).reshape(-1, 4)
+        # get_fov_flag: points projected with P2 (rect = velo -> cam here) inside the image, depth >= 0
+        rect = points[:, :3] @ TR_VELO_TO_CAM[:, :3].T
+        uvw = np.hstack([rect, np.ones((len(rect), 1))]) @ P2.T
+        u, v = uvw[:, 0] / uvw[:, 2], uvw[:, 1] / uvw[:, 2]
+        fov = (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0]) & (rect[:, 2] >= 0)
+        assert 0 < fov.sum() < len(points)  # a forward-looking camera sees part of a 360-degree sweep
+
+
 def test_kitti_labels_convert_back_to_the_ego_ground_truth(scenes_dir, tmp_path):
     folder, scenes = scenes_dir
     export(folder, "kitti", tmp_path)
     ids = yaml.safe_load((tmp_path / "ids.yaml").read_text())
     assert (tmp_path / "ImageSets" / "val.txt").read_text().split() == sorted(ids)
+    openpcdet_info_builder_reads(tmp_path, len(ids))
     spec = load_lidar_spec("v2xp")
     for name, scene_id in ids.items():
         scene = next(s for s in scenes if s.scene_id == scene_id)

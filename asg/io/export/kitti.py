@@ -1,5 +1,6 @@
 """KITTI object layout (as OpenPCDet reads it) of each scene's ego view with every sensing agent's
-cloud fused: ``DIR/training/{velodyne,label_2,calib}/NNNNNN.*`` and ``DIR/ImageSets/val.txt``.
+cloud fused: ``DIR/training/{velodyne,label_2,calib,image_2}/NNNNNN.*`` and
+``DIR/ImageSets/{train,val,test}.txt``, what OpenPCDet's info builder (``create_kitti_infos``) reads.
 
 - ``velodyne/NNNNNN.bin``: float32 x, y, z, intensity of the fused cloud in the ego's sensor frame
   (x forward, y left, z up: KITTI's velodyne frame), 360 degrees.
@@ -11,6 +12,10 @@ cloud fused: ``DIR/training/{velodyne,label_2,calib}/NNNNNN.*`` and ``DIR/ImageS
   occlusion from the fused points in the box (0: 50 or more, 1: 10 to 49, 2: 1 to 9, 3: none).
   Labels cover 360 degrees: turn OpenPCDet's FOV_POINTS_ONLY off.
 - ``calib/NNNNNN.txt``: KITTI's P0-P3, R0_rect = I, Tr_velo_to_cam the axis swap velo -> camera.
+- ``image_2/NNNNNN.png``: a placeholder (there is no camera): a black 1242 x 375 image, so that the
+  info builder reads KITTI's image shape (its field of view and 2D boxes follow from it).
+- ``ImageSets``: ``train.txt`` and ``val.txt`` both list every frame (split them as you need;
+  asg does not), ``test.txt`` is empty.
 ``DIR/ids.yaml`` maps each NNNNNN to its scene id.
 """
 from __future__ import annotations
@@ -40,8 +45,9 @@ class KittiWriter:
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out
         self.spec = load_lidar_spec("v2xp")
-        for sub in ("velodyne", "label_2", "calib"):
+        for sub in ("velodyne", "label_2", "calib", "image_2"):
             (out / "training" / sub).mkdir(parents=True, exist_ok=True)
+        self.placeholder_png = placeholder_image()
         (out / "ImageSets").mkdir(exist_ok=True)
         self.ids: dict[str, str] = {}
 
@@ -58,10 +64,14 @@ class KittiWriter:
         lines = [label_line(b, t, int(n)) for b, t, n in zip(boxes[keep], types, points)]
         write_text_atomic(self.out / "training" / "label_2" / f"{name}.txt", "".join(lines))
         write_text_atomic(self.out / "training" / "calib" / f"{name}.txt", calib_text())
+        with atomic_path(self.out / "training" / "image_2" / f"{name}.png") as tmp:
+            Path(tmp).write_bytes(self.placeholder_png)
         self.ids[name] = scene.scene_id
 
     def close(self) -> None:
-        write_text_atomic(self.out / "ImageSets" / "val.txt", "".join(f"{n}\n" for n in self.ids))
+        frames = "".join(f"{n}\n" for n in self.ids)
+        for split, listed in (("train", frames), ("val", frames), ("test", "")):
+            write_text_atomic(self.out / "ImageSets" / f"{split}.txt", listed)
         write_text_atomic(self.out / "ids.yaml", yaml.safe_dump(self.ids))
 
 
@@ -95,6 +105,17 @@ def image_box(box: np.ndarray) -> tuple[float, float, float, float]:
     left, right = np.clip([u.min(), u.max()], 0, IMAGE_WH[0] - 1)
     top, bottom = np.clip([v.min(), v.max()], 0, IMAGE_WH[1] - 1)
     return (0.0, 0.0, 0.0, 0.0) if right <= left or bottom <= top else (left, top, right, bottom)
+
+
+def placeholder_image() -> bytes:
+    """A black PNG of KITTI's image size (IMAGE_WH): what stands in for the camera image."""
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.new("RGB", IMAGE_WH).save(buffer, format="PNG")
+    return buffer.getvalue()
 
 
 def calib_text() -> str:
