@@ -19,7 +19,7 @@ from pathlib import Path
 from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
 
-from .datasets import data_root, iter_frames
+from .datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
 from .scene import load_scene
 
 #: the split of the normal set each challenging set is generated from
@@ -86,18 +86,3 @@ def first_scenes_ap(out: Path, count: int | None) -> dict[str, dict[str, float]]
     ids = [i for ids in index["splits"].values() for i in ids][:count]
     per_scene = [load_detections(out / "run", i) for i in ids]
     return {"scenes": len(ids), "normal": pooled_ap(per_scene, "initial"), "challenging": pooled_ap(per_scene, "final")}
-
-
-def challenging_scenes(name: str):
-    """The scenes of a built challenging set, by its name (``challenging-NAME-SPLIT``)."""
-    from sumo_scenarios.checks import safe_id
-
-    if not name.startswith("challenging-"):
-        raise InputError(f"'{name}' is not a challenging set name (challenging-MODEL-train|val)")
-    safe_id(name, "challenging set")  # a name, never a path out of the data folder
-    if not (data_root() / name / "index.json").is_file():
-        parts = name.split("-")
-        hint = (f"asg dataset build challenging --fusion {'-'.join(parts[1:-1])} --split {parts[-1]}"
-                if len(parts) >= 3 else "asg dataset build challenging --fusion NAME --split val")
-        raise InputError(f"challenging set '{name}' is not built; run '{hint}'")
-    return iter_frames(data_root() / name)

@@ -293,7 +293,7 @@ def finetune(args: argparse.Namespace) -> int:
     if unknown or not stages:
         raise InputError(f"--stages takes train, evaluate and reattack, got {args.stages!r}")
     if args.weights is not None:
-        from .perception.weights_io import check_weights_file
+        from .perception import check_weights_file
 
         check_weights_file(args.fusion, args.weights)
     from .perception.train_config import load_finetune_config
@@ -336,7 +336,7 @@ def evaluate(args: argparse.Namespace) -> int:
 
     weights = None if args.weights is None else str(args.weights)
     if weights:
-        from .perception.weights_io import check_weights_file
+        from .perception import check_weights_file
 
         check_weights_file(args.fusion, weights)
 

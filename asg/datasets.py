@@ -27,7 +27,7 @@ from sumo_scenarios.paths import configs_dir, runs_dir
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 from sumo_scenarios.strict import from_mapping, read_yaml
 
-from .scene import Scene
+from .scene import Scene, load_scene
 from .scene.from_log import ExtractParams, extract_scenes
 from .scene.neighbours import random_collaborators, vehicles_within
 
@@ -214,3 +214,43 @@ def iter_frames(name_or_dir: str | Path, split: str | None = None) -> Iterator[S
             d = json.loads(line)
             if wanted is None or d["scene_id"] in wanted:
                 yield Scene.from_dict(d, str(folder))
+
+
+#: --set names: the normal set's splits (the paper attacks its train split, reports fine-tuning on val)
+SETS = {"normal": ("normal", "train"), "normal-val": ("normal", "val"), "normal-all": ("normal", None),
+        "heuristic": ("heuristic", None), "holdout": ("holdout", None)}
+
+
+def scenes_of(set_name: str) -> Iterator[Scene]:
+    """Scenes of a named set (building the normal set if needed) or of a folder of scene yaml."""
+    if set_name in SETS:
+        name, split = SETS[set_name]
+        if not (dataset_path(name) / "index.json").is_file():
+            build_dataset(name)
+        return iter_frames(name, split)
+    if set_name.startswith("challenging-"):
+        return challenging_scenes(set_name)
+    p = Path(set_name)
+    if (p / "index.json").is_file():
+        return iter_frames(p)
+    if p.is_dir():
+        files = sorted(p.glob("*.yaml"))
+        if not files:
+            raise InputError(f"{p}: no scene yaml files; give a folder written by 'asg scenes extract' or 'asg generate'")
+        return (load_scene(f) for f in files)
+    raise InputError(f"unknown set '{set_name}'; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
+
+
+def challenging_scenes(name: str):
+    """The scenes of a built challenging set, by its name (``challenging-NAME-SPLIT``)."""
+    from sumo_scenarios.checks import safe_id
+
+    if not name.startswith("challenging-"):
+        raise InputError(f"'{name}' is not a challenging set name (challenging-MODEL-train|val)")
+    safe_id(name, "challenging set")  # a name, never a path out of the data folder
+    if not (data_root() / name / "index.json").is_file():
+        parts = name.split("-")
+        hint = (f"asg dataset build challenging --fusion {'-'.join(parts[1:-1])} --split {parts[-1]}"
+                if len(parts) >= 3 else "asg dataset build challenging --fusion NAME --split val")
+        raise InputError(f"challenging set '{name}' is not built; run '{hint}'")
+    return iter_frames(data_root() / name)

@@ -294,6 +294,6 @@ def _scenes_from_town(source: SceneSource, seed: int, workdir: Path) -> Iterator
 
 
 def _scenes_from_dir(path: Path) -> Iterator[Scene]:
-    from .perception.evaluate import scenes_of
+    from .datasets import scenes_of
 
     return scenes_of(str(path))

@@ -55,7 +55,7 @@ def run_generate(args: argparse.Namespace) -> int:
                                weights=None if args.weights is None else str(args.weights))
     cfg = with_space_flags(cfg, args.plausibility, args.space)
     if cfg.weights and not args.detector:
-        from .perception.weights_io import check_weights_file
+        from .perception import check_weights_file
 
         check_weights_file(cfg.fusion, cfg.weights)
     executor = executor_from_args(args, count)  # checked before anything is written

@@ -6,7 +6,7 @@ import statistics
 import time
 
 from ..perception import build_detector
-from ..perception.evaluate import scenes_of
+from ..datasets import scenes_of
 from ..scene.neighbours import with_nearest_collaborators
 from ..sensors import load_lidar_spec, simulate_frame
 

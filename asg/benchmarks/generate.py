@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from ..perception import build_detector
-from ..perception.evaluate import scenes_of
+from ..datasets import scenes_of
 from ..pipeline import Generator, load_generate_config
 
 

@@ -59,7 +59,7 @@ def pick_scenes(scene_dir: Path, count: int, set_name: str = "normal") -> Path:
     """Write ``count`` scenes of ``set_name`` spread evenly over it (indices round(i * n / count))
     as ``scene_dir/NNN_<scene_id>.yaml`` (kept if already there) and return ``scene_dir``. The set
     lists its logs one after another, so the first ``count`` would all come from one log."""
-    from ..perception.evaluate import scenes_of
+    from ..datasets import scenes_of
     from ..scene import save_scene
 
     all_scenes = list(scenes_of(set_name))  # builds the normal set if needed (once, before any worker)

@@ -6,41 +6,12 @@ from typing import Callable, Iterable, Iterator
 
 from sumo_scenarios.errors import InputError
 
-from ..datasets import dataset_path, iter_frames
+from ..datasets import SETS, scenes_of  # noqa: F401  (scenes_of, SETS: also this module's API)
 from ..objective.ap import ap_at
 from ..scene import Scene, load_scene
 from ..sensors import LidarSpec, load_lidar_spec, simulate_frame
 from .data import Sample
 from .fusion import V2XDetector, build_detector
-
-#: --set names: the normal set's splits (the paper attacks its train split, reports fine-tuning on val)
-SETS = {"normal": ("normal", "train"), "normal-val": ("normal", "val"), "normal-all": ("normal", None),
-        "heuristic": ("heuristic", None), "holdout": ("holdout", None)}
-
-
-def scenes_of(set_name: str) -> Iterator[Scene]:
-    """Scenes of a named set (building the normal set if needed) or of a folder of scene yaml."""
-    if set_name in SETS:
-        name, split = SETS[set_name]
-        if not (dataset_path(name) / "index.json").is_file():
-            from ..datasets import build_dataset
-
-            build_dataset(name)
-        return iter_frames(name, split)
-    if set_name.startswith("challenging-"):
-        from ..challenging import challenging_scenes
-
-        return challenging_scenes(set_name)
-    p = Path(set_name)
-    if (p / "index.json").is_file():
-        return iter_frames(p)
-    if p.is_dir():
-        files = sorted(p.glob("*.yaml"))
-        if not files:
-            raise InputError(f"{p}: no scene yaml files; give a folder written by 'asg scenes extract' or 'asg generate'")
-        return (load_scene(f) for f in files)
-    raise InputError(f"unknown set '{set_name}'; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
-
 
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "frames": N, "without_collaborators": M} with ground truth =

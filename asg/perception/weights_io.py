@@ -75,11 +75,3 @@ def save_state(model: nn.Module, path: str | Path) -> None:
 def read_card(name: str) -> dict:
     p = WEIGHTS_DIR / f"{name}.json"
     return json.loads(p.read_text()) if p.is_file() else {}
-
-
-def check_weights_file(fusion: str, path: str | Path) -> None:
-    """Refuse (one InputError) a ``--weights`` file that is missing, corrupt or made for another
-    model than ``fusion``'s, before any work starts."""
-    from .fusion import build_detector
-
-    build_detector(fusion, weights_file=str(path))

@@ -288,7 +288,7 @@ def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, e
 def noisy_val_set() -> Path:
     """normal-val under the standard noisy V2X setting (built once under the data root)."""
     from ..datasets import data_root
-    from ..perception.evaluate import scenes_of
+    from ..datasets import scenes_of
     from .noisy import write_noisy_set
 
     return write_noisy_set(scenes_of("normal-val"), data_root() / NOISY_SET, seed=ATTACK_SEED)

@@ -17,7 +17,7 @@ import numpy as np
 
 from asg.objective.ap import ap_from_matches, match_frame
 from asg.perception.data import Sample
-from asg.perception.evaluate import scenes_of
+from asg.datasets import scenes_of
 from asg.perception.fusion import build_detector
 from asg.sensors import load_lidar_spec, simulate_frame
 

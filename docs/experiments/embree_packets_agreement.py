@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 import asg.sensors.embree as embree
-from asg.perception.evaluate import scenes_of
+from asg.datasets import scenes_of
 from asg.scene.neighbours import vehicles_within, with_nearest_collaborators
 from asg.sensors import load_lidar_spec
 from asg.sensors.world import World

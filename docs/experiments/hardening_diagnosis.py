@@ -20,7 +20,7 @@ import numpy as np
 
 from asg.objective.ap import ap_from_matches, greedy_match
 from asg.perception.data import Sample
-from asg.perception.evaluate import scenes_of
+from asg.datasets import scenes_of
 from asg.sensors import load_lidar_spec, simulate_frame
 from ap_bootstrap import build_models  # this folder's
 

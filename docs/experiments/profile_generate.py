@@ -9,7 +9,7 @@ import sys
 
 from asg.executors import apply_threads
 from asg.perception import build_detector
-from asg.perception.evaluate import scenes_of
+from asg.datasets import scenes_of
 from asg.pipeline import Generator, load_generate_config
 
 #: stage -> the function whose cumulative time it is (file suffix, function name)

@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from asg.perception.evaluate import scenes_of
+from asg.datasets import scenes_of
 from asg.pipeline import GenerateConfig, Generator
 from asg.scene.recheck import recheck
 from asg.search import EmptyFeasibleSet, FeasibleSet, SearchSpace, SpaceConfig

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 
 from asg.perception.data import points_in_range_boxes
-from asg.perception.evaluate import scenes_of
+from asg.datasets import scenes_of
 from asg.sensors import load_lidar_spec, simulate_frame
 
 

@@ -26,7 +26,7 @@ def source_scenes(source: Path | str) -> Iterator[Scene]:
         if not finals:
             raise InputError(f"{p}: a run folder with no finished scene; run 'asg generate' into it first")
         return (load_scene(f) for f in finals)
-    from ...perception.evaluate import scenes_of
+    from ...datasets import scenes_of
 
     return scenes_of(str(source))
 

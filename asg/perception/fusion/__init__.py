@@ -5,7 +5,7 @@ from sumo_scenarios.errors import InputError
 from . import attfuse, early, single  # noqa: F401  (fill the registry)
 from .base import Detections, V2XDetector
 
-__all__ = ["Detections", "V2XDetector", "build_detector", "detector_names"]
+__all__ = ["Detections", "V2XDetector", "build_detector", "check_weights_file", "detector_names"]
 
 
 def detector_names() -> list[str]:
@@ -30,3 +30,9 @@ def build_detector(name: str, **kwargs):
     if kwargs.get("weights_file"):
         raise InputError(f"--weights applies to the shipped models; the plugin '{name}' loads its own")
     return plugin
+
+
+def check_weights_file(fusion: str, path) -> None:
+    """Refuse (one InputError) a ``--weights`` file that is missing, corrupt or made for another
+    model than ``fusion``'s, before any work starts."""
+    build_detector(fusion, weights_file=str(path))
