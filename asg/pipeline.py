@@ -225,6 +225,9 @@ class Generator:
         normal = self.evaluate_scene(initial)
         acs = AcsOutcome(normal, {}, 0) if self.cfg.acs == "off" else self.collaborator_search(initial, rng, notes)
         after = acs.best
+        if after.loss > normal.loss:  # the paper's ACS samples among the candidates, not the scene's own pair
+            notes.append(f"ACS ended easier than the scene began (loss {normal.loss:.3f} -> {after.loss:.3f}): "
+                         f"its {acs.combinations} sampled collaborator combinations did not include the scene's own")
         aps = ApsOutcome(after, [], [], ())
         if self.cfg.aps:
             perturbed = self.pick_perturbed(after.scene, notes) if "poses" in self.cfg.space.kinds else []

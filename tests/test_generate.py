@@ -149,3 +149,26 @@ def test_blas_runs_on_one_thread_while_a_scene_is_generated(busy_scene):
         after = blas_threads()
     assert seen and all(s == {1} for s in seen)
     assert after == {2}
+
+
+def test_acs_that_ends_easier_than_the_start_says_so(busy_scene, monkeypatch):
+    """The paper's ACS samples combinations among the candidates and may miss the scene's own pair:
+    when the scene after ACS is easier than the scene as given, the scene's notes say so."""
+    from asg.pipeline import AcsOutcome
+
+    gen = make_gen()
+    start = busy_scene.with_collaborators(busy_scene.collaborators or [a.agent_id for a in busy_scene.vehicles[:2]])
+
+    def easier(scene, rng, notes):
+        scored = gen.evaluate_scene(scene)
+        return AcsOutcome(type(scored)(scene, scored.loss + 0.5, scored.ap, scored.frame), {}, 3)
+
+    monkeypatch.setattr(gen, "collaborator_search", easier)
+    result = gen.generate(start, seed=4)
+    assert any(n.startswith("ACS ended easier than the scene began") for n in result.notes)
+    monkeypatch.undo()
+    from asg.objective import adversarial_loss
+
+    real = make_gen().generate(start, seed=4)  # the note only when it happened
+    after_loss = adversarial_loss(real.ap_after_acs, FAST.objective)
+    assert any(n.startswith("ACS ended easier") for n in real.notes) == (after_loss > real.loss_normal)
