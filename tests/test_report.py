@@ -35,3 +35,55 @@ def test_report_of_nothing_is_one_line(capsys, tmp_path):
     code, err = run(capsys, "report", str(tmp_path))
     assert code == 2
     assert_one_line_error(err, "no run folder")
+
+
+def _tamper(path, edit):
+    import json
+
+    data = json.loads(path.read_text())
+    edit(data)
+    path.write_text(json.dumps(data))
+
+
+def test_a_run_folder_cannot_put_markup_or_paths_into_the_report(capsys, tmp_path):
+    """Every value of summary.json is escaped (a config key, aggregate fields, a scene id with TeX
+    or script), and a scene id that is a path is never followed."""
+    out = oracle_run(tmp_path, 1, "--budget", "2")
+
+    def evil(d):
+        d["config"]["<script>alert(1)</script>"] = 1
+        d["aggregate"]["scenes"] = "<script>alert(2)</script>"
+        d["aggregate"]["seconds_per_scene_median"] = "<img src=x onerror=alert(3)>"
+        d["scenes"].append(dict(d["scenes"][0], scene_id="../../../../etc"))
+        d["scenes"].append(dict(d["scenes"][0], scene_id="$\\frac{1}{0$"))
+
+    _tamper(out / "summary.json", evil)
+    assert main(["report", str(out)]) == 0
+    page = (out / "report.html").read_text()
+    assert "<script>alert" not in page and "<img src=x" not in page
+    assert "&lt;script&gt;alert(1)" in page and "../../../../etc" in page  # shown as text, not followed
+    capsys.readouterr()
+
+
+def test_tampered_run_folders_are_one_line(capsys, tmp_path):
+    import numpy as np
+
+    cases = {
+        "truncated": lambda o: (o / "summary.json").write_text((o / "summary.json").read_text()[:40]),
+        "a list": lambda o: (o / "summary.json").write_text("[1, 2]"),
+        "no aggregate": lambda o: _tamper(o / "summary.json", lambda d: d.pop("aggregate")),
+        "AP null": lambda o: _tamper(o / "summary.json", lambda d: d["scenes"][0].update(ap_final=None)),
+        "no detections": lambda o: (o / "scenes" / "s0" / "detections.npz").unlink(),
+        "object array": lambda o: np.savez(o / "scenes" / "s0" / "detections.npz", x=np.array([{}], dtype=object)),
+        "history text": lambda o: (o / "scenes" / "s0" / "history.csv").write_text("step,loss\n1,abc\n"),
+        "history without loss": lambda o: (o / "scenes" / "s0" / "history.csv").write_text("step\n1\n"),
+    }
+    for name, edit in cases.items():
+        out = oracle_run(tmp_path / name.replace(" ", "_"), 1, "--budget", "2")
+        capsys.readouterr()
+        edit(out)
+        code, err = run(capsys, "report", str(out))
+        if code == 0:  # what is missing is simply not drawn
+            continue
+        assert code == 2, name
+        assert_one_line_error(err, str(out))

@@ -24,6 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from sumo_scenarios.atomic import write_text_atomic  # noqa: E402
+from sumo_scenarios.checks import is_safe_id  # noqa: E402
 from sumo_scenarios.errors import InputError  # noqa: E402
 
 from ..scene import footprint_xy, load_scene  # noqa: E402
@@ -50,11 +51,28 @@ def write_report(root: Path, out: Path | None = None, scenes_shown: int = 6) -> 
         raise InputError(f"{root}: no run folder (summary.json) or table (TABLE.json) to report; "
                          "give a folder written by 'asg generate' or 'asg bench paper'")
     parts = [f"<h1>asg report: {html.escape(str(root))}</h1>"]
-    parts += [_run_section(r, scenes_shown) for r in runs]
-    parts += [_table_section(p) for p in tables]
+    parts += [_guarded(_run_section, r, "summary.json", scenes_shown) for r in runs]
+    parts += [_guarded(_table_section, p, p.name) for p in tables]
     out = Path(out) if out is not None else root / "report.html"
     write_text_atomic(out, _PAGE.format(body="\n".join(parts)))
     return out
+
+
+def _guarded(section, path: Path, what: str, *args) -> str:
+    """``section(path, *args)``; a folder or file someone edited (a key missing, a string for a
+    number, a list for a mapping, a broken detections file) is one InputError naming it."""
+    try:
+        return section(path, *args)
+    except InputError:
+        raise
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OSError, EOFError) as exc:
+        raise InputError(f"{path}: {what} (or a file it names) is not what asg wrote ({type(exc).__name__}: "
+                         f"{str(exc)[:80]}); regenerate it") from None
+
+
+def _text(value) -> str:
+    """Any value read from a run folder, as HTML text (the report never trusts a file's contents)."""
+    return html.escape(str(value))
 
 
 def _is_table(path: Path) -> bool:
@@ -76,10 +94,10 @@ def _run_section(run: Path, scenes_shown: int) -> str:
                      str(len(e.get("moved", []))),
                      f"{p.get('collisions', '-')} / {p.get('off_road', '-')} / {p.get('out_of_range', '-')}"])
     implausible = sum(any(v for v in e.get("plausibility", {}).values()) for e in entries)
-    config = ", ".join(f"{k}: {html.escape(json.dumps(v))}" for k, v in cfg.items() if k not in ("objective", "space"))
-    views = "".join(_scene_views(run, e) for e in entries[:scenes_shown])
+    config = ", ".join(f"{_text(k)}: {_text(json.dumps(v))}" for k, v in cfg.items() if k not in ("objective", "space"))
+    views = "".join(_scene_views(run, e) for e in entries[:scenes_shown] if is_safe_id(str(e["scene_id"])))
     return (f"<section><h2>{html.escape(run.name)}</h2><p class=config>{config}</p>"
-            f"<p>{agg['scenes']} scenes, median {agg['seconds_per_scene_median']} s a scene; "
+            f"<p>{_text(agg['scenes'])} scenes, median {_text(agg['seconds_per_scene_median'])} s a scene; "
             f"plausibility: {len(entries) - implausible} of {len(entries)} scenes with no collision, nothing off "
             f"the drivable area, nothing out of range.</p>"
             + _html_table(["scene", "normal AP@0.3/0.5/0.7 (%)", "after ACS", "final", "moved",
@@ -103,7 +121,7 @@ def _scene_views(run: Path, entry: dict) -> str:
             ax.set_title(f"{label}: AP@0.7 {100 * ap['0.7']:.1f}", fontsize=10)
         else:
             ax.set_axis_off()
-    fig.suptitle(entry["scene_id"], fontsize=10)
+    fig.suptitle(entry["scene_id"], fontsize=10, parse_math=False)  # an id is text, never TeX
     fig.tight_layout()
     return f"<figure>{_img(fig)}</figure>"
 
@@ -146,8 +164,8 @@ def _loss_chart(run: Path, entries: list[dict]):
     fig, ax = plt.subplots(figsize=(7, 3.2), dpi=80)
     curves = []
     for e in entries:
-        path = run / "scenes" / e["scene_id"] / "history.csv"
-        if not path.is_file():
+        path = run / "scenes" / str(e["scene_id"]) / "history.csv"
+        if not is_safe_id(str(e["scene_id"])) or not path.is_file():  # an id is a name, never a path out
             continue
         losses = [float(r["loss"]) for r in csv.DictReader(io.StringIO(path.read_text()))]
         if losses:
@@ -169,8 +187,8 @@ def _table_section(path: Path) -> str:
     data = json.loads(path.read_text())
     md = path.with_suffix(".md")
     body = _markdown_table_html(md.read_text()) if md.is_file() else ""
-    return (f"<section><h2>Table {html.escape(data['table'])}</h2><p><code>{html.escape(data['command'])}</code>: "
-            f"{data['scenes']} scenes, {data['seconds']:.0f} s, commit {html.escape(str(data['commit']))}</p>{body}</section>")
+    return (f"<section><h2>Table {_text(data['table'])}</h2><p><code>{_text(data['command'])}</code>: "
+            f"{_text(data['scenes'])} scenes, {_text(data.get('seconds'))} s, commit {_text(data.get('commit'))}</p>{body}</section>")
 
 
 def _markdown_table_html(text: str) -> str:
