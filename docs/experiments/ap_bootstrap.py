@@ -8,7 +8,9 @@ Prints each model's AP, and for each pair the gap and its 5-95 % interval over t
 usage: .venv/bin/python docs/experiments/ap_bootstrap.py SET [RESAMPLES] [MODEL ...]
   SET: any --set of asg evaluate (normal-val, heuristic, challenging-attfuse-val, a folder of scenes);
   MODEL: a shipped name, or NAME=path/to/weights.pt (AttFuse network; e.g. fine-tuned or hardened
-  weights); default the four shipped models. Intervals: 5-95 % and 2.5-97.5 % of the resamples.
+  weights); default the four shipped models. MODEL@SET scores that model on SET instead (e.g. each
+  model on its own re-attack of normal-val: frames are paired by scene id, the scenes every set
+  holds). Intervals: 5-95 % and 2.5-97.5 % of the resamples.
 """
 import itertools
 import sys
@@ -35,18 +37,26 @@ def build_models(models) -> dict:
 
 
 def per_frame_flags(set_name: str, models=MODELS) -> dict:
-    """{(model, threshold): [(scores (N,), tp (N,) bool, n_gt), ...] one entry per frame}."""
+    """{(model, threshold): [(scores (N,), tp (N,) bool, n_gt), ...] one entry per frame}, frames
+    paired by scene id across the models' sets (``MODEL@SET``: that model on its own set)."""
     spec = load_lidar_spec("v2xp")
-    detectors = build_models(models)
-    flags = {(m, t): [] for m in detectors for t in THRESHOLDS}
-    for scene in scenes_of(set_name):
-        sample = Sample(scene.scene_id, simulate_frame(scene, spec))
-        gt = sample.gt_eval()
-        for m, det in detectors.items():
-            boxes, scores = det.detect(sample.frame)
-            for t in THRESHOLDS:
-                flags[m, t].append((np.asarray(scores, float), match_frame(boxes, scores, gt, t), len(gt)))
-    return flags
+    by_set: dict[str, list[str]] = {}
+    for m in models:
+        spec_m, _, own = m.partition("@")
+        by_set.setdefault(own or set_name, []).append(spec_m)
+    found: dict[tuple, dict] = {}
+    for set_, specs in by_set.items():
+        detectors = build_models(specs)
+        for scene in scenes_of(set_):
+            sample = Sample(scene.scene_id, simulate_frame(scene, spec))
+            gt = sample.gt_eval()
+            for m, det in detectors.items():
+                boxes, scores = det.detect(sample.frame)
+                for t in THRESHOLDS:
+                    found.setdefault((m, t), {})[scene.scene_id] = (np.asarray(scores, float),
+                                                                    match_frame(boxes, scores, gt, t), len(gt))
+    common = sorted(set.intersection(*(set(v) for v in found.values())))
+    return {key: [frames[i] for i in common] for key, frames in found.items()}
 
 
 def ap_of(frames: list, idx: np.ndarray) -> float:
@@ -57,7 +67,7 @@ def ap_of(frames: list, idx: np.ndarray) -> float:
 
 def main(set_name: str, resamples: int, models=MODELS) -> None:
     flags = per_frame_flags(set_name, models)
-    names = [m.partition("=")[0] for m in models]
+    names = [m.partition("@")[0].partition("=")[0] for m in models]
     n = len(flags[names[0], THRESHOLDS[0]])
     rng = np.random.default_rng(0)
     draws = [rng.integers(0, n, n) for _ in range(resamples)]
