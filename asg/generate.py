@@ -44,9 +44,18 @@ class SceneSource:
     duration_s: float = 60.0
 
     def describe(self) -> dict:
-        """The source as recorded in run.json (paths as given)."""
-        return {k: (None if v is None else str(v)) for k, v in
-                (("town", self.town), ("net", self.net), ("scenes", self.scenes))}
+        """The source as recorded in run.json: a folder or file by its absolute path and the
+        digest of what it holds (so that ``./x`` and ``/abs/x`` are one source, and a scene or net
+        edited since is another); a named set or town by its name."""
+        out: dict = {k: (None if v is None else str(v)) for k, v in
+                     (("town", self.town), ("net", self.net), ("scenes", self.scenes))}
+        if self.net is not None and Path(self.net).is_file():
+            out["net"] = str(Path(self.net).resolve())
+            out["net_sha256"] = file_digest(Path(self.net))
+        if self.scenes is not None and Path(self.scenes).is_dir():
+            out["scenes"] = str(Path(self.scenes).resolve())
+            out["scenes_sha256"] = folder_digest(Path(self.scenes))
+        return out
 
 
 @dataclass(frozen=True)
@@ -188,7 +197,19 @@ def file_digest(path: Path) -> str:
     try:
         return hashlib.sha256(path.read_bytes()).hexdigest()
     except OSError as exc:
-        raise InputError(f"{path}: cannot read the weights file ({exc.strerror}); check --weights") from None
+        raise InputError(f"{path}: cannot be read ({exc.strerror}); check its permissions") from None
+
+
+def folder_digest(folder: Path) -> str:
+    """sha256 over the names and contents of a scene folder's files (yaml, or a data set's index
+    and frames), sorted by name."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for p in sorted(folder.iterdir()):
+        if p.is_file() and not p.name.startswith(".") and p.suffix in (".yaml", ".yml", ".json", ".gz"):
+            h.update(p.name.encode() + b"\0" + file_digest(p).encode())
+    return h.hexdigest()
 
 
 def prepare_run(out: Path, settings: dict, force: bool = False) -> None:

@@ -493,3 +493,22 @@ def test_an_id_ending_in_a_newline_is_not_safe():
     assert safe_id("ok_1", "scene") == "ok_1"
     with pytest.raises(InputError, match="not a safe name"):
         safe_id("evil\n", "scene")
+
+
+def test_a_rerun_notices_edited_scenes_and_takes_the_folder_however_spelled(capsys, tmp_path, monkeypatch):
+    """The settings record holds the scenes' digest and the folder's absolute path: an edited scene
+    is another input (refused without --force), ``./scenes`` is the same folder as its full path."""
+    from test_cli import assert_one_line_error, run
+
+    folder = oracle_run(tmp_path, 1)
+    capsys.readouterr()
+    monkeypatch.chdir(tmp_path)
+    argv = ["generate", "--scenes", "./scenes", "--detector", "fakes:oracle_factory", "--count", "1",
+            "--workers", "1", "--out", str(folder)]
+    assert main(argv) == 0  # the same run: resumed, nothing to do
+    capsys.readouterr()
+    scene = tmp_path / "scenes" / "s0.yaml"
+    scene.write_text(scene.read_text().replace("x_m: -30.0", "x_m: -31.0", 1))
+    code, err = run(capsys, *argv)
+    assert code == 2
+    assert_one_line_error(err, "other settings")
