@@ -14,6 +14,7 @@ import numpy as np
 
 from ..scene import Scene, save_scene
 from ..scene.link import LinkState
+from sumo_scenarios.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,10 @@ def noisy_scene(scene: Scene, rng: np.random.Generator, noise: NoisyLink = STAND
         delay_s = 0.0
         if latency is not None:
             steps = max(1, int(round(noise.delay_s / latency.history.period_s)))
+            if abs(steps * latency.history.period_s - noise.delay_s) > 1e-6:
+                raise InputError(f"scene {scene.scene_id}: its log records every {latency.history.period_s:g} s; "
+                                 f"a {noise.delay_s:g} s delay needs a log recorded every {noise.delay_s:g} s or "
+                                 "a divisor of it (asg simulate --record-period)")
             earlier = latency.earlier_agents(cid, steps)
             delay_s = round(steps * latency.history.period_s, 6)
         dx, dy = rng.normal(0.0, noise.sigma_xy_m, size=2)
