@@ -56,6 +56,7 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     assert r1["data"]["kind"] == "adversarial" and r1["data"]["scenes"] == 1
     assert r2["trained"]["examples"] == {"round-1": 3, "round-2": 3, "normal": 6}  # keep_previous, 3 views a scene
     assert r2["weights"] == "round-2/weights.pt" and (out / "round-2" / "weights.pt").is_file()
+    assert r1["trained"]["steps"] == 2  # the training record survives a round resumed after its training
     assert not list(out.rglob("last.pt"))
     # the two rounds drew different scenes of the pool
     ids = [sorted(p.stem for p in (out / f"round-{k}" / "scenes").glob("*.yaml")) for k in (1, 2)]
@@ -113,3 +114,21 @@ def test_the_pool_gives_every_scene_its_own_id(data_root):
     write_set(data_root, "other", {"train": ["n0", "n1", "x"]})  # ids that repeat the normal set's
     ids = [s.scene_id for s in _pool(replace(TINY, pool=("normal", "other")))]
     assert sorted(ids) == ["n0", "n0_2", "n1", "n1_2", "x"]
+
+
+def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, data_root, monkeypatch):
+    import asg.workflows.harden as h
+
+    real = h.evaluate_round
+
+    def stop_in_round_one(fusion, weights, *args, **kw):
+        if "round-1" in str(weights):
+            raise KeyboardInterrupt
+        return real(fusion, weights, *args, **kw)
+
+    monkeypatch.setattr(h, "evaluate_round", stop_in_round_one)
+    with pytest.raises(KeyboardInterrupt):
+        harden("attfuse", 1, tmp_path / "h", config=TINY, detector_factory=ORACLE, log=_quiet)
+    monkeypatch.setattr(h, "evaluate_round", real)
+    card = harden("attfuse", 1, tmp_path / "h", config=TINY, detector_factory=ORACLE, log=_quiet)
+    assert card["rounds"][1]["trained"]["steps"] == 2

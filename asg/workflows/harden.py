@@ -136,10 +136,12 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
             _save_scenes(made, round_dir / "scenes")
             first = {f"round-{j}": _load_scenes(out / f"round-{j}" / "scenes")
                      for j in (range(1, k + 1) if cfg.keep_previous else [k])}
-            weights_out = round_dir / "weights.pt"
-            if not weights_out.is_file():
-                row["trained"] = fit_chunk(name, current, weights_out, round_dir / "last.pt", cfg, cfg.steps, threads,
-                                           log, progress, lambda: mixed_sources(name, first, cfg, log))
+            weights_out, record = round_dir / "weights.pt", round_dir / "trained.json"
+            if not (weights_out.is_file() and record.is_file()):
+                trained = fit_chunk(name, current, weights_out, round_dir / "last.pt", cfg, cfg.steps, threads,
+                                    log, progress, lambda: mixed_sources(name, first, cfg, log))
+                write_text_atomic(record, json.dumps(trained, indent=1))  # kept for a round resumed after training
+            row["trained"] = json.loads(record.read_text())
             current = weights_out
             row["weights"] = str(weights_out.relative_to(out))
         log(f"round {k}: evaluating {current} ...")
