@@ -15,7 +15,8 @@ def rows(path: str) -> list[list[str]]:
         re = row.get("reattack")
         cells.append(f"{100 * re['normal']['0.7']:.1f} -> {100 * re['challenging']['0.7']:.1f}" if re else "")
         trained = row.get("trained") or {}
-        cells.append(f"{trained['steps']} steps, {trained['wall_s'] / 60:.1f} min" if trained else "start weights")
+        cells.append(f"{trained['steps']} steps, {trained['wall_s'] / 60:.1f} min" if trained
+                     else ("start weights" if row["round"] == 0 else "not recorded"))
         out.append(cells)
     return out
 
