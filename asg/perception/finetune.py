@@ -49,10 +49,12 @@ class MixedBatches:
     """Batches whose examples come from several sources: each example's source drawn with
     ``shares`` (summing to 1), then an example of that source uniformly."""
 
-    def __init__(self, sources: list[_Batches], shares: list[float]):
+    def __init__(self, sources: list[_Batches], shares: list[float], labels: tuple[str, ...] = ()):
         if any(not s.items for s in sources):
             raise InputError("a fine-tuning source holds no training example")
         self.sources = sources
+        #: each source's name, for the card's example counts
+        self.labels = labels or tuple(str(i) for i in range(len(sources)))
         self.shares = np.asarray(shares, dtype=float) / float(np.sum(shares))
 
     def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg, timer=None):
@@ -157,8 +159,7 @@ def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: 
         sources.append(_Batches(network, [make_sample(s, spec) for s in iter_frames(mix, "train")], fcfg.views))
     rest = (1.0 - fcfg.challenging_share) / max(len(fcfg.mix_with), 1)
     shares = [fcfg.challenging_share / max(len(labels), 1)] * len(labels) + [rest] * len(fcfg.mix_with)
-    batches = MixedBatches(sources, shares)
-    batches.labels = (*labels, *fcfg.mix_with)
+    batches = MixedBatches(sources, shares, (*labels, *fcfg.mix_with))
     counts = ", ".join(f"{n} {len(b.items)}" for n, b in zip(batches.labels, sources))
     log(f"training examples: {counts} ({time.perf_counter() - t0:.0f} s to render)")
     return batches
