@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 from sumo_scenarios.atomic import remove_stale_partials, write_text_atomic
-from sumo_scenarios.checks import inside
+from sumo_scenarios.checks import inside, output_dir
 from sumo_scenarios.errors import InputError
 
 from .executors import Executor, Job
@@ -218,14 +218,7 @@ def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
     stale partial files left by an interrupted run."""
     out = Path(out)
     settings = json.loads(json.dumps(settings))  # as run.json will hold them (tuples become lists)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out} is a file; give a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except (FileExistsError, NotADirectoryError):
-        raise InputError(f"--out {out}: a part of the path is a file; give a folder") from None
-    except OSError as exc:
-        raise InputError(f"--out {out}: cannot create it ({exc.strerror}); give a writable folder") from None
+    output_dir(out)
     record = out / RUN_RECORD
     if force:
         for name in RUN_CONTENTS:

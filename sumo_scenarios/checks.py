@@ -4,6 +4,7 @@ safe file name, every polyline long enough. Each failure is an InputError naming
 from __future__ import annotations
 
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -80,3 +81,20 @@ def inside(root: Path, path: Path) -> Path:
     if p != r and r not in p.parents:
         raise InputError(f"{path}: would be written outside {root}; check the ids in the input")
     return path
+
+
+def output_dir(out: Path, flag: str = "--out") -> Path:
+    """Create the output folder ``out`` (and its parents); one InputError for a file in the way, a
+    symbolic link to nowhere, or a place that cannot hold a folder (read-only, /proc, no permission)."""
+    out = Path(out)
+    if out.is_symlink() and not out.exists():
+        raise InputError(f"{flag} {out}: a symbolic link to a missing folder ({os.readlink(out)}); give a folder")
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{flag} {out} is a file; give a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"{flag} {out}: a part of the path is a file; give a folder") from None
+    except OSError as exc:
+        raise InputError(f"{flag} {out}: cannot create it ({exc.strerror}); give a writable folder") from None
+    return out

@@ -201,3 +201,14 @@ def test_a_town_that_is_a_path_is_not_read(capsys, scenes_dir, tmp_path, fmt):
     code, err = run(capsys, "export", str(bad), "--format", fmt, "--out", str(tmp_path / "o"))
     assert code == 2
     assert_one_line_error(err, "not a bundled town")
+
+
+def test_an_out_folder_that_cannot_be_is_one_line(capsys, scenes_dir, tmp_path):
+    """--out on a symbolic link to nowhere, or where no folder can be made (/proc): one line."""
+    folder, _ = scenes_dir
+    dangling = tmp_path / "dangling"
+    dangling.symlink_to(tmp_path / "missing" / "dir")
+    for out, needle in ((dangling, "symbolic link"), ("/proc/asg-export-test", "cannot create")):
+        code, err = run(capsys, "export", str(folder), "--format", "kitti", "--out", str(out))
+        assert code == 2
+        assert_one_line_error(err, needle)

@@ -36,10 +36,9 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     """Write every scene of ``source`` in format ``fmt`` under ``out``; returns the scene count."""
     if fmt not in FORMATS:
         raise InputError(f"unknown format '{fmt}'; choose one of {', '.join(FORMATS)}")
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out} is a file; give a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    from sumo_scenarios.checks import output_dir
+
+    out = output_dir(Path(out))
     from . import kitti, openscenario, opv2v, sumo
 
     writer = {"opv2v": opv2v.ScenarioWriter, "kitti": kitti.KittiWriter, "openscenario": openscenario.XoscWriter,
