@@ -349,7 +349,10 @@ def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig):
     env = dict(os.environ, TMPDIR=str(tmp))
     argv = [sys.executable, "-m", "asg.cli", "generate", "--scenes", str(scenes), "--out", str(out),
             "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "150", "--workers", "2"]
-    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, env=env, text=True, cwd=ROOT)
+    # as a terminal's foreground job: Ctrl-C not ignored, even when these tests run in the background
+    # of a non-interactive shell (whose jobs start with SIGINT ignored, which Python keeps)
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, env=env, text=True, cwd=ROOT,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     if moment == "workers starting":
         _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= 2, "worker processes", proc)
     else:
