@@ -35,12 +35,12 @@ import numpy as np
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
+from sumo_scenarios.strict import from_mapping
 
 from ..perception.finetune import claim, fit_chunk, mixed_sources
 from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR
 from ..scene import Scene, load_scene
-from sumo_scenarios.strict import from_mapping
 
 #: the train.yaml block of ``asg harden``
 HARDEN_BLOCK = "harden"

@@ -12,9 +12,10 @@ from typing import Iterable
 
 import numpy as np
 
+from sumo_scenarios.errors import InputError
+
 from ..scene import Scene, save_scene
 from ..scene.link import LinkState
-from sumo_scenarios.errors import InputError
 
 
 @dataclass(frozen=True)
