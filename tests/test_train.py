@@ -310,3 +310,21 @@ def test_branch_fit_settings_are_checked(tmp_path):
         bad.write_text("iou_branch:\n  " + line + "\n")
         with pytest.raises(InputError, match=match):
             load_branch_config(bad)
+
+
+def test_bench_train_reports_a_step_and_its_phases(monkeypatch):
+    """``asg bench train``'s measurement on synthetic frames: one JSON-able dict whose phase shares
+    cover the step (the time itself is a benchmark's business, never asserted)."""
+    import asg.datasets
+    from asg.benchmarks.train import bench_train
+    from asg.scene import Scene
+
+    from test_robustness import _scene_dict
+
+    monkeypatch.setattr(asg.datasets, "iter_frames",
+                        lambda name, split=None: iter([Scene.from_dict(_scene_dict(f"s{i}")) for i in range(2)]))
+    out = bench_train(steps=2, frames=2)
+    assert out["model"] == "attfuse" and out["steps"] == 2 and out["examples"] == 6 and out["seconds_per_step"] > 0
+    shares = out["phase_share"]
+    assert set(shares) == {"draw", "targets", "voxelise", "forward", "loss", "backward", "optimiser"}
+    assert all(v >= 0 for v in shares.values()) and 0.8 < sum(shares.values()) < 1.2
