@@ -1,7 +1,8 @@
 """Training and held-out loss curves of one fine-tuning chunk (the `harden` block's recipe): every
-EVERY steps, the mean detection loss (the same loss the training minimises, without augmentation)
-over held-out frames of normal-val and challenging-attfuse-val, beside the training loss of the
-last EVERY steps. Trains on the round's scenes of a finished `asg harden` run (ROUND_DIR/scenes)
+EVERY steps, the mean detection loss (classification, box and direction terms, without
+augmentation, as the ego sees each frame) over held-out frames of normal-val and
+challenging-attfuse-val, beside the training loss of the last EVERY steps (which also holds the
+IoU and refinement branches' terms: compare its trend, not its level). Trains on the round's scenes of a finished `asg harden` run (ROUND_DIR/scenes)
 mixed as the run did, from the shipped AttFuse weights; writes nothing but OUT.json.
 
 usage: .venv/bin/python docs/experiments/finetune_curves.py ROUND_DIR OUT.json [EVERY] [HELD_OUT]
@@ -65,7 +66,7 @@ def main(round_dir: str, out: str, every: int = 50, held: int = 40) -> None:
     train_losses = []
     for step in range(1, hcfg.steps + 1):
         loss = train_step(model, opt, sched, batches.draw(rng, hcfg.batch_size, anchors, cfg))
-        train_losses.append(float(loss["total"]))
+        train_losses.append(float(loss["total"].detach()))
         if step % every == 0:
             row = {"step": step, "train": float(np.mean(train_losses[-every:])),
                    **{n: held_out_loss(model, it, anchors, cfg) for n, it in held_out.items()}}
