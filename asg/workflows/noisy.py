@@ -20,7 +20,7 @@ from ..scene.link import LinkState
 
 @dataclass(frozen=True)
 class NoisyLink:
-    """The noise of the standard setting; ``delay_s`` is rounded to whole steps of the scene's log."""
+    """The noise of the standard setting; ``delay_s`` must be a whole number of the scene's log steps."""
 
     sigma_xy_m: float = 0.2
     sigma_yaw_deg: float = 0.2
