@@ -77,6 +77,16 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     return out
 
 
+def own_val_set(fusion: str, executor=None, log=print) -> str:
+    """The name of ``fusion``'s challenging val set (normal-val attacked against the shipped
+    model), built first if missing: the fixed yardstick of fine-tuning and hardening."""
+    own_val = set_name(fusion, "val")
+    if not (data_root() / own_val / "index.json").is_file():
+        log(f"building {own_val} (the original model attacked on normal-val) ...")
+        build_challenging(fusion, "val", executor=executor)
+    return own_val
+
+
 def first_scenes_ap(out: Path, count: int | None) -> dict[str, dict[str, float]]:
     """Pooled AP (normal and challenging) over the first ``count`` scenes of a built challenging
     set (all when None), from the detections its run folder stored."""

@@ -212,14 +212,10 @@ def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, fcfg: Fine
                           executor, log: Callable[[str], None]) -> dict:
     """{set: {"before": AP, "after": AP, "frames": N}} on each eval set and the original model's
     challenging val set (built if missing); each result cached in ``cache``."""
-    from ..challenging import build_challenging, set_name
-    from ..datasets import data_root
+    from ..challenging import own_val_set
     from .evaluate import evaluate
 
-    own_val = set_name(fusion, "val")
-    if not (data_root() / own_val / "index.json").is_file():
-        log(f"building {own_val} (the original model attacked on normal-val) ...")
-        build_challenging(fusion, "val", executor=executor)
+    own_val = own_val_set(fusion, executor, log)
     table = {}
     for set_name_ in (*fcfg.eval_sets, own_val):
         row = {}

@@ -106,7 +106,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         raise InputError(f"--rounds must be a whole number from 1 to {MAX_ROUNDS}, got {rounds!r}")
     cfg = config or load_harden_config()
     name = weights_for(fusion)
-    start = _start_weights(weights, name)
+    start = _start_weights(weights, fusion, name)
     out = Path(out) if out is not None else default_out(fusion, cfg.data)
     from ..generate import file_digest
 
@@ -164,14 +164,10 @@ def _eval_cache(out: Path, k: int, weights: Path) -> Path:
     return out / f"round-{k}" / "eval" if k else data_root() / ".harden-start" / file_digest(weights)[:16]
 
 
-def _start_weights(weights: Path | None, name: str) -> Path:
+def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
     """The weights file to start from: ``weights`` (a .pt, or a harden card: its last round's) or
-    the shipped ``name``; InputError if missing or not loadable into the network."""
-    from ..perception.config import load_detector_config
-    from ..perception.model import AttFuse, PointPillars
-    from ..perception.train import BRANCH_KEYS
-    from ..perception.train_config import NETWORK_OF_WEIGHTS
-    from ..perception.weights_io import load_state
+    the shipped ``name``; InputError if missing or not loadable by ``fusion``'s detector."""
+    from ..perception import check_weights_file
 
     if weights is None:
         return WEIGHTS_DIR / f"{name}.pt"
@@ -185,9 +181,7 @@ def _start_weights(weights: Path | None, name: str) -> Path:
             raise InputError(f"--weights {weights}: not a harden card (card.json) with a finished round") from None
     if not path.is_file():
         raise InputError(f"--weights {path}: no such file; give a .pt written by asg train, finetune or harden")
-    cfg = load_detector_config()
-    model = AttFuse(cfg) if NETWORK_OF_WEIGHTS[name] == "attfuse" else PointPillars(cfg)
-    load_state(model, path, allow_missing=BRANCH_KEYS)  # one clear line for a corrupt or foreign file
+    check_weights_file(fusion, path)  # one clear line for a corrupt or foreign file
     return path
 
 
@@ -262,14 +256,10 @@ def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, e
                    log: Callable[[str], None]) -> dict:
     """{set: {"0.3", "0.5", "0.7": AP, "frames": N}} of ``weights`` on the fixed evaluation sets,
     each result cached in ``cache``."""
-    from ..challenging import build_challenging, set_name
-    from ..datasets import data_root
+    from ..challenging import own_val_set
     from ..perception.evaluate import evaluate
 
-    own_val = set_name(fusion, "val")
-    if not (data_root() / own_val / "index.json").is_file():
-        log(f"building {own_val} (the original model attacked on normal-val) ...")
-        build_challenging(fusion, "val", executor=executor)
+    own_val = own_val_set(fusion, executor, log)
     sets = {s: s for s in (*cfg.eval_sets, own_val)}
     if cfg.noisy:
         sets[NOISY_SET] = str(noisy_val_set())
