@@ -29,7 +29,12 @@ RUN_RECORD = "run.json"
 #: temporary work (a simulated log) inside the run folder, removed when the run ends
 WORK_DIR = ".work"
 #: what a run folder may hold: the only names ``force`` removes
-RUN_CONTENTS = ("scenes", "summary.json", RUN_RECORD, WORK_DIR)
+#: the run's own SUMO log (a town or net source whose scenes need their past: the latency space)
+LOG_DIR = "log"
+RUN_CONTENTS = ("scenes", "summary.json", RUN_RECORD, WORK_DIR, LOG_DIR)
+#: a town or net source: seconds between the frames that become scenes (every 10th of a log
+#: recorded every 0.5 s, SimulationRequest's default)
+SCENE_PERIOD_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -282,10 +287,14 @@ def _first_difference(a, b, where: str = "") -> str | None:
 
 
 # ---- where scenes come from ----------------------------------------------------------------------
-def load_scenes(source: SceneSource, count: int, seed: int, workdir: Path) -> list[Scene]:
-    """The first ``count`` scenes of ``source`` (a town's traffic is simulated into ``workdir``)."""
+def load_scenes(source: SceneSource, count: int, seed: int, workdir: Path, *,
+                log_dir: Path | None = None) -> list[Scene]:
+    """The first ``count`` scenes of ``source``. A town's traffic is simulated into ``workdir``
+    (removed by the caller), or, with ``log_dir`` (the run's own log, kept: a source whose scenes
+    need their past, as the latency space does), into ``log_dir``, recorded every simulation step;
+    the scenes then name it as their log. The scenes are the same either way."""
     scenes = _scenes_from_dir(source.scenes) if source.scenes is not None else \
-        _scenes_from_town(source, seed, workdir)
+        _scenes_from_town(source, seed, workdir, log_dir)
     picked = list(itertools.islice(scenes, count))
     _refuse_duplicates(picked)
     if not picked:
@@ -293,18 +302,32 @@ def load_scenes(source: SceneSource, count: int, seed: int, workdir: Path) -> li
     return picked
 
 
-def _scenes_from_town(source: SceneSource, seed: int, workdir: Path) -> Iterator[Scene]:
+def _scenes_from_town(source: SceneSource, seed: int, workdir: Path, log_dir: Path | None) -> Iterator[Scene]:
     from dataclasses import replace
 
+    from sumo_scenarios.log import META_NAME
     from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
     from .scene.from_log import ExtractParams, extract_scenes
+    from .scene.history import HISTORY_MARGIN_S
 
-    log = workdir / "log"
-    simulate_sumo(SimulationRequest(out_dir=log, town=source.town, net=source.net, seed=seed,
-                                    duration_s=source.duration_s, density="normal"))
-    # the log lives in the run's work folder, removed at the end: record its name, not its path
-    return (replace(s, log=None) for s in extract_scenes(log, ExtractParams(every=10, min_vehicles=5)))
+    request = SimulationRequest(out_dir=workdir / "log", town=source.town, net=source.net, seed=seed,
+                                duration_s=source.duration_s, density="normal")
+    if log_dir is None:
+        simulate_sumo(request)
+        every = round(SCENE_PERIOD_S / request.record_period_s)
+        # the log lives in the run's work folder, removed at the end: the scenes name no log
+        return (replace(s, log=None) for s in extract_scenes(request.out_dir, ExtractParams(every=every, min_vehicles=5)))
+    # the same traffic (the same routes and end), recorded every step from HISTORY_MARGIN_S earlier:
+    # the past a latency delay reaches; the scenes are the frames of the same instants
+    first_s = request.warmup_s
+    request = replace(request, out_dir=log_dir, record_period_s=request.step_s, warmup_s=first_s - HISTORY_MARGIN_S,
+                      duration_s=request.duration_s + HISTORY_MARGIN_S)
+    if not (log_dir / META_NAME).is_file():  # a resumed run keeps the log its scenes came from
+        shutil.rmtree(log_dir, ignore_errors=True)
+        simulate_sumo(request)
+    params = ExtractParams(every=round(SCENE_PERIOD_S / request.record_period_s), min_vehicles=5, from_s=first_s)
+    return (replace(s, log=str(log_dir.resolve())) for s in extract_scenes(log_dir, params))
 
 
 def _scenes_from_dir(path: Path) -> Iterator[Scene]:

@@ -10,7 +10,7 @@ from rich.table import Table
 from sumo_scenarios.errors import InputError
 
 from .executors import Executor, build_executor, default_workers
-from .generate import SceneSource, WORK_DIR, generate, load_scenes, prepare_run, run_settings
+from .generate import LOG_DIR, SceneSource, WORK_DIR, generate, load_scenes, prepare_run, run_settings
 from .pipeline import load_generate_config
 from .progress import console, progress_bar, stdout
 
@@ -63,7 +63,8 @@ def run_generate(args: argparse.Namespace) -> int:
     fresh = not out.exists()
     prepare_run(out, run_settings(cfg, args.seed, count, source.describe()), force=args.force)
     try:
-        scenes = load_scenes(source, count, args.seed, out / WORK_DIR)
+        scenes = load_scenes(source, count, args.seed, out / WORK_DIR,
+                             log_dir=out / LOG_DIR if cfg.space.needs_past else None)
     except BaseException:
         if fresh:  # bad input: leave no trace of the folder this run created
             shutil.rmtree(out, ignore_errors=True)

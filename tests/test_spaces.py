@@ -228,3 +228,33 @@ def test_latency_needs_the_scenes_log(capsys, tmp_path):
                  "--space", "latency", "--workers", "1", "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
     assert code == 2 and "needs the scene's SUMO log" in err and "Traceback" not in err
+
+
+def test_a_town_sources_scenes_keep_their_log_for_latency(capsys, tmp_path):
+    """A source simulated on the fly (a town, a net) keeps its log in the run folder when a space
+    reads the past: the scenes are the same as without it, and latency works on them."""
+    from dataclasses import replace
+
+    from asg.generate import SceneSource, load_scenes
+
+    source = SceneSource(town="grid_small", duration_s=10.0)
+    plain = load_scenes(source, 2, 3, tmp_path / "plain")
+    kept = load_scenes(source, 2, 3, tmp_path / "work", log_dir=tmp_path / "run" / "log")
+    assert [replace(s, log=None).to_dict() for s in kept] == [s.to_dict() for s in plain]
+    assert all(s.log is None for s in plain)
+    assert all(s.log == str((tmp_path / "run" / "log").resolve()) for s in kept)
+
+    def run(out):
+        argv = ["generate", "--town", "grid_small", "--count", "1", "--budget", "3", "--space", "poses,latency",
+                "--detector", "fakes:oracle_factory", "--workers", "1", "--out", str(out)]
+        assert main(argv) == 0, capsys.readouterr().err
+        return json.loads((out / "summary.json").read_text())["scenes"][0]
+
+    entry = run(tmp_path / "a")
+    assert entry["space"]["bounds"]["latency"]["step_s"] == pytest.approx(0.1)
+    folder = tmp_path / "a" / "scenes" / entry["scene_id"]
+    assert "log: ../../log" in (folder / "final.yaml").read_text()
+    assert load_scene(folder / "final.yaml").log == str((tmp_path / "a" / "log").resolve())
+    run(tmp_path / "b")  # another folder, the same files
+    assert (folder / "final.yaml").read_text() == (tmp_path / "b" / "scenes" / entry["scene_id"] / "final.yaml").read_text()
+    capsys.readouterr()

@@ -8,6 +8,8 @@
     OUT/scenes/SCENE_ID/clouds/AGENT.pcd     final per-agent clouds (sensor frame), also .npy
     OUT/scenes/SCENE_ID/{initial,after_acs,final}.png   bird's-eye pictures (perturbed vehicles circled)
     OUT/scenes/SCENE_ID/result.json          this scene's summary entry: written last, marks it done
+    OUT/log/                                 the SUMO log of a town or net source, kept when a space
+                                             reads the past (latency); scene files name it ../../log
 
 A scene folder is written under a temporary name and renamed when complete, so a run stopped
 midway resumes from the first scene without a result.json.
@@ -17,6 +19,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 import zipfile
 from pathlib import Path
 
@@ -48,10 +51,10 @@ def write_scene(out_dir: Path, r: SceneResult, artifacts: bool = True) -> dict:
     return its summary entry. ``artifacts``: also the final clouds and the pictures (a data set of
     challenging scenes keeps only the scenes, history and detections)."""
     entry = scene_entry(r)
-    with atomic_dir(inside(out_dir / "scenes", out_dir / "scenes" / r.scene_id)) as work:
-        save_scene(r.initial, work / "initial.yaml")
-        save_scene(r.after_acs, work / "after_acs.yaml")
-        save_scene(r.final, work / "final.yaml")
+    folder = inside(out_dir / "scenes", out_dir / "scenes" / r.scene_id)
+    with atomic_dir(folder) as work:
+        for name, scene in (("initial", r.initial), ("after_acs", r.after_acs), ("final", r.final)):
+            save_scene(_log_relative(scene, out_dir, folder), work / f"{name}.yaml")
         buf = io.StringIO()
         w = csv.writer(buf)
         w.writerow(["step", *r.history_columns, "loss", "ap_0.3", "ap_0.5", "ap_0.7"])
@@ -64,6 +67,19 @@ def write_scene(out_dir: Path, r: SceneResult, artifacts: bool = True) -> dict:
         np.savez_compressed(work / "detections.npz", **arrays)
         (work / "result.json").write_text(json.dumps(entry, indent=1))
     return entry
+
+
+def _log_relative(scene, out_dir: Path, folder: Path):
+    """``scene`` naming a log inside the run folder by its path from ``folder`` (where the scene
+    file goes; load_scene resolves it from there), so that run folders move and compare whole."""
+    from dataclasses import replace
+
+    if not scene.log or not Path(scene.log).is_absolute():
+        return scene
+    log = Path(scene.log)
+    if not log.is_relative_to(out_dir.resolve()):
+        return scene
+    return replace(scene, log=os.path.relpath(log, folder.resolve()))
 
 
 def _write_artifacts(work: Path, r: SceneResult) -> None:

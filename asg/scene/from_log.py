@@ -38,6 +38,8 @@ class ExtractParams:
     #: collaborators drawn at random among the vehicles in communication range of the ego, as the
     #: data sets draw them (0: none; the generator then picks its own)
     collaborators: int = 0
+    #: frames before this time (s) are not scenes; the every-N count starts at the first one after
+    from_s: float = 0.0
 
     def validate(self) -> None:
         if self.every < 1:
@@ -107,7 +109,7 @@ def extract_scenes(log_path: str | Path, params: ExtractParams) -> Iterator[Scen
     """Scenes from every ``params.every``-th frame of a log folder."""
     params.validate()
     log = open_log(log_path)
-    for i, frame in enumerate(log.frames()):
+    for i, frame in enumerate(f for f in log.frames() if f.time_s >= params.from_s - 1e-6):
         if i % params.every:
             continue
         scene = scene_from_frame(log, frame, params)

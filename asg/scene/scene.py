@@ -178,7 +178,17 @@ def load_scene(path: str | Path) -> Scene:
         raise InputError(f"{p}: cannot be read ({exc.strerror}); check its permissions") from None
     except ValueError as exc:  # an integer of more digits than Python converts (its int_max_str_digits)
         raise InputError(f"{p}: a number is out of range ({str(exc).split(';')[0]}); fix the file") from None
-    return Scene.from_dict(data, str(p))
+    return _log_from(Scene.from_dict(data, str(p)), p.parent)
+
+
+def _log_from(scene: Scene, folder: Path) -> Scene:
+    """A relative ``log`` that names a log folder from the scene file's ``folder`` (as a run folder
+    writes its own log, ``../../log``) made absolute; any other value as written."""
+    from sumo_scenarios.log import META_NAME
+
+    if not scene.log or Path(scene.log).is_absolute() or not (folder / scene.log / META_NAME).is_file():
+        return scene
+    return replace(scene, log=str((folder / scene.log).resolve()))
 
 
 def _dumper():

@@ -50,6 +50,11 @@ class SpaceConfig:
     latency: LatencyConfig = field(default_factory=LatencyConfig)
     dropout: DropoutConfig = field(default_factory=DropoutConfig)
 
+    @property
+    def needs_past(self) -> bool:
+        """Does a space of ``kinds`` read the scene's past from its SUMO log (latency)?"""
+        return any(lookup("space", k).needs_past for k in self.kinds)
+
     def __post_init__(self) -> None:
         from . import spaces as _  # noqa: F401  (the registry)
 

@@ -60,6 +60,8 @@ class PerturbationSpace(ABC):
     """A registered perturbation space: physical slots and/or link dimensions."""
 
     registry_name: str = ""
+    #: the space reads the scene's past from its SUMO log (the source must keep one)
+    needs_past: bool = False
 
     def __init__(self, ctx: SpaceContext, cfg) -> None:
         self.ctx = ctx

@@ -35,6 +35,8 @@ class LatencyConfig:
 
 @register("space", "latency")
 class LatencySpace(PerturbationSpace):
+    needs_past = True
+
     def __init__(self, ctx: SpaceContext, cfg) -> None:
         super().__init__(ctx, cfg)
         self.history: History = scene_history(ctx.scene, 1_000, cfg.latency.max_delay_s)
