@@ -17,6 +17,7 @@ from sumo_scenarios.errors import InputError
 
 from . import commands
 from .executors.base import WorkerLost
+from .workflows import MAX_ROUNDS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -183,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = _add(sub, "harden", "iterated adversarial training: each round attacks the current weights on fresh training "
              "scenes, fine-tunes on them and evaluates (runs/harden/FUSION/)", commands.harden)
     p.add_argument("--fusion", required=True, help="the model to harden: attfuse, early, none or late")
-    p.add_argument("--rounds", type=_whole(1, 50, "--rounds"), required=True, help="rounds to run (resumable)")
+    p.add_argument("--rounds", type=_whole(1, MAX_ROUNDS, "--rounds"), required=True, help="rounds to run (resumable)")
     p.add_argument("--data", default=None, choices=("adversarial", "random", "normal"),
                    help="what a round trains on: adversarial (default), or a control at equal compute: random "
                         "(one plausible random perturbation a scene) or normal (the scenes unperturbed)")
@@ -247,6 +248,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fusion", default=None, help="targets table only (default attfuse)")
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="tables: a factory standing in for every model (as 'asg generate --detector')")
+    p.add_argument("--harden-rounds", type=_whole(1, MAX_ROUNDS, "--harden-rounds"), default=None,
+                   help="finetune table: also this many rounds of 'asg harden --fusion attfuse' with adversarial, "
+                        "random and normal scenes (the controls), a row a round (OUT/harden/DATA, resumable)")
     p.add_argument("--out", type=Path, default=Path("runs/bench-paper"))
     _executor_args(p)
     p.add_argument("--jobs", type=_whole(1, 64, "--jobs"), default=None, dest="workers", help=argparse.SUPPRESS)

@@ -371,6 +371,8 @@ def _bench_tables(args: argparse.Namespace) -> int:
     if args.budget is not None or args.fusion is not None:
         raise InputError("--budget and --fusion apply to the targets table; the paper's tables use "
                          "configs/generate.yaml and every model")
+    if args.harden_rounds and "finetune" not in names:
+        raise InputError("--harden-rounds adds rows to the finetune table; give --table finetune (or all)")
     if args.detector:
         from .generate import load_factory
 
@@ -378,7 +380,8 @@ def _bench_tables(args: argparse.Namespace) -> int:
     command = "asg " + " ".join(shlex.quote(a) for a in args.argv)
     with executor_from_args(args, args.scenes or 219) as executor:
         results = run_tables(names, TableRun(out=Path(args.out), scenes=args.scenes, executor=executor,
-                                             detector_factory=args.detector, command=command), log=console.print)
+                                             detector_factory=args.detector, command=command,
+                                             harden_rounds=args.harden_rounds or 0), log=console.print)
     for name, result in results.items():
         if args.json:
             print(json.dumps(result))
@@ -426,6 +429,8 @@ def bench_paper(args: argparse.Namespace) -> int:
 
     if args.table is not None:
         return _bench_tables(args)
+    if args.harden_rounds:
+        raise InputError("--harden-rounds adds rows to the finetune table; give --table finetune")
     if args.detector:
         raise InputError("--detector applies to --table runs; the targets table attacks the shipped --fusion")
     from .pipeline import GenerateConfig

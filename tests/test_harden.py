@@ -132,3 +132,28 @@ def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, 
     monkeypatch.setattr(h, "evaluate_round", real)
     card = harden("attfuse", 1, tmp_path / "h", config=TINY, detector_factory=ORACLE, log=_quiet)
     assert card["rounds"][1]["trained"]["steps"] == 2
+
+
+def test_the_finetune_table_gains_a_row_per_round_of_each_kind_of_data(tmp_path, data_root):
+    from asg.benchmarks.tables import TableRun, run_table
+
+    write_set(data_root, "heuristic", {"test": ["h0"]})
+    run = TableRun(out=tmp_path / "tables", scenes=1, detector_factory=ORACLE, harden_rounds=1,
+                   harden_config=replace(TINY, reattack=True))
+    rows = run_table("finetune", run, log=_quiet)["rows"]
+    added = [r for r in rows if r["model"].startswith("harden-")]
+    assert {(r["model"], r["set"]) for r in added} == {
+        (f"harden-{d}-r1", s) for d in ("adversarial", "random", "normal")
+        for s in ("normal-val", "challenging-val", "own-attack-val")}
+    for data in ("adversarial", "random", "normal"):  # each row is its run's card
+        card = json.loads((tmp_path / "tables" / "harden" / data / "card.json").read_text())
+        assert card["data"] == data
+        row = next(r for r in added if r["model"] == f"harden-{data}-r1" and r["set"] == "normal-val")
+        assert row["ap"] == {t: card["rounds"][1]["evaluation"]["normal-val"][t] for t in ("0.3", "0.5", "0.7")}
+    assert "harden-random-r1" in (tmp_path / "tables" / "finetune.md").read_text()
+
+
+def test_harden_rounds_need_the_finetune_table(capsys):
+    code, err = run(capsys, "bench", "paper", "--table", "main", "--harden-rounds", "1")
+    assert code == 2
+    assert_one_line_error(err, "--table finetune")

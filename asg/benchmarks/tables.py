@@ -44,6 +44,11 @@ class TableRun:
     detector_factory: str | None = None
     seed: int = 1
     command: str = "asg bench paper"
+    #: finetune table: also this many rounds of ``asg harden --fusion attfuse`` with each kind of
+    #: data (adversarial and the two controls), each a row a round (0: the paper's rows only)
+    harden_rounds: int = 0
+    #: their train.yaml ``harden`` block (None: configs/detectors/train.yaml's; ``data`` is set per run)
+    harden_config: object | None = None
 
 
 def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None] = print) -> dict[str, dict]:
@@ -96,7 +101,39 @@ def finetune_table(run: TableRun) -> tuple[list[dict], int]:
         ap = first_scenes_ap(own, run.scenes)
         rows.append({"model": model, "set": "own-attack-val", "scenes_from": set_name(model, "val"),
                      "ap": ap["challenging"], "frames": ap["scenes"], "paper": None})
-    return rows, min(r["frames"] for r in rows if r["set"] != "heuristic")
+    counted = min(r["frames"] for r in rows if r["set"] != "heuristic")
+    return rows + harden_rows(run), counted
+
+
+def harden_rows(run: TableRun) -> list[dict]:
+    """Beyond the paper: ``run.harden_rounds`` rounds of ``asg harden --fusion attfuse`` with
+    adversarial scenes and with the two controls at equal compute (random plausible perturbations,
+    unperturbed scenes), each into ``OUT/harden/DATA`` (resumable); a row per round and evaluation
+    set, named ``harden-DATA-rK`` (``own-attack-val``: the round's weights attacked again on normal-val).
+    With ``run.scenes``, each round draws that many scenes."""
+    if not run.harden_rounds:
+        return []
+    from dataclasses import replace
+
+    from ..workflows.harden import DATA_KINDS, harden, load_harden_config
+
+    base = run.harden_config or load_harden_config()
+    if run.scenes:
+        base = replace(base, scenes_per_round=run.scenes)
+    rows = []
+    for data in DATA_KINDS:
+        card = harden("attfuse", run.harden_rounds, run.out / "harden" / data, config=replace(base, data=data),
+                      executor=run.executor, detector_factory=run.detector_factory, log=lambda *_: None)
+        for row in card["rounds"][1:]:
+            model = f"harden-{data}-r{row['round']}"
+            for set_, ev in row["evaluation"].items():
+                key = "challenging-val" if set_.startswith("challenging-") else set_
+                rows.append({"model": model, "set": key, "scenes_from": set_, "frames": ev["frames"],
+                             "ap": {t: ev[t] for t in THRESHOLDS}, "paper": None})
+            if row.get("reattack"):
+                rows.append({"model": model, "set": "own-attack-val", "scenes_from": f"harden/{data}/round-{row['round']}/reattack", "frames": row["reattack"]["frames"],
+                             "ap": row["reattack"]["challenging"], "paper": None})
+    return rows
 
 
 def transfer_table(run: TableRun) -> tuple[list[dict], int]:

@@ -37,6 +37,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
 
+from . import MAX_ROUNDS
 from ..perception.finetune import claim, fit_chunk, mixed_sources
 from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR
@@ -50,8 +51,6 @@ DATA_KINDS = ("adversarial", "random", "normal")
 NOISY_SET = "normal-val-noisy"
 #: the seed of the attacks and of the noise (as the challenging sets')
 ATTACK_SEED = 1
-#: at most this many rounds in one run
-MAX_ROUNDS = 50
 
 
 @dataclass(frozen=True)
