@@ -185,7 +185,7 @@ def dataset_build(args: argparse.Namespace) -> int:
 
 
 def _build_challenging(args: argparse.Namespace) -> int:
-    from .challenging import build_challenging
+    from .workflows.challenging import build_challenging
     from .generate_cmd import executor_from_args
 
     if not args.fusion or not args.split:
@@ -203,8 +203,8 @@ def _build_challenging(args: argparse.Namespace) -> int:
 
 
 def train(args: argparse.Namespace) -> int:
-    from .perception.cards import card_validation
-    from .perception.train import train as run
+    from .workflows.cards import card_validation
+    from .workflows.train import train as run
     from .perception.train_config import weights_for
 
     if args.validate_only and (args.init_from or args.iou_branch):
@@ -284,7 +284,7 @@ def harden(args: argparse.Namespace) -> int:
 
 def finetune(args: argparse.Namespace) -> int:
     from .generate_cmd import executor_from_args
-    from .perception.finetune import finetune as run
+    from .workflows.finetune import finetune as run
     from .perception.train_config import weights_for
 
     weights_for(args.fusion)  # one line for an unknown fusion
@@ -325,7 +325,7 @@ def finetune(args: argparse.Namespace) -> int:
 
 
 def evaluate(args: argparse.Namespace) -> int:
-    from .perception.evaluate import evaluate as run
+    from .workflows.evaluate import evaluate as run
     from .perception import detector_names
 
     if args.fusion not in detector_names():

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from asg.challenging import build_challenging
+from asg.workflows.challenging import build_challenging
 from asg.cli import main
 from asg.scene import Scene
 

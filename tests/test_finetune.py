@@ -8,8 +8,8 @@ from dataclasses import replace
 import pytest
 import torch
 
-from asg.challenging import build_challenging
-from asg.perception.finetune import finetune
+from asg.workflows.challenging import build_challenging
+from asg.workflows.finetune import finetune
 from asg.perception.train_config import load_finetune_config
 from asg.perception.weights_io import WEIGHTS_DIR
 from sumo_scenarios.errors import InputError

@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import pytest
 
-from asg.challenging import build_challenging
+from asg.workflows.challenging import build_challenging
 from asg.scene.recheck import recheck
 from asg.workflows.harden import harden, load_harden_config
 from sumo_scenarios.errors import InputError

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from asg.perception.train import train
+from asg.workflows.train import train
 from asg.perception.train_config import TrainConfig
 from asg.scene.from_log import ExtractParams, extract_scenes
 from asg.scene.neighbours import with_nearest_collaborators
@@ -112,7 +112,7 @@ def test_init_from_single_weights(tmp_path):
     from dataclasses import replace
 
     from asg.perception.model import AttFuse, PointPillars
-    from asg.perception.train import init_from_weights
+    from asg.workflows.train import init_from_weights
     from asg.perception.weights_io import save_state
     from sumo_scenarios.errors import InputError
 
@@ -171,7 +171,7 @@ def test_train_init_from_starts_a_new_sequence(sumo_log, tmp_path):
 
 def test_resumed_onecycle_follows_the_configured_length():
     """A chunk resumed with another configured length anneals on that length (peak and end move)."""
-    from asg.perception.train import _keep_configured_length, _scheduler
+    from asg.workflows.train import _keep_configured_length, _scheduler
 
     def lrs(sched, n):
         out = []
@@ -244,11 +244,11 @@ def test_branch_fit_changes_the_branches_alone_and_resumes(sumo_log, tmp_path, m
     def crash(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("asg.perception.train.fit_branches", crash)
+    monkeypatch.setattr("asg.workflows.train.fit_branches", crash)
     with pytest.raises(KeyboardInterrupt):
         train("early", out_dir=tmp_path / "run-b", weights_dir=weights_dir("b"), **kw)
     assert (tmp_path / "run-b" / CACHE_NAME).is_file()
-    monkeypatch.setattr("asg.perception.train.fit_branches", real_fit)
+    monkeypatch.setattr("asg.workflows.train.fit_branches", real_fit)
     collected = []
     monkeypatch.setattr("asg.perception.branch_fit.collect", lambda *a, **k: collected.append(1))
     resumed = torch.load(train("early", out_dir=tmp_path / "run-b", weights_dir=tmp_path / "weights-b", **kw),

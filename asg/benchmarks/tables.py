@@ -87,7 +87,7 @@ def main_table(run: TableRun) -> tuple[list[dict], int]:
 def finetune_table(run: TableRun) -> tuple[list[dict], int]:
     """Table II: AttFuse and AttFuse-FT on normal-val, heuristic and challenging-val (the val split
     attacked against AttFuse) and, beyond the paper, each under its own attack on normal-val."""
-    from ..challenging import build_challenging, first_scenes_ap, set_name
+    from ..workflows.challenging import build_challenging, first_scenes_ap, set_name
 
     _challenging("attfuse", "val", run)
     rows = []
@@ -248,14 +248,14 @@ _BUILDERS = {"main": main_table, "finetune": finetune_table, "transfer": transfe
 def _challenging(model: str, split: str, run: TableRun) -> dict:
     """{"scenes", "normal", "challenging"}: the model's challenging set of ``split`` (built or
     resumed), pooled over its first ``run.scenes`` scenes."""
-    from ..challenging import build_challenging, first_scenes_ap
+    from ..workflows.challenging import build_challenging, first_scenes_ap
 
     out = build_challenging(model, split, run.executor, count=run.scenes, detector_factory=run.detector_factory)
     return first_scenes_ap(out, run.scenes)
 
 
 def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
-    from ..perception.evaluate import evaluate
+    from ..workflows.evaluate import evaluate
 
     res = evaluate(model, set_name, limit=run.scenes, executor=run.executor, detector_factory=run.detector_factory)
     return {"ap": {k: round(v, 6) for k, v in res["ap"].items()}, "frames": res["frames"]}

@@ -21,7 +21,7 @@ def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threa
     from ..perception.config import load_detector_config
     from ..perception.data import make_sample
     from ..perception.model import AttFuse
-    from ..perception.train import BRANCH_KEYS, PhaseTimer, _Batches, train_step
+    from ..workflows.train import BRANCH_KEYS, PhaseTimer, _Batches, train_step
     from ..perception.weights_io import WEIGHTS_DIR, load_state
     from ..sensors import load_lidar_spec
 

@@ -38,7 +38,7 @@ from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
 
 from . import MAX_ROUNDS
-from ..perception.finetune import claim, fit_chunk, mixed_sources
+from .finetune import claim, fit_chunk, mixed_sources
 from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR
 from ..scene import Scene, load_scene
@@ -255,8 +255,8 @@ def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, e
                    log: Callable[[str], None]) -> dict:
     """{set: {"0.3", "0.5", "0.7": AP, "frames": N}} of ``weights`` on the fixed evaluation sets,
     each result cached in ``cache``."""
-    from ..challenging import own_val_set
-    from ..perception.evaluate import evaluate
+    from .challenging import own_val_set
+    from .evaluate import evaluate
 
     own_val = own_val_set(fusion, executor, log)
     sets = {s: s for s in (*cfg.eval_sets, own_val)}
@@ -289,7 +289,7 @@ def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detec
                    log: Callable[[str], None]) -> dict:
     """The paper's protocol on normal-val against ``weights`` (None: the original, whose own attack
     is challenging-F-val): {"frames", "normal", "challenging"} AP by threshold."""
-    from ..challenging import build_challenging, set_name
+    from .challenging import build_challenging, set_name
     from ..datasets import data_root
 
     if weights is None:

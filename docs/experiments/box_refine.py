@@ -31,7 +31,7 @@ from asg.perception.branch_boxes import refine_boxes, refinement_residuals  # no
 from asg.perception.nms import select_boxes  # noqa: E402
 from asg.perception.data import augment, in_range  # noqa: E402
 from asg.perception.head import REFINE_SCALE  # noqa: E402
-from asg.perception.train import _Batches, render_samples  # noqa: E402
+from asg.workflows.train import _Batches, render_samples  # noqa: E402
 from asg.perception.weights_io import weights_path  # noqa: E402
 
 PATCH = 3

@@ -19,9 +19,9 @@ import torch
 from asg.datasets import scenes_of
 from asg.perception.config import load_detector_config
 from asg.perception.data import make_sample
-from asg.perception.finetune import mixed_sources
+from asg.workflows.finetune import mixed_sources
 from asg.perception.model import AttFuse
-from asg.perception.train import BRANCH_KEYS, _Batches, _scheduler, train_step
+from asg.workflows.train import BRANCH_KEYS, _Batches, _scheduler, train_step
 from asg.perception.weights_io import WEIGHTS_DIR, load_state
 from asg.scene import load_scene
 from asg.sensors import load_lidar_spec

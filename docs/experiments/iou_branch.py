@@ -30,7 +30,7 @@ from asg.perception.config import load_detector_config
 from asg.perception.data import Sample, augment, in_range
 from asg.perception.inference import fold_batch_norms
 from asg.perception.model import AttFuse, PointPillars
-from asg.perception.train import BRANCH_KEYS, _Batches, render_samples
+from asg.workflows.train import BRANCH_KEYS, _Batches, render_samples
 from asg.perception.weights_io import load_state, weights_path
 from asg.sensors import load_lidar_spec, simulate_frame
 

@@ -31,7 +31,10 @@ from asg.perception.config import load_detector_config
 from asg.perception.data import make_sample
 from asg.perception.head import detection_loss
 from asg.perception.model import AttFuse
-from asg.perception.train import BRANCH_KEYS, _Batches, _branch_losses
+try:  # asg.perception.train before the workflows layer, asg.workflows.train since
+    from asg.workflows.train import BRANCH_KEYS, _Batches, _branch_losses
+except ImportError:
+    from asg.perception.train import BRANCH_KEYS, _Batches, _branch_losses
 from asg.perception.weights_io import WEIGHTS_DIR, load_state
 from asg.sensors import load_lidar_spec
 steps = int(sys.argv[1])

@@ -28,17 +28,17 @@ from sumo_scenarios.paths import runs_dir
 
 from ..datasets import iter_frames
 from ..sensors import load_lidar_spec
-from .boxes import assign_targets
-from .branch_boxes import branch_targets
-from .branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
-from .config import load_detector_config
-from .data import Sample, augment, make_sample
-from .head import detection_loss, iou_loss, refine_loss
-from .model import AttFuse, PointPillars
+from ..perception.boxes import assign_targets
+from ..perception.branch_boxes import branch_targets
+from ..perception.branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
+from ..perception.config import load_detector_config
+from ..perception.data import Sample, augment, make_sample
+from ..perception.head import detection_loss, iou_loss, refine_loss
+from ..perception.model import AttFuse, PointPillars
 from .cards import card_validation, init_record, previous_training, write_card
-from .checkpoint import load_checkpoint, save_checkpoint
-from .train_config import TrainConfig, load_branch_config, load_train_config, weights_for  # noqa: F401  (asg train's API)
-from .weights_io import WEIGHTS_DIR
+from ..perception.checkpoint import load_checkpoint, save_checkpoint
+from ..perception.train_config import TrainConfig, load_branch_config, load_train_config, weights_for  # noqa: F401  (asg train's API)
+from ..perception.weights_io import WEIGHTS_DIR
 
 def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None) -> list[Sample]:
     spec = load_lidar_spec("v2xp")
@@ -189,7 +189,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         model.train()
         log(f"starting {name} from the {init_from} weights ({previous['init_from']['steps']} steps)")
     elif previous.get("chunks") and state is None:
-        from .weights_io import load_state
+        from ..perception.weights_io import load_state
 
         load_state(model, weights_dir / f"{name}.pt", allow_missing=BRANCH_KEYS)
         model.train()
@@ -273,7 +273,7 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     back with the model card (see :mod:`.branch_fit`); ``progress(view, views, nan)`` during the
     collection. The candidates' cache in ``out_dir`` (runs/train/NAME/) makes an interrupted
     fit resume after the collection; it is removed once the weights are written."""
-    from .weights_io import load_state
+    from ..perception.weights_io import load_state
 
     fcfg = branch_config or load_branch_config()
     cfg = detector_config or load_detector_config()
@@ -318,7 +318,7 @@ def init_from_weights(model: torch.nn.Module, path: Path) -> None:
     starts as (nearly) a plain average of the agents' features: v = identity, k scaled by 0.1 so
     the first attention is close to uniform while q and k still get gradients.
     """
-    from .weights_io import load_state
+    from ..perception.weights_io import load_state
 
     base = PointPillars(model.cfg)
     load_state(base, path, allow_missing=BRANCH_KEYS)  # one clear error for a missing, corrupt or mismatched file

@@ -10,8 +10,8 @@ from typing import Callable
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
-from .train_config import FUSION_TO_WEIGHTS
-from .weights_io import WEIGHTS_DIR
+from ..perception.train_config import FUSION_TO_WEIGHTS
+from ..perception.weights_io import WEIGHTS_DIR
 
 
 def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: dict, threads: int, *,

@@ -33,13 +33,13 @@ from sumo_scenarios.paths import runs_dir
 
 from ..datasets import iter_frames
 from ..sensors import load_lidar_spec
-from .checkpoint import load_checkpoint
-from .config import load_detector_config
-from .data import make_sample
-from .model import AttFuse, PointPillars
+from ..perception.checkpoint import load_checkpoint
+from ..perception.config import load_detector_config
+from ..perception.data import make_sample
+from ..perception.model import AttFuse, PointPillars
 from .train import BRANCH_KEYS, Steps, _Batches, _scheduler, draw_examples, run_steps
-from .train_config import NETWORK_OF_WEIGHTS, FinetuneConfig, load_finetune_config, weights_for
-from .weights_io import WEIGHTS_DIR, load_state
+from ..perception.train_config import NETWORK_OF_WEIGHTS, FinetuneConfig, load_finetune_config, weights_for
+from ..perception.weights_io import WEIGHTS_DIR, load_state
 
 #: the file in OUT that records the settings of the fine-tuning run
 RUN_RECORD = "run.json"
@@ -80,7 +80,7 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
     ``weights``: start from this file instead of the shipped weights. ``executor``: where the
     evaluations and the re-attack run (default this process). ``stages``: a subset of train,
     evaluate, reattack (the later ones need the trained weights)."""
-    from ..challenging import challenging_scenes
+    from .challenging import challenging_scenes
 
     name = weights_for(fusion)
     fcfg = config or load_finetune_config()
@@ -136,7 +136,7 @@ def claim(out: Path, settings: dict, force: bool) -> None:
 
 def training_sources(name: str, on: str, fcfg: FinetuneConfig, log: Callable[[str], None]) -> MixedBatches:
     """The challenging set and the train split of each ``mix_with`` set, rendered, as mixed batches."""
-    from ..challenging import challenging_scenes
+    from .challenging import challenging_scenes
 
     return mixed_sources(name, {on: list(challenging_scenes(on))}, fcfg, log)
 
@@ -212,7 +212,7 @@ def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, fcfg: Fine
                           executor, log: Callable[[str], None]) -> dict:
     """{set: {"before": AP, "after": AP, "frames": N}} on each eval set and the original model's
     challenging val set (built if missing); each result cached in ``cache``."""
-    from ..challenging import own_val_set
+    from .challenging import own_val_set
     from .evaluate import evaluate
 
     own_val = own_val_set(fusion, executor, log)
@@ -238,7 +238,7 @@ def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, fcfg: Fine
 def reattack(fusion: str, ft_weights: Path, out: Path, executor, log: Callable[[str], None]) -> dict:
     """The paper's protocol on normal-val against the fine-tuned weights (a challenging set in
     ``out``), beside the original model under its own attack (challenging-FUSION-val)."""
-    from ..challenging import build_challenging, set_name
+    from .challenging import build_challenging, set_name
     from ..datasets import data_root
 
     log("re-attacking the fine-tuned model on normal-val ...")

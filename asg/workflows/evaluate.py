@@ -10,8 +10,8 @@ from ..datasets import SETS, scenes_of  # noqa: F401  (scenes_of, SETS: also thi
 from ..objective.ap import ap_at
 from ..scene import Scene, load_scene
 from ..sensors import LidarSpec, load_lidar_spec, simulate_frame
-from .data import Sample
-from .fusion import V2XDetector, build_detector
+from ..perception.data import Sample
+from ..perception.fusion import V2XDetector, build_detector
 
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "frames": N, "without_collaborators": M} with ground truth =

@@ -19,8 +19,8 @@ from pathlib import Path
 from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
 
-from .datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
-from .scene import load_scene
+from ..datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
+from ..scene import load_scene
 
 #: the split of the normal set each challenging set is generated from
 SPLITS = ("train", "val")
@@ -39,10 +39,10 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     ``count``: only the first scenes (a quick build); ``weights_file``: attack these weights of
     ``fusion`` instead of the shipped ones (then give ``out``: the set is not the shipped model's).
     Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT)."""
-    from .generate import SceneSource, generate, load_scenes, prepare_run, run_settings
-    from .io.run import load_done
-    from .pipeline import load_generate_config
-    from .perception import detector_names
+    from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+    from ..io.run import load_done
+    from ..pipeline import load_generate_config
+    from ..perception import detector_names
 
     if split not in SPLITS:
         raise InputError(f"--split must be one of {', '.join(SPLITS)}, got {split!r}")
@@ -90,7 +90,7 @@ def own_val_set(fusion: str, executor=None, log=print) -> str:
 def first_scenes_ap(out: Path, count: int | None) -> dict[str, dict[str, float]]:
     """Pooled AP (normal and challenging) over the first ``count`` scenes of a built challenging
     set (all when None), from the detections its run folder stored."""
-    from .io.run import load_detections, pooled_ap
+    from ..io.run import load_detections, pooled_ap
 
     index = json.loads((out / "index.json").read_text())
     ids = [i for ids in index["splits"].values() for i in ids][:count]
