@@ -92,7 +92,7 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
     each scene's final clouds and pictures too (off for data sets of challenging scenes)."""
     from .io.run import load_done, previous_wall_s, write_summary
 
-    _refuse_duplicates(scenes)
+    check_scenes(cfg, scenes)
     for s in scenes:
         inside(out / "scenes", out / "scenes" / s.scene_id)
     executor = executor or LocalExecutor(workers=1, threads=1)
@@ -284,6 +284,17 @@ def _first_difference(a, b, where: str = "") -> str | None:
                 return d
         return None
     return None if a == b else f"{where}: {a!r} -> {b!r}"
+
+
+def check_scenes(cfg: GenerateConfig, scenes: Sequence[Scene]) -> None:
+    """What a run refuses before computing any scene (InputError): two scenes of one id, a scene
+    whose log cannot give the past a space reads (latency)."""
+    _refuse_duplicates(scenes)
+    if cfg.space.needs_past:
+        from .scene.history import check_past
+
+        for s in scenes:
+            check_past(s, cfg.space.latency.max_delay_s)
 
 
 # ---- where scenes come from ----------------------------------------------------------------------

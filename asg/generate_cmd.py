@@ -10,7 +10,7 @@ from rich.table import Table
 from sumo_scenarios.errors import InputError
 
 from .executors import Executor, build_executor, default_workers
-from .generate import LOG_DIR, SceneSource, WORK_DIR, generate, load_scenes, prepare_run, run_settings
+from .generate import LOG_DIR, SceneSource, WORK_DIR, check_scenes, generate, load_scenes, prepare_run, run_settings
 from .pipeline import load_generate_config
 from .progress import console, progress_bar, stdout
 
@@ -65,6 +65,7 @@ def run_generate(args: argparse.Namespace) -> int:
     try:
         scenes = load_scenes(source, count, args.seed, out / WORK_DIR,
                              log_dir=out / LOG_DIR if cfg.space.needs_past else None)
+        check_scenes(cfg, scenes)
     except BaseException:
         if fresh:  # bad input: leave no trace of the folder this run created
             shutil.rmtree(out, ignore_errors=True)

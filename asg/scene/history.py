@@ -37,23 +37,39 @@ class History:
 
 def scene_history(scene: Scene, steps: int, max_delay_s: float) -> History:
     """The ``steps`` recorded instants before the scene's (InputError if the log cannot give them)."""
+    check_past(scene, max_delay_s)
     folder = _log_folder(scene, max_delay_s)
     period_s, first_s = log_period_s(folder)
-    if period_s * steps > max_delay_s + 1e-9:
-        steps = int(math.floor(max_delay_s / period_s + 1e-9))
-    if steps < 1:
-        raise InputError(f"scene {scene.scene_id}: its log records every {period_s:g} s, longer than the largest "
-                         f"delay ({max_delay_s:g} s); record the log more often (asg simulate --record-period)")
+    steps = min(steps, int(math.floor(max_delay_s / period_s + 1e-9)))
+    _check_reach(scene, steps * period_s, first_s)
     times = [round(scene.time_s - k * period_s, 3) for k in range(steps + 1)]
-    if times[-1] < first_s - 1e-6:
-        raise InputError(f"scene {scene.scene_id} at {scene.time_s:g} s: a delay of {steps * period_s:g} s reaches "
-                         f"before its log's start ({first_s:g} s); lower space.latency.max_delay_s or pick a later frame")
     found = agents_at(folder, times)
     missing = [t for t in times if t not in found]
     if missing:
         raise InputError(f"scene {scene.scene_id}: its log has no frame at {missing[0]:g} s; is it the scene's log?")
     _check_same_traffic(scene, found[times[0]])
     return History(period_s, tuple(tuple(found[t]) for t in times[1:]))
+
+
+def check_past(scene: Scene, max_delay_s: float) -> None:
+    """Can the scene's log give its past at delays up to ``max_delay_s``? InputError if it names
+    none (nor a data set's) or records less often than that. Reads the log's metadata only: the
+    check a run makes of every scene before computing any."""
+    if scene.log and (Path(scene.log) / META_NAME).is_file():
+        period_s, first_s = log_period_s(scene.log)
+        if period_s > max_delay_s + 1e-9:
+            raise InputError(f"scene {scene.scene_id}: its log records every {period_s:g} s, longer than the largest "
+                             f"delay ({max_delay_s:g} s); record the log more often (asg simulate --record-period)")
+        _check_reach(scene, math.floor(max_delay_s / period_s + 1e-9) * period_s, first_s)
+    elif _data_set_request(scene, max_delay_s) is None:
+        raise InputError(f"scene {scene.scene_id} names no traffic log to take earlier frames from "
+                         f"(log: {scene.log!r}); the latency space needs the scene's SUMO log folder")
+
+
+def _check_reach(scene: Scene, reach_s: float, first_s: float) -> None:
+    if scene.time_s - reach_s < first_s - 1e-6:
+        raise InputError(f"scene {scene.scene_id} at {scene.time_s:g} s: a delay of {reach_s:g} s reaches "
+                         f"before its log's start ({first_s:g} s); lower space.latency.max_delay_s or pick a later frame")
 
 
 def _check_same_traffic(scene: Scene, now: list[Agent]) -> None:
@@ -69,9 +85,7 @@ def _log_folder(scene: Scene, max_delay_s: float) -> Path:
     if scene.log and (Path(scene.log) / META_NAME).is_file():
         return Path(scene.log)
     request = _data_set_request(scene, max_delay_s)
-    if request is None:
-        raise InputError(f"scene {scene.scene_id} names no traffic log to take earlier frames from "
-                         f"(log: {scene.log!r}); the latency space needs the scene's SUMO log folder")
+    assert request is not None, "check_past refuses a scene without a log"
     import fcntl
 
     from sumo_scenarios.simulate import simulate_sumo
