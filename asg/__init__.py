@@ -1,3 +1,11 @@
 """asg: adversarial scene generation for cooperative V2X LiDAR perception (V2XP-ASG on SUMO)."""
+import os as _os
 
 __version__ = "0.1.0"
+
+# OpenMP threads (torch's) that wait for work sleep instead of spinning: on a shared machine (CI, a
+# laptop, a cluster node, asg's own worker processes) spinning threads take the cores the others
+# need, and inference beside a busy process ran 2.5-3.5x slower (docs/results/speed.md). Read by the
+# OpenMP runtime when torch loads, so it is set before any asg module imports torch; a value the
+# user set (even empty: the runtime's default) is kept.
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

@@ -515,3 +515,19 @@ def test_a_rerun_notices_edited_scenes_and_takes_the_folder_however_spelled(caps
     code, err = run(capsys, *argv)
     assert code == 2
     assert_one_line_error(err, "other settings")
+
+
+def test_openmp_threads_wait_passively_unless_the_user_says_otherwise():
+    """asg sets OMP_WAIT_POLICY=PASSIVE before torch loads (spinning threads starve a shared
+    machine: docs/results/speed.md), and keeps a value the user set."""
+    import os
+    import subprocess
+    import sys
+
+    probe = "import asg.cli, os, torch; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    assert subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
+                          check=True).stdout.strip() == "PASSIVE"
+    env["OMP_WAIT_POLICY"] = "ACTIVE"
+    assert subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
+                          check=True).stdout.strip() == "ACTIVE"
