@@ -84,6 +84,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, default=None, help="towns yaml (default configs/towns.yaml)")
     p.add_argument("--out", type=Path, default=None, help="folder for the nets (default nets/)")
     p.add_argument("--only", nargs="*", default=None, help="build only these towns")
+    p = _add(tsub, "import", "make a town of your own map (OpenDRIVE .xodr, OpenStreetMap .osm, SUMO .net.xml) "
+             "with SUMO's netconvert and polyconvert", commands.towns_import)
+    p.add_argument("map", type=Path, help="the map file")
+    p.add_argument("--name", required=True, help="the town's name (then --town NAME in every command)")
+    p.add_argument("--force", action="store_true", help="replace an imported town of that name")
     p = _add(tsub, "list", "print name, area, lanes, junctions and buildings of each town", commands.towns_list)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--dir", type=Path, default=None, help="folder of nets (default nets/)")

@@ -38,17 +38,29 @@ def towns_build(args: argparse.Namespace) -> int:
     return 0
 
 
+def towns_import(args: argparse.Namespace) -> int:
+    from sumo_scenarios.town_import import import_town
+
+    net = import_town(args.map, args.name, force=args.force)
+    info = towns_mod.town_info(net)
+    console.print(f"imported '{info.name}' into {net.parent}: {info.lane_count} lanes, {info.junctions} junctions, "
+                  f"{info.buildings} buildings; use --town {info.name}")
+    return 0
+
+
 def towns_list(args: argparse.Namespace) -> int:
     infos = [towns_mod.town_info(p) for p in towns_mod.list_towns(args.dir)]
     if args.json:
         print(json.dumps([asdict(i) for i in infos], indent=2))
         return 0
     table = Table(title="SUMO towns")
-    for col in ("name", "area km²", "lanes/edge", "lanes", "junctions", "signals", "buildings"):
-        table.add_column(col, justify="left" if col == "name" else "right", no_wrap=True)
+    for col in ("name", "area km²", "lanes/edge", "lanes", "junctions", "signals", "buildings", "where"):
+        table.add_column(col, justify="left" if col in ("name", "where") else "right", no_wrap=True)
+    bundled = nets_dir().resolve()
     for i in infos:
+        where = "bundled" if Path(i.net).resolve().parent == bundled else "imported"
         table.add_row(i.name, f"{i.area_km2:.3f}", f"{i.lanes_min}-{i.lanes_max}", str(i.lane_count),
-                      str(i.junctions), str(i.traffic_lights), str(i.buildings))
+                      str(i.junctions), str(i.traffic_lights), str(i.buildings), where)
     stdout.print(table)
     return 0
 

@@ -2,7 +2,9 @@
 
 In a checkout (or an editable install) they sit beside the packages. An installed wheel carries
 them as data files under ``PREFIX/share/asg/`` (pyproject.toml's data-files), and its outputs go
-to ``./runs`` of the working folder. ``ASG_HOME`` overrides the data root.
+to ``./runs`` of the working folder. The user's own towns (``asg towns import``) live in
+``ASG_HOME/towns`` (``ASG_HOME`` when set, else the platform's user data folder), never inside the
+package or the checkout.
 """
 from __future__ import annotations
 
@@ -27,9 +29,6 @@ def _installed_roots() -> list[Path]:
 
 def project_root() -> Path:
     """The folder holding ``configs/`` and ``nets/``."""
-    env = os.environ.get("ASG_HOME")
-    if env:
-        return Path(env)
     checkout = _checkout_root()
     if checkout is not None:
         return checkout
@@ -48,6 +47,22 @@ def runs_dir() -> Path:
 
 def nets_dir() -> Path:
     return project_root() / "nets"
+
+
+def user_home() -> Path:
+    """The user's asg folder: ``ASG_HOME`` when set, else the platform's user data folder
+    (``~/.local/share/asg`` on Linux)."""
+    env = os.environ.get("ASG_HOME")
+    if env:
+        return Path(env)
+    import platformdirs
+
+    return Path(platformdirs.user_data_dir("asg", appauthor=False))
+
+
+def user_towns_dir() -> Path:
+    """Where ``asg towns import`` writes the user's towns (``NAME.net.xml`` + ``NAME.poly.xml``)."""
+    return user_home() / "towns"
 
 
 def configs_dir() -> Path:

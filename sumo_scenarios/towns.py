@@ -2,7 +2,8 @@
 
 A town is ``nets/NAME.net.xml`` plus ``nets/NAME.poly.xml`` (buildings). Generated towns come from
 netgenerate (grid, spider, random); hand-written ones from plain XML in ``nets/plain/`` through
-netconvert.
+netconvert. A user's own maps become towns of the same form in the user's towns folder
+(``asg towns import``, sumo_scenarios.town_import), found by name after the bundled ones.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from .atomic import atomic_path
 from .buildings import Building, BuildingParams, generate_buildings, read_buildings, write_buildings
 from .errors import InputError
 from .lanes import LaneMap, parse_net_root
-from .paths import configs_dir, nets_dir
+from .paths import configs_dir, nets_dir, user_towns_dir
 from .strict import load_dataclass
 from . import sumo_tools
 
@@ -125,8 +126,13 @@ def town_info(net_path: Path) -> TownInfo:
 
 
 def list_towns(directory: Path | None = None) -> list[Path]:
-    d = directory or nets_dir()
-    return sorted(d.glob("*.net.xml"))
+    """The nets of ``directory``, or the bundled towns then the user's imported ones (a bundled
+    name first: an import never takes it)."""
+    if directory is not None:
+        return sorted(Path(directory).glob("*.net.xml"))
+    bundled = sorted(nets_dir().glob("*.net.xml"))
+    names = {p.name for p in bundled}
+    return bundled + [p for p in sorted(user_towns_dir().glob("*.net.xml")) if p.name not in names]
 
 
 @dataclass(frozen=True)
@@ -148,11 +154,11 @@ def resolve_net(town: str | None = None, net: str | Path | None = None) -> tuple
         p = Path(net)
         parse_net_root(p)
         return p.name.replace(".net.xml", "").replace(".xml", ""), p
-    p = nets_dir() / f"{town}.net.xml"
-    if not p.is_file() or str(town) not in {q.name.replace(".net.xml", "") for q in list_towns()}:
-        known = ", ".join(q.name.replace(".net.xml", "") for q in list_towns()) or "none (run 'asg towns build')"
-        raise InputError(f"unknown town '{town}'; known towns: {known}")
-    return str(town), p
+    found = {q.name.replace(".net.xml", ""): q for q in list_towns()}
+    if str(town) not in found:  # a name, never a path
+        known = ", ".join(found) or "none (run 'asg towns build')"
+        raise InputError(f"unknown town '{town}'; known towns: {known} (your own maps: 'asg towns import')")
+    return str(town), found[str(town)]
 
 
 def demand_scale(town: str | None) -> float:

@@ -1,10 +1,15 @@
 """Shared fixtures: tiny hand-built maps, and simulated logs made once per test session."""
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+# the user's asg folder (imported towns) of this test session: never the real one
+os.environ["ASG_HOME"] = tempfile.mkdtemp(prefix="asg-home-")
 
 from sumo_scenarios.lanes import Junction, Lane, LaneMap
 

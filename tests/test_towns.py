@@ -67,3 +67,116 @@ def test_lane_less_net_is_refused(tmp_path):
     net.write_text('<net version="1.20"><location netOffset="0,0" convBoundary="0,0,1,1"/></net>')
     with pytest.raises(InputError, match="no lanes"):
         LaneMap.from_sumo_net(net)
+
+
+# ---- asg towns import ------------------------------------------------------------------------
+MINI_OSM = """<?xml version="1.0" encoding="UTF-8"?>
+<osm version="0.6" generator="hand">
+  <bounds minlat="48.1000" minlon="11.5000" maxlat="48.1040" maxlon="11.5060"/>
+  <node id="1" lat="48.1000" lon="11.5000"/><node id="2" lat="48.1020" lon="11.5000"/>
+  <node id="3" lat="48.1040" lon="11.5000"/><node id="4" lat="48.1020" lon="11.5030"/>
+  <node id="5" lat="48.1020" lon="11.5060"/><node id="6" lat="48.1020" lon="11.4970"/>
+  <node id="11" lat="48.1023" lon="11.5005"/><node id="12" lat="48.1023" lon="11.5012"/>
+  <node id="13" lat="48.1028" lon="11.5012"/><node id="14" lat="48.1028" lon="11.5005"/>
+  <node id="21" lat="48.1013" lon="11.5005"/><node id="22" lat="48.1013" lon="11.5015"/>
+  <node id="23" lat="48.1017" lon="11.5015"/><node id="24" lat="48.1017" lon="11.5005"/>
+  <way id="100"><nd ref="1"/><nd ref="2"/><nd ref="3"/><tag k="highway" v="secondary"/><tag k="lanes" v="2"/></way>
+  <way id="101"><nd ref="6"/><nd ref="2"/><nd ref="4"/><nd ref="5"/><tag k="highway" v="residential"/></way>
+  <way id="200"><nd ref="11"/><nd ref="12"/><nd ref="13"/><nd ref="14"/><nd ref="11"/><tag k="building" v="yes"/><tag k="height" v="21.5"/></way>
+  <way id="201"><nd ref="21"/><nd ref="22"/><nd ref="23"/><nd ref="24"/><nd ref="21"/><tag k="building" v="apartments"/><tag k="building:levels" v="4"/></way>
+</osm>
+"""
+
+
+@pytest.fixture
+def user_home(tmp_path, monkeypatch):
+    home = tmp_path / "home"
+    monkeypatch.setenv("ASG_HOME", str(home))
+    return home
+
+
+def _cli(capsys, *argv):
+    from asg.cli import main
+
+    code = main(list(argv))
+    return code, capsys.readouterr()
+
+
+def test_an_opendrive_town_works_like_a_bundled_one(capsys, tmp_path, user_home):
+    """An OpenDRIVE file (netconvert's of a bundled town) becomes a town: listed, simulated, generated."""
+    import json
+
+    from sumo_scenarios import sumo_tools
+    from asg.scene.from_log import ExtractParams, extract_scenes
+
+    xodr = tmp_path / "grid.xodr"
+    sumo_tools.run([sumo_tools.binary("netconvert"), "--sumo-net-file", str(towns.nets_dir() / "grid_small.net.xml"),
+                    "--opendrive-output", str(xodr)], "netconvert")
+    code, out = _cli(capsys, "towns", "import", str(xodr), "--name", "my_xodr")
+    assert code == 0, out.err
+    assert (user_home / "towns" / "my_xodr.net.xml").is_file() and (user_home / "towns" / "my_xodr.poly.xml").is_file()
+    code, out = _cli(capsys, "towns", "list", "--json")
+    listed = {t["name"]: t for t in json.loads(out.out)}
+    assert set(BUNDLED) < set(listed) and listed["my_xodr"]["buildings"] > 0
+    town = towns.load_town("my_xodr")
+    assert not town.buildings_generated and town.lane_map.lanes
+    log = tmp_path / "log"
+    code, out = _cli(capsys, "simulate", "--town", "my_xodr", "--duration", "20", "--warmup", "30", "--out", str(log))
+    assert code == 0, out.err
+    scenes = list(extract_scenes(log, ExtractParams(every=10, min_vehicles=1)))
+    assert scenes and all(s.town == "my_xodr" for s in scenes) and any(a.kind == "rsu" for a in scenes[0].agents)
+
+
+def test_an_osm_extract_brings_its_buildings_with_their_heights(capsys, tmp_path, user_home):
+    osm = tmp_path / "mini.osm"
+    osm.write_text(MINI_OSM)
+    code, out = _cli(capsys, "towns", "import", str(osm), "--name", "mini")
+    assert code == 0, out.err
+    town = towns.load_town("mini")
+    heights = sorted(round(b.height_m, 1) for b in town.buildings)
+    assert heights == [12.0, 21.5]  # 4 levels x 3 m; the height tag
+    assert not town.lane_map.drivable.is_empty
+    # a second import of that name is refused, --force replaces it; a bundled name is never taken
+    code, out = _cli(capsys, "towns", "import", str(osm), "--name", "mini")
+    assert code == 2 and "--force" in out.err
+    assert _cli(capsys, "towns", "import", str(osm), "--name", "mini", "--force")[0] == 0
+    code, out = _cli(capsys, "towns", "import", str(osm), "--name", "grid_small")
+    assert code == 2 and "bundled town" in out.err
+
+
+@pytest.mark.parametrize("case,text,needle", [
+    ("entity-bomb", '<?xml version="1.0"?><!DOCTYPE osm [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;">'
+                    ']><osm version="0.6"><node id="1" lat="48.1" lon="11.5"><tag k="n" v="&b;"/></node></osm>', "document type"),
+    ("external-entity", '<?xml version="1.0"?><!DOCTYPE osm [<!ENTITY x SYSTEM "file:///etc/passwd">]>'
+                        '<osm version="0.6"><node id="1" lat="48.1" lon="11.5"><tag k="n" v="&x;"/></node></osm>', "document type"),
+    ("empty", "", "empty"),
+    ("not-xml", "highway=primary\n", "not well-formed"),
+    ("no-drivable-lane", MINI_OSM.replace('v="secondary"', 'v="footway"').replace('v="residential"', 'v="footway"'),
+     "no lane a car may drive on"),
+    ("coordinates-1e300", MINI_OSM.replace('lat="48.1000" lon="11.5000"/>', 'lat="1e300" lon="11.5000"/>'), "netconvert"),
+])
+def test_a_hostile_or_useless_map_is_one_line_and_writes_nothing(capsys, tmp_path, user_home, case, text, needle):
+    from test_cli import assert_one_line_error
+
+    osm = tmp_path / "map.osm"
+    osm.write_text(text)
+    code, out = _cli(capsys, "towns", "import", str(osm), "--name", "t")
+    assert code == 2
+    assert_one_line_error(out.err, needle)
+    assert not [p for p in user_home.rglob("*") if p.is_file()]  # nothing written, no temporary left
+
+
+def test_an_opendrive_map_at_absurd_coordinates_is_refused(capsys, tmp_path, user_home):
+    import re
+
+    from sumo_scenarios import sumo_tools
+    from test_cli import assert_one_line_error
+
+    xodr = tmp_path / "grid.xodr"
+    sumo_tools.run([sumo_tools.binary("netconvert"), "--sumo-net-file", str(towns.nets_dir() / "grid_small.net.xml"),
+                    "--opendrive-output", str(xodr)], "netconvert")
+    xodr.write_text(re.sub(r' x="[-0-9.e+]*"', ' x="1e300"', xodr.read_text()))
+    code, out = _cli(capsys, "towns", "import", str(xodr), "--name", "far")
+    assert code == 2
+    assert_one_line_error(out.err, "absurd")
+    assert not [p for p in user_home.rglob("*") if p.is_file()]

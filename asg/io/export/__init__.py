@@ -55,17 +55,17 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
 
 
 def net_of(scene: Scene, net: Path | None) -> Path:
-    """The SUMO net a scene was taken from: ``net`` if given, else the bundled town of that name."""
-    from sumo_scenarios.paths import nets_dir
-
+    """The SUMO net a scene was taken from: ``net`` if given, else the bundled or imported town of
+    that name."""
     if net is not None:
         if not Path(net).is_file():
             raise InputError(f"--net {net}: file not found")
         return Path(net)
     from sumo_scenarios.checks import is_safe_id
+    from sumo_scenarios.towns import list_towns
 
-    bundled = nets_dir() / f"{scene.town}.net.xml"
-    if not is_safe_id(scene.town) or not bundled.is_file():  # a name, never a path out of nets/
-        raise InputError(f"scene {scene.scene_id} comes from '{scene.town}', which is not a bundled town; "
+    towns = {p.name: p for p in list_towns()}
+    if not is_safe_id(scene.town) or f"{scene.town}.net.xml" not in towns:  # a name, never a path out of nets/
+        raise InputError(f"scene {scene.scene_id} comes from '{scene.town}', which is not a bundled or imported town; "
                          "give its SUMO net with --net PATH")
-    return bundled
+    return towns[f"{scene.town}.net.xml"]
