@@ -133,7 +133,7 @@ _ON_STEP: StepProgress | None = None
 
 def _worker_setup(cfg: GenerateConfig, detector_factory: str | None, out: str, seed: int, artifacts: bool):
     """A worker's state: the generator with its detectors, where to write, the seed, what to write."""
-    target, acs_model = load_factory(detector_factory)(cfg) if detector_factory else _shipped_models(cfg)
+    target, acs_model = factory_models(detector_factory, cfg) if detector_factory else _shipped_models(cfg)
     return Generator(cfg, target, acs_model), Path(out), seed, artifacts
 
 
@@ -160,9 +160,29 @@ def load_factory(spec: str):
     if not module_name or not attr:
         raise InputError(f"detector factory {spec!r} must be written module:function")
     try:
-        return getattr(importlib.import_module(module_name), attr)
-    except (ImportError, AttributeError) as exc:
-        raise InputError(f"detector factory {spec!r} cannot be loaded ({type(exc).__name__}: {exc})") from None
+        factory = getattr(importlib.import_module(module_name), attr)
+    except (Exception, SystemExit) as exc:  # its module may fail in any way (a syntax error, an exit)
+        raise InputError(f"detector factory {spec!r} cannot be loaded ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+    if not callable(factory):
+        raise InputError(f"detector factory {spec!r} is a {type(factory).__name__}, not a function")
+    return factory
+
+
+def factory_models(spec: str, cfg: GenerateConfig):
+    """(target, ACS model or None) that factory ``spec`` returns for ``cfg``, each behind the checks
+    every detector from outside gets (asg.perception.plugins.CheckedDetector); InputError if the
+    factory fails or returns something else."""
+    from .perception.plugins import CheckedDetector, guarded_call
+
+    where = f"detector factory {spec!r}"
+    out = guarded_call(where, "the factory", load_factory(spec), cfg)
+    if not isinstance(out, (tuple, list)) or len(out) != 2 or not callable(getattr(out[0], "detect", None)):
+        raise InputError(f"{where} must return (target, ACS model or None), the target with a detect(frame) method; "
+                         f"got {type(out).__name__}")
+    target, acs_model = out
+    if acs_model is not None and not callable(getattr(acs_model, "attention_weights", None)):
+        raise InputError(f"{where}: its ACS model has no attention_weights(frame, cells) method")
+    return CheckedDetector(where, target), (None if acs_model is None else CheckedDetector(where, acs_model))
 
 
 def _shipped_models(cfg: GenerateConfig):

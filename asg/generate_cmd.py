@@ -10,7 +10,7 @@ from rich.table import Table
 from sumo_scenarios.errors import InputError
 
 from .executors import Executor, build_executor, default_workers
-from .generate import LOG_DIR, SceneSource, WORK_DIR, check_scenes, generate, load_scenes, prepare_run, run_settings
+from .generate import LOG_DIR, SceneSource, WORK_DIR, check_scenes, factory_models, generate, load_scenes, prepare_run, run_settings
 from .pipeline import load_generate_config
 from .progress import console, progress_bar, stdout
 
@@ -58,6 +58,8 @@ def run_generate(args: argparse.Namespace) -> int:
         from .perception import check_weights_file
 
         check_weights_file(cfg.fusion, cfg.weights)
+    if args.detector:  # built once here, so that a broken factory is refused before anything is written
+        factory_models(args.detector, cfg)
     executor = executor_from_args(args, count)  # checked before anything is written
     out = Path(args.out)
     fresh = not out.exists()
@@ -86,8 +88,13 @@ def run_generate(args: argparse.Namespace) -> int:
             bar.update(scene_task, completed=len(scenes) - total + done)
             bar.update(eval_task, completed=0)
 
-        run = generate(cfg, scenes, out, seed=args.seed, detector_factory=args.detector, executor=executor,
-                       on_scene=on_scene, on_step=lambda step: bar.update(eval_task, completed=step))
+        try:
+            run = generate(cfg, scenes, out, seed=args.seed, detector_factory=args.detector, executor=executor,
+                           on_scene=on_scene, on_step=lambda step: bar.update(eval_task, completed=step))
+        except InputError:
+            if fresh and not list((out / "scenes").glob("*/result.json")):  # nothing done: leave no folder
+                shutil.rmtree(out, ignore_errors=True)
+            raise
         bar.update(scene_task, completed=len(scenes))
     for scene_id, why in run.skipped:
         console.print(f"[yellow]skipped {scene_id}: {why}")

@@ -62,3 +62,65 @@ def dies_once_factory(cfg):
 
     det = _DiesOnce(os.environ["ASG_TEST_MARKER"])
     return det, det
+
+
+# ---- detector factories that misbehave (tests/test_robustness.py: one line each, nothing left) ----
+class _Misbehaving(OracleDetector):
+    """The oracle whose detect() returns ``make(boxes, scores)`` instead."""
+
+    def __init__(self, make):
+        self.make = make
+        super().__init__()
+
+    def detect(self, frame):
+        return self.make(*super().detect(frame))
+
+
+def _misbehaving(make):
+    def factory(cfg):
+        det = _Misbehaving(make)
+        return det, det
+    return factory
+
+
+nan_factory = _misbehaving(lambda b, s: (np.full((1, 7), np.nan), np.ones(1)))
+none_factory = _misbehaving(lambda b, s: None)
+string_factory = _misbehaving(lambda b, s: ("boxes", "scores"))
+shape_factory = _misbehaving(lambda b, s: (np.ones((2, 5)), np.ones(2)))
+negative_size_factory = _misbehaving(lambda b, s: (np.array([[5.0, 0, 0, -4.0, 2.0, 1.5, 0]]), np.ones(1)))
+score_factory = _misbehaving(lambda b, s: (np.array([[5.0, 0, 0, 4.0, 2.0, 1.5, 0]]), np.array([7.0])))
+million_factory = _misbehaving(lambda b, s: (np.tile([5.0, 0, 0, 4.0, 2.0, 1.5, 0], (1_000_000, 1)), np.full(1_000_000, 0.5)))
+
+
+def _exit(*_):
+    import sys
+
+    sys.exit(0)
+
+
+exit_in_detect_factory = _misbehaving(_exit)
+
+
+def _forever(*_):
+    import time
+
+    while True:
+        time.sleep(0.05)
+
+
+hang_factory = _misbehaving(_forever)
+
+
+def raising_factory(cfg):
+    raise RuntimeError("no GPU found")
+
+
+def exit_factory(cfg):
+    raise SystemExit(0)
+
+
+def wrong_return_factory(cfg):
+    return "a detector"
+
+
+NOT_CALLABLE = 3

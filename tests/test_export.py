@@ -200,7 +200,7 @@ def test_a_town_that_is_a_path_is_not_read(capsys, scenes_dir, tmp_path, fmt):
     (bad / "x.yaml").write_text(text.replace(f"\ntown: {town}\n", f"\ntown: ../nets/{town}\n"))
     code, err = run(capsys, "export", str(bad), "--format", fmt, "--out", str(tmp_path / "o"))
     assert code == 2
-    assert_one_line_error(err, "not a bundled town")
+    assert_one_line_error(err, "not a bundled or imported town")
 
 
 def test_an_out_folder_that_cannot_be_is_one_line(capsys, scenes_dir, tmp_path):

@@ -531,3 +531,43 @@ def test_openmp_threads_wait_passively_unless_the_user_says_otherwise():
     env["OMP_WAIT_POLICY"] = "ACTIVE"
     assert subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
                           check=True).stdout.strip() == "ACTIVE"
+
+
+@pytest.mark.parametrize("factory,needle", [
+    ("fakes:nan_factory", "non-finite"),
+    ("fakes:none_factory", "must return (boxes, scores)"),
+    ("fakes:string_factory", "not numbers"),
+    ("fakes:shape_factory", "shape (K, 7)"),
+    ("fakes:negative_size_factory", "sizes must be positive"),
+    ("fakes:score_factory", "within [0, 1]"),
+    ("fakes:million_factory", "1,000,000 boxes"),
+    ("fakes:exit_in_detect_factory", "SystemExit"),
+    ("fakes:hang_factory", "ran over"),
+    ("fakes:raising_factory", "no GPU found"),
+    ("fakes:exit_factory", "SystemExit"),
+    ("fakes:wrong_return_factory", "must return (target"),
+    ("fakes:NOT_CALLABLE", "not a function"),
+    ("bad_syntax_module:make", "SyntaxError"),
+    ("bad_import_module:make", "ZeroDivisionError"),
+])
+def test_a_detector_from_outside_that_misbehaves_is_one_line(capsys, tmp_path, monkeypatch, factory, needle):
+    """Every way a --detector factory can fail: one line naming it, exit 2, no run folder left;
+    a detect() call that never returns is stopped at the time limit."""
+    import asg.perception.plugins as plugins
+    from asg.cli import main
+    from test_cli import assert_one_line_error
+
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "bad_syntax_module.py").write_text("def make(cfg)\n    return None\n")
+    (tmp_path / "mods" / "bad_import_module.py").write_text("x = 1 / 0\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    monkeypatch.setattr(plugins, "CALL_TIME_LIMIT_S", 1.0)
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("s0"))
+    out = tmp_path / "run"
+    code = main(["generate", "--scenes", str(scenes), "--detector", factory, "--budget", "3", "--workers", "1",
+                 "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert_one_line_error(err, needle)
+    assert not out.exists()

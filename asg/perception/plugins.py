@@ -12,8 +12,9 @@ and optionally ``attention(frame) -> {agent_id: weight}`` (weights summing to 1)
 collaborator search then uses instead of the shipped AttFuse's attention. ``asg generate``,
 ``asg evaluate``, ``asg dataset build challenging`` and the benchmarks take the name as
 ``--fusion NAME``. The five shipped models are registered in the same group by asg itself.
-Worked example: docs/plugins.md; a bad plugin (import error, wrong shapes, non-finite numbers)
-is one line naming it, exit 2.
+Worked example: docs/plugins.md; a bad plugin (import error, an exit, wrong shapes, non-finite
+numbers, more than MAX_BOXES boxes, a call running over CALL_TIME_LIMIT_S) is one line naming it,
+exit 2. A ``--detector module:function`` factory's detectors get the same checks (CheckedDetector).
 """
 from __future__ import annotations
 
@@ -28,6 +29,10 @@ from ..sensors.frame import CooperativeFrame
 from .data import in_range
 
 ENTRY_POINT_GROUP = "asg.detectors"
+#: a detector from outside (a plugin, a ``--detector`` factory) returning more boxes a frame is refused
+MAX_BOXES = 1000
+#: ...and one whose ``detect`` (or ``attention``) call takes longer than this (s) is stopped
+CALL_TIME_LIMIT_S = 120.0
 
 
 @dataclass(frozen=True)
@@ -70,7 +75,7 @@ def load_plugin(name: str) -> "PluginDetector | None":
     try:
         factory = ep.load()
         plugin = factory()
-    except Exception as exc:  # a plugin may fail in any way: name it, say how
+    except (Exception, SystemExit) as exc:  # a plugin may fail in any way (even exit): name it, say how
         raise InputError(f"detector plugin '{name}' ({ep.value}) could not be loaded: "
                          f"{type(exc).__name__}: {exc}".splitlines()[0]) from None
     if isinstance(plugin, PluginDetector) or _is_shipped(plugin):
@@ -97,7 +102,8 @@ class PluginDetector:
         self.has_attention = callable(getattr(plugin, "attention", None))
 
     def detect(self, frame: CooperativeFrame) -> tuple[np.ndarray, np.ndarray]:
-        out = self.plugin.detect(cooperative_input(frame))
+        where = f"detector plugin '{self.registry_name}'"
+        out = guarded_call(where, "detect()", self.plugin.detect, cooperative_input(frame))
         boxes, scores = check_detections(self.registry_name, out)
         keep = in_range(boxes)
         return boxes[keep], scores[keep]
@@ -105,18 +111,76 @@ class PluginDetector:
     def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float] | None:
         if not self.has_attention:
             return None
-        weights = self.plugin.attention(cooperative_input(frame))
-        if not isinstance(weights, dict) or set(weights) != set(frame.sensing_ids) or \
-                not all(np.isfinite(float(v)) and float(v) >= 0 for v in weights.values()):
-            raise InputError(f"detector plugin '{self.registry_name}': attention() must return a finite, non-negative "
-                             f"weight for each of {', '.join(frame.sensing_ids)}")
-        return {k: float(v) for k, v in weights.items()}
+        where = f"detector plugin '{self.registry_name}'"
+        weights = guarded_call(where, "attention()", self.plugin.attention, cooperative_input(frame))
+        return check_attention(where, weights, frame.sensing_ids)
+
+
+class CheckedDetector:
+    """A ``--detector module:function`` factory's detector (``detect(CooperativeFrame)``, optionally
+    ``attention_weights``) behind the same checks as a plugin: each call under the time limit, its
+    output checked (shapes, finite, sizes, scores, MAX_BOXES), any failure one InputError."""
+
+    def __init__(self, where: str, detector):
+        self.where = where
+        self.detector = detector
+        self.has_attention = callable(getattr(detector, "attention_weights", None))
+
+    def detect(self, frame: CooperativeFrame) -> tuple[np.ndarray, np.ndarray]:
+        return _checked(self.where, guarded_call(self.where, "detect()", self.detector.detect, frame))
+
+    def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float] | None:
+        if not self.has_attention:
+            return None
+        weights = guarded_call(self.where, "attention_weights()", self.detector.attention_weights, frame, cells)
+        return None if weights is None else check_attention(self.where, weights, frame.sensing_ids)
+
+
+def guarded_call(where: str, what: str, fn, *args):
+    """``fn(*args)`` of a detector from outside: an exception, ``sys.exit()`` or a call running
+    past CALL_TIME_LIMIT_S (measured where the process's main thread runs it) is one InputError."""
+    import signal
+    import threading
+
+    timed = threading.current_thread() is threading.main_thread()
+
+    def too_long(*_):
+        raise TimeoutError
+
+    if timed:
+        previous = signal.signal(signal.SIGALRM, too_long)
+        signal.setitimer(signal.ITIMER_REAL, CALL_TIME_LIMIT_S)
+    try:
+        return fn(*args)
+    except TimeoutError:
+        raise InputError(f"{where}: {what} ran over {CALL_TIME_LIMIT_S:g} s on one frame; stopped") from None
+    except (Exception, SystemExit) as exc:  # outside code may fail in any way: name it, say how
+        raise InputError(f"{where}: {what} failed: {type(exc).__name__}: {exc}".splitlines()[0]) from None
+    finally:
+        if timed:
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+            signal.signal(signal.SIGALRM, previous)
+
+
+def check_attention(where: str, weights, sensing_ids) -> dict[str, float]:
+    try:
+        ok = isinstance(weights, dict) and set(weights) == set(sensing_ids) and \
+            all(np.isfinite(float(v)) and float(v) >= 0 for v in weights.values())
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise InputError(f"{where}: attention must give a finite, non-negative weight for each of "
+                         f"{', '.join(sensing_ids)}")
+    return {k: float(v) for k, v in weights.items()}
 
 
 def check_detections(name: str, out) -> tuple[np.ndarray, np.ndarray]:
     """(boxes (K, 7) float64, scores (K,) float64) from a plugin's return value, or one InputError
     naming the plugin and what is wrong."""
-    where = f"detector plugin '{name}'"
+    return _checked(f"detector plugin '{name}'", out)
+
+
+def _checked(where: str, out) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(out, (tuple, list)) or len(out) != 2:
         raise InputError(f"{where}: detect() must return (boxes, scores), got {type(out).__name__}")
     try:
@@ -126,6 +190,9 @@ def check_detections(name: str, out) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"{where}: detect() returned boxes or scores that are not numbers") from None
     if boxes.size == 0 and scores.size == 0:
         return np.zeros((0, 7)), np.zeros(0)
+    if boxes.ndim == 2 and len(boxes) > MAX_BOXES:
+        raise InputError(f"{where}: detect() returned {len(boxes):,} boxes; at most {MAX_BOXES:,} a frame "
+                         f"(keep the best after non-maximum suppression)")
     if boxes.ndim != 2 or boxes.shape[1] != 7:
         raise InputError(f"{where}: boxes must have shape (K, 7) (x, y, z, l, w, h, yaw), got {boxes.shape}")
     if scores.shape != (len(boxes),):

@@ -38,10 +38,10 @@ def target_detector(fusion: str, weights_file: str | None = None, detector_facto
     """The detector scored as ``fusion``: its shipped weights (or ``weights_file``), or the target
     that ``detector_factory`` ("module:function", as for ``asg generate --detector``) returns for it."""
     if detector_factory:
-        from ..generate import load_factory
+        from ..generate import factory_models
         from ..pipeline import GenerateConfig
 
-        return load_factory(detector_factory)(GenerateConfig(fusion=fusion))[0]
+        return factory_models(detector_factory, GenerateConfig(fusion=fusion))[0]
     return build_detector(fusion, weights_file=weights_file)
 
 
