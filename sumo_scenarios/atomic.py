@@ -6,6 +6,7 @@ Every writer writes to a temporary name in the same folder, then renames it into
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
 import tempfile
@@ -32,6 +33,8 @@ def atomic_path(final_path: str | os.PathLike) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, final)
+    except OSError as exc:
+        raise _naming(exc, final) from None
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -64,8 +67,25 @@ def atomic_dir(final_dir: str | os.PathLike) -> Iterator[Path]:
             if target.is_dir() and not target.is_symlink():
                 shutil.rmtree(target)
             os.replace(item, target)
+    except OSError as exc:
+        raise _naming(exc, final) from None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+#: errno values of a write that a full disk or quota cut short, or that the file system refused
+_FULL_OR_REFUSED = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG}
+
+
+def _naming(exc: OSError, final: Path) -> OSError:
+    """``exc`` naming the file it was writing: a short write (numpy's "N requested and M written",
+    which carries no errno) as the full disk it is, a full disk or quota without a file name with
+    ``final``'s; any other error as it was."""
+    if exc.errno is None and "requested and" in str(exc) and "written" in str(exc):
+        return OSError(errno.ENOSPC, f"No space left on device (the write was cut short: {exc})", str(final))
+    if exc.errno in _FULL_OR_REFUSED and not exc.filename:
+        return OSError(exc.errno, exc.strerror, str(final))
+    return exc
 
 
 def is_partial(name: str) -> bool:

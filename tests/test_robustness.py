@@ -571,3 +571,38 @@ def test_a_detector_from_outside_that_misbehaves_is_one_line(capsys, tmp_path, m
     assert code == 2
     assert_one_line_error(err, needle)
     assert not out.exists()
+
+
+def test_a_disk_that_fills_mid_write_is_one_line_naming_the_file(capsys, tmp_path, monkeypatch):
+    """numpy's short write ("N requested and M written", no errno) and a full disk without a file
+    name both end as one line naming the file being written; no partial file is left."""
+    import errno
+
+    import numpy as np
+    from asg.cli import main
+    from sumo_scenarios.atomic import atomic_path, write_text_atomic
+    from test_cli import assert_one_line_error
+
+    with pytest.raises(OSError) as exc:
+        with atomic_path(tmp_path / "a.npy"):
+            raise OSError("48416 requested and 47072 written")
+    assert exc.value.errno == errno.ENOSPC and exc.value.filename == str(tmp_path / "a.npy")
+    monkeypatch.setattr("pathlib.Path.write_text", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.ENOSPC, "No space left on device")))
+    with pytest.raises(OSError) as exc:
+        write_text_atomic(tmp_path / "b.json", "{}")
+    assert exc.value.filename == str(tmp_path / "b.json")
+    monkeypatch.undo()
+
+    def short_write(file, arr, *a, **k):
+        raise OSError("48416 requested and 47072 written")
+
+    monkeypatch.setattr(np, "save", short_write)
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("s0"))
+    out = tmp_path / "run"
+    code = main(["generate", "--scenes", str(scenes), "--detector", "fakes:oracle_factory", "--budget", "2",
+                 "--workers", "1", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert_one_line_error(err, "No space left on device", ".npy")
+    assert not [p for p in out.rglob("*") if ".tmp" in p.name]
