@@ -10,6 +10,7 @@ if no item finishes between MAX_ATTEMPTS breaks in a row, the batch stops with W
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import multiprocessing
 import os
@@ -112,13 +113,15 @@ class LocalExecutor(Executor):
 
     def _one_pool(self, job: Job, pending: dict[int, Any]):
         """Run ``pending`` on a new pool; yields results; returns (indices finished, pool broke)."""
-        pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
-                                   mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
-        futures = {pool.submit(_worker_run, job, item): i for i, item in pending.items()}
+        pool = None
         finished: list[int] = []
         broken = False
         try:
+            with _signals_deferred():  # a worker half-spawned by an interrupted start would print a traceback
+                pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
+                                           mp_context=multiprocessing.get_context("spawn"),
+                                           initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
+                futures = {pool.submit(_worker_run, job, item): i for i, item in pending.items()}
             todo = set(futures)
             while todo:
                 done, todo = wait(todo, return_when=FIRST_COMPLETED)
@@ -133,8 +136,30 @@ class LocalExecutor(Executor):
                 if broken:
                     break
         finally:
-            _stop(pool)
+            if pool is not None:
+                _stop(pool)
         return finished, broken
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """SIGINT and SIGTERM that arrive inside the block take effect when it ends (main thread only):
+    the pool starts its workers (spawn writes each its start-up data through a pipe) whole."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    arrived: list[int] = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: arrived.append(signum))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        if arrived:
+            signal.raise_signal(arrived[0])
 
 
 def _stop(pool: ProcessPoolExecutor) -> None:
