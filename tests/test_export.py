@@ -54,9 +54,12 @@ def test_opv2v_reads_back_as_opencood_reads_it(scenes_dir, tmp_path):
         scenario = tmp_path / scene.scene_id
         agents = sorted(p.name for p in scenario.iterdir() if p.is_dir())
         assert sorted(agents) == sorted(str(ids[a]) for a in frame.sensing_ids)
-        if scene.ego.kind == "vehicle":  # OpenCOOD's ego: the first folder once an RSU is moved last
-            order = agents[1:] + agents[:1] if int(agents[0]) < 0 else agents
-            assert order[0] == str(ids[scene.ego_id])
+        record = yaml.safe_load((scenario / "ids.yaml").read_text())
+        order = agents[1:] + agents[:1] if int(agents[0]) < 0 else agents  # OpenCOOD's rule, written out
+        assert record["opencood_ego"] == int(order[0]) and record["ego"] == ids[scene.ego_id]
+        rsus = [a for a in frame.sensing_ids if a.startswith("rsu")]
+        if (scene.ego.kind == "vehicle" and len(rsus) <= 1) or (scene.ego.kind == "rsu" and len(rsus) >= 2):
+            assert order[0] == str(ids[scene.ego_id])  # where the rule allows it, OpenCOOD takes our ego
         for agent_id in frame.sensing_ids:
             meta = yaml.safe_load((scenario / str(ids[agent_id]) / "000000.yaml").read_text())
             cloud = pcd_to_np(scenario / str(ids[agent_id]) / "000000.pcd")
@@ -212,3 +215,27 @@ def test_an_out_folder_that_cannot_be_is_one_line(capsys, scenes_dir, tmp_path):
         code, err = run(capsys, "export", str(folder), "--format", "kitti", "--out", str(out))
         assert code == 2
         assert_one_line_error(err, needle)
+
+
+def test_opencood_takes_our_ego_wherever_its_rule_allows(cross_map):
+    """Every mix of ego kind and sensing RSUs: OpenCOOD's ego rule applied to the folder names
+    picks our ego exactly in the cases its rule allows."""
+    from dataclasses import replace
+
+    from asg.io.export.opv2v import opencood_ego
+    from conftest import car, make_scene, rsu
+
+    agents = [car("v0", 0, 0), car("v1", 10, 0), car("v2", 20, 0)] + [rsu(f"r{i}", 5 * i, 8) for i in range(4)]
+    base = make_scene(cross_map, agents, ego="v0")
+    for ego in ("v0", "r0"):
+        for k in range(4):  # sensing RSUs besides an RSU ego / with a vehicle ego
+            collaborators = ("v1", "v2") if ego == "r0" else ()
+            sensing_rsus = [f"r{i}" for i in range(1, k + 1)] if ego == "r0" else [f"r{i}" for i in range(k)]
+            scene = replace(base, ego_id=ego, collaborators=(*collaborators, *sensing_rsus))
+            sensing = (ego, *scene.collaborators)
+            ids = opv2v_ids(scene, sensing)
+            assert len(set(ids.values())) == len(ids)
+            picked = opencood_ego([str(ids[a]) for a in sensing])
+            rsus_sensing = sum(a.startswith("r") for a in sensing)
+            allowed = rsus_sensing <= 1 if ego == "v0" else rsus_sensing >= 2
+            assert (picked == str(ids[ego])) == allowed, (ego, sensing, ids)
