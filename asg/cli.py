@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 
 from sumo_scenarios.errors import InputError
 
-from . import commands
+from . import __version__, commands
 from .executors.base import WorkerLost
 from .workflows import MAX_ROUNDS
 
@@ -75,7 +75,7 @@ def _add(sub, name: str, help_text: str, func: Callable[[argparse.Namespace], in
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="asg", description="Adversarial scene generation for cooperative V2X LiDAR perception.")
-    parser.add_argument("--version", action="version", version="asg 0.1.0")
+    parser.add_argument("--version", action="version", version=f"asg {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     towns = sub.add_parser("towns", help="build or list the bundled SUMO towns", description="Build or list the SUMO towns in nets/.")
@@ -125,7 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = _add(sub, "render", "render a scene's cooperative LiDAR frame to a bird's-eye picture (and PCD files)", commands.render)
     p.add_argument("scene", type=Path, help="scene yaml (from 'asg scenes extract')")
     p.add_argument("--out", type=Path, required=True, help="PNG to write")
-    p.add_argument("--lidar", default="v2xp", help="LiDAR preset in configs/lidar/ or a yaml path (default v2xp)")
+    p.add_argument("--lidar", default=None, help="LiDAR preset in configs/lidar/ or a yaml path (default: the "
+                   "detectors' preset, v2xp)")
     p.add_argument("--collaborators", type=_whole(0, 16, "--collaborators"), default=2, help="if the scene names none: this many nearest vehicles")
     p.add_argument("--pcd-dir", type=Path, default=None, help="also write each agent's cloud as PCD and .npy here")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the LiDAR noise (if the preset has any)")

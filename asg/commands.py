@@ -155,7 +155,7 @@ def render(args: argparse.Namespace) -> int:
     from .perception.data import points_in_range_boxes
     from .sensors import load_lidar_spec, simulate_frame
 
-    spec = load_lidar_spec(args.lidar)
+    spec = load_lidar_spec(args.lidar) if args.lidar else load_lidar_spec()
     scene = with_nearest_collaborators(load_scene(args.scene), args.collaborators)
     frame = simulate_frame(scene, spec, seed=args.seed)
     bev_figure(scene, frame, args.out, title=f"{scene.scene_id} ({spec.name})")
@@ -203,7 +203,7 @@ def _build_challenging(args: argparse.Namespace) -> int:
     if not args.fusion or not args.split:
         raise InputError("give --fusion NAME and --split train|val, e.g. 'asg dataset build challenging "
                          "--fusion attfuse --split val'")
-    with progress_bar() as bar, executor_from_args(args, args.count or 219) as executor:
+    with progress_bar() as bar, executor_from_args(args, args.count or 10**6) as executor:
         task = bar.add_task(f"challenging {args.fusion} {args.split}", total=None)
         out = build_challenging(args.fusion, args.split, executor, args.count,
                                 on_scene=lambda done, total, sid: bar.update(task, completed=done, total=total))
@@ -391,7 +391,7 @@ def _bench_tables(args: argparse.Namespace) -> int:
 
         load_factory(args.detector)
     command = "asg " + " ".join(shlex.quote(a) for a in args.argv)
-    with executor_from_args(args, args.scenes or 219) as executor:
+    with executor_from_args(args, args.scenes or 10**6) as executor:
         results = run_tables(names, TableRun(out=Path(args.out), scenes=args.scenes, executor=executor,
                                              detector_factory=args.detector, command=command,
                                              harden_rounds=args.harden_rounds or 0), log=console.print)

@@ -109,7 +109,7 @@ def mean_points_in_box(scene: Scene) -> float:
     from .perception.data import points_in_range_boxes
     from .sensors import load_lidar_spec, simulate_frame
 
-    counts = points_in_range_boxes(simulate_frame(scene, load_lidar_spec("v2xp")))
+    counts = points_in_range_boxes(simulate_frame(scene, load_lidar_spec()))
     return float(counts.mean()) if len(counts) else 0.0
 
 

@@ -25,6 +25,7 @@ from .scene.recheck import recheck
 from .scene.neighbours import COMM_RANGE_M, vehicles_within
 from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, check_settings, run_search
 from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
+from .sensors.lidar_spec import DEFAULT_LIDAR
 from .sensors.frame import CooperativeFrame, apply_link, delayed_view, render_frame
 
 #: evaluations per scene at most (a scene at 50 takes seconds; this many is a day)
@@ -50,7 +51,7 @@ class GenerateConfig:
     attention_cells: Literal["all", "vehicles"] = "all"
     perturbed: int = 3
     comm_range_m: float = COMM_RANGE_M
-    lidar: str = "v2xp"
+    lidar: str = DEFAULT_LIDAR
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
     space: SpaceConfig = field(default_factory=SpaceConfig)
 

@@ -267,11 +267,6 @@ class LaneMap:
         return all(self.in_junction(x, y) or any(gap(h) < math.pi / 2 for h in self.directions_at(x, y))
                    for x, y in np.asarray(footprint_xy))
 
-    def heading_at(self, lane_id: str, station_m: float) -> float:
-        """The heading (rad) of lane ``lane_id`` at ``station_m`` along its centerline."""
-        i = self._by_id[lane_id]
-        return self._heading_at(self.lanes[i].centerline_xy, self._lines[i], station_m)
-
     @staticmethod
     def _heading_at(xy: np.ndarray, line: LineString, s: float) -> float:
         seg_len = np.hypot(*np.diff(xy, axis=0).T)

@@ -15,7 +15,7 @@ def bench_detect(frames: int = 10, repeats: int = 3) -> dict:
     import torch
 
     torch.set_num_threads(2)
-    spec = load_lidar_spec("v2xp")
+    spec = load_lidar_spec()
     scenes = [with_nearest_collaborators(s, 2) for s in itertools.islice(scenes_of("normal"), frames)]
     coop = [simulate_frame(s, spec) for s in scenes]
     out = {"frames": len(coop), "agents_per_frame": round(statistics.mean(len(f.sensing_ids) for f in coop), 2),

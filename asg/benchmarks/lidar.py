@@ -64,7 +64,7 @@ def _interleaved_medians_ms(fns: list, repeats: int) -> list[float]:
 
 
 def bench_lidar(repeats: int = 60) -> dict:
-    spec = load_lidar_spec("v2xp")
+    spec = load_lidar_spec()
     scene = with_nearest_collaborators(dense_scene(), 2)
     ids = scene.sensing_ids
     world = World(scene, spec)

@@ -28,7 +28,7 @@ def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threa
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     cfg = load_detector_config()
-    spec = load_lidar_spec("v2xp")
+    spec = load_lidar_spec()
     samples = [make_sample(s, spec) for s in itertools.islice(iter_frames("detector-train", "train"), frames)]
     batches = _Batches("attfuse", samples, "all")
     model = AttFuse(cfg)

@@ -1,7 +1,6 @@
 """Shipped weights: state_dicts loaded with ``weights_only=True`` (never unpickling objects)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import torch
@@ -70,8 +69,3 @@ def save_state(model: nn.Module, path: str | Path) -> None:
 
     with atomic_path(path) as tmp:
         torch.save(model.state_dict(), tmp)
-
-
-def read_card(name: str) -> dict:
-    p = WEIGHTS_DIR / f"{name}.json"
-    return json.loads(p.read_text()) if p.is_file() else {}

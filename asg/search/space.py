@@ -122,10 +122,6 @@ class SearchSpace:
         return int(self._link_cuts[-1])
 
     @property
-    def slot_dim(self) -> int:
-        return int(self._slot_cuts[-1])
-
-    @property
     def movable_ids(self) -> tuple[str, ...]:
         """The agents a render must be able to place: moved vehicles and insertion slots."""
         return tuple(s.agent_id for s in self.slots)

@@ -19,11 +19,14 @@ from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import load_dataclass
 
 Backend = Literal["embree", "trimesh"]
+#: the preset of configs/lidar/ the shipped detectors were trained on: every stage renders with it
+#: unless told otherwise (``asg render --lidar``, the generate config's ``lidar``)
+DEFAULT_LIDAR = "v2xp"
 
 
 @dataclass(frozen=True)
 class LidarSpec:
-    name: str = "v2xp"
+    name: str = DEFAULT_LIDAR
     channels: int = 32
     fov_up_deg: float = 2.0
     fov_down_deg: float = -25.0
@@ -89,7 +92,7 @@ class LidarSpec:
         return replace(self, **kw).validate()
 
 
-def load_lidar_spec(name_or_path: str | Path = "v2xp") -> LidarSpec:
+def load_lidar_spec(name_or_path: str | Path = DEFAULT_LIDAR) -> LidarSpec:
     """A preset name from configs/lidar/ (``v2xp``, ``dense64``) or a yaml path."""
     p = Path(name_or_path)
     if not p.suffix:

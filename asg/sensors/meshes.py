@@ -6,7 +6,6 @@ Each is a union of parts (body, cabin or cargo box, wheels), not a single box.
 """
 from __future__ import annotations
 
-import math
 from functools import lru_cache
 
 import numpy as np
@@ -102,12 +101,6 @@ def agent_template(type_id: str, kind: str, length_m: float, width_m: float, hei
     if kind == "rsu":
         return pole_template(round(height_m, 3))
     return vehicle_template(type_id, round(length_m, 3), round(width_m, 3), round(height_m, 3))
-
-
-def pose_matrix(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> np.ndarray:
-    """(4, 4) local → network frame."""
-    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-    return np.array([[c, -s, 0, x_m], [s, c, 0, y_m], [0, 0, 1, z_m], [0, 0, 0, 1]], dtype=float)
 
 
 def building_mesh(b: Building) -> trimesh.Trimesh:

@@ -12,6 +12,7 @@ from sumo_scenarios.errors import InputError
 
 from ..perception.train_config import FUSION_TO_WEIGHTS
 from ..perception.weights_io import WEIGHTS_DIR
+from ..sensors.lidar_spec import DEFAULT_LIDAR
 
 
 def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: dict, threads: int, *,
@@ -28,7 +29,7 @@ def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: 
             # absent when the last chunk trained them alongside the whole network
             **({"branch_fit": branch_fit} if branch_fit else {}),
             **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
-            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": "v2xp",
+            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": DEFAULT_LIDAR,
             **({"attfuse_fusion": cfg.attfuse_fusion} if name == "attfuse" else {})}
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
 

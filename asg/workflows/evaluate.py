@@ -16,7 +16,7 @@ from ..perception.fusion import V2XDetector, build_detector
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "frames": N, "without_collaborators": M} with ground truth =
     every vehicle in range; M counts the scenes that name no collaborator (scored single-agent)."""
-    spec = load_lidar_spec("v2xp")
+    spec = load_lidar_spec()
     frames = []
     alone = 0
     for i, scene in enumerate(scenes):
@@ -46,7 +46,7 @@ def target_detector(fusion: str, weights_file: str | None = None, detector_facto
 
 
 def _worker_setup(fusion: str, weights_file: str | None, detector_factory: str | None) -> tuple[V2XDetector, LidarSpec]:
-    return target_detector(fusion, weights_file, detector_factory), load_lidar_spec("v2xp")
+    return target_detector(fusion, weights_file, detector_factory), load_lidar_spec()
 
 
 def _worker_run(state: tuple[V2XDetector, LidarSpec], item: tuple[int, dict]) -> tuple:

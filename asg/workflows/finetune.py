@@ -147,7 +147,7 @@ def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: 
     rest, in equal shares), every scene rendered with the LiDAR."""
     from ..datasets import build_dataset, dataset_path
 
-    spec = load_lidar_spec("v2xp")
+    spec = load_lidar_spec()
     network = NETWORK_OF_WEIGHTS[name]
     t0 = time.perf_counter()
     labels = [k for k, v in first.items() if v]

@@ -41,7 +41,7 @@ from ..perception.train_config import TrainConfig, load_branch_config, load_trai
 from ..perception.weights_io import WEIGHTS_DIR
 
 def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None) -> list[Sample]:
-    spec = load_lidar_spec("v2xp")
+    spec = load_lidar_spec()
     out = []
     for i, scene in enumerate(iter_frames(dataset, split)):
         out.append(make_sample(scene, spec))

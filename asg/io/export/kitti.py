@@ -44,7 +44,7 @@ OCCLUSION_POINTS = (50, 10, 1)
 class KittiWriter:
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out
-        self.spec = load_lidar_spec("v2xp")
+        self.spec = load_lidar_spec()
         for sub in ("velodyne", "label_2", "calib", "image_2"):
             (out / "training" / sub).mkdir(parents=True, exist_ok=True)
         self.placeholder_png = placeholder_image()

@@ -71,7 +71,7 @@ def mirrored_pose(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> list[fl
 class ScenarioWriter:
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out
-        self.spec = load_lidar_spec("v2xp")
+        self.spec = load_lidar_spec()
         #: scenes whose ego OpenCOOD's rule cannot pick (ids.yaml: ``ego`` and ``opencood_ego``)
         self.other_ego: list[str] = []
 
