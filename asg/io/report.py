@@ -4,9 +4,11 @@ RUN_DIR is an ``asg generate`` run folder, or any folder holding such run folder
 ``asg bench paper``: its configuration runs, and its tables ``TABLE.json`` when present). The page
 holds, per run: the configuration, the before/after AP table (pooled and per scene), plausibility
 (collisions, off the drivable area, out of range, as re-checked when written), the best loss so far
-against the evaluation count, and bird's-eye views of the first scenes at each stage (initial,
-after ACS, final) with the ground truth and the detections in distinct colours; then the paper's
-tables beside ours. Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
+against the evaluation count, and bird's-eye views of the scenes that lost the most AP@0.7 at each
+stage (initial, after ACS, final): the lanes, every sensing agent's LiDAR points coloured by agent
+(rendered again from the stage's scene), the ego and its links to the collaborators, the ground
+truth and the detections in distinct colours, and each moved vehicle's displacement from where it
+was; then the paper's tables beside ours. Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
 """
 from __future__ import annotations
 
@@ -33,6 +35,8 @@ from .run import load_detections  # noqa: E402
 STAGES = (("initial", "initial"), ("after_acs", "after ACS"), ("final", "final"))
 #: colours: ground truth, detections, moved vehicles
 GT_COLOUR, DET_COLOUR, MOVED_COLOUR = "#1a9850", "#d73027", "#4575b4"
+#: each sensing agent's points and marker (none red or green: those are the boxes')
+AGENT_COLOURS = ("tab:blue", "tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:cyan")
 EXTENT_M = 50.0
 
 
@@ -95,7 +99,8 @@ def _run_section(run: Path, scenes_shown: int) -> str:
                      f"{p.get('collisions', '-')} / {p.get('off_road', '-')} / {p.get('out_of_range', '-')}"])
     implausible = sum(any(v for v in e.get("plausibility", {}).values()) for e in entries)
     config = ", ".join(f"{_text(k)}: {_text(json.dumps(v))}" for k, v in cfg.items() if k not in ("objective", "space"))
-    views = "".join(_scene_views(run, e) for e in entries[:scenes_shown] if is_safe_id(str(e["scene_id"])))
+    hardest = sorted((e for e in entries if is_safe_id(str(e["scene_id"]))), key=_ap_lost, reverse=True)
+    views = "".join(_scene_views(run, e) for e in hardest[:scenes_shown])
     return (f"<section><h2>{html.escape(run.name)}</h2><p class=config>{config}</p>"
             f"<p>{_text(agg['scenes'])} scenes, median {_text(agg['seconds_per_scene_median'])} s a scene; "
             f"plausibility: {len(entries) - implausible} of {len(entries)} scenes with no collision, nothing off "
@@ -103,21 +108,34 @@ def _run_section(run: Path, scenes_shown: int) -> str:
             + _html_table(["scene", "normal AP@0.3/0.5/0.7 (%)", "after ACS", "final", "moved",
                            "collisions / off road / out of range"], rows)
             + f"<h3>Best loss so far against evaluations</h3>{_img(_loss_chart(run, entries))}"
-            f"<h3>Bird's-eye views (first {min(scenes_shown, len(entries))} scenes; ego frame, metres)</h3>"
+            f"<h3>Bird's-eye views (the {min(scenes_shown, len(entries))} scenes that lost the most AP@0.7; "
+            f"ego frame, metres)</h3>"
             f"<p><span style='color:{GT_COLOUR}'>&#9632; ground truth</span> "
             f"<span style='color:{DET_COLOUR}'>&#9632; detections</span> "
-            f"<span style='color:{MOVED_COLOUR}'>&#9675; moved vehicles</span></p>{views}</section>")
+            f"<span style='color:{MOVED_COLOUR}'>&#9675;&rarr; moved vehicles and their displacement</span> "
+            f"&#9650; the ego (black) and its collaborators, linked; dots: each agent's LiDAR points (its colour, "
+            f"ground returns left out); grey lines: lane centres</p>{views}</section>")
+
+
+def _ap_lost(entry: dict) -> float:
+    """AP@0.7 the attack took from the scene (normal minus final); 0 if unreadable."""
+    try:
+        return float(entry["ap_normal"]["0.7"]) - float(entry["ap_final"]["0.7"])
+    except (KeyError, TypeError, ValueError):
+        return 0.0
 
 
 def _scene_views(run: Path, entry: dict) -> str:
     folder = run / "scenes" / entry["scene_id"]
     dets = load_detections(run, entry["scene_id"])
     fig, axes = plt.subplots(1, 3, figsize=(13.5, 4.8), dpi=80)
+    initial = load_scene(folder / "initial.yaml") if (folder / "initial.yaml").is_file() else None
     for ax, (key, label) in zip(axes, STAGES):
         scene_file = folder / f"{key}.yaml"
         if key in dets and scene_file.is_file():
             ap = entry[{"initial": "ap_normal", "after_acs": "ap_after_acs", "final": "ap_final"}[key]]
-            _bev(ax, load_scene(scene_file), dets[key], entry.get("moved", []) if key == "final" else [])
+            _bev(ax, load_scene(scene_file), dets[key], entry.get("moved", []) if key == "final" else [],
+                 initial if key == "final" else None)
             ax.set_title(f"{label}: AP@0.7 {100 * ap['0.7']:.1f}", fontsize=10)
         else:
             ax.set_axis_off()
@@ -126,28 +144,50 @@ def _scene_views(run: Path, entry: dict) -> str:
     return f"<figure>{_img(fig)}</figure>"
 
 
-def _bev(ax, scene, detections: tuple, moved: list[str]) -> None:
-    """Buildings, ground truth (green), detections (red, dashed, with score) and the sensing
-    agents, all in the ego's frame (the frame the detections are in)."""
+def _bev(ax, scene, detections: tuple, moved: list[str], initial=None) -> None:
+    """Lanes, buildings, every sensing agent's LiDAR points (rendered from ``scene``), the links,
+    ground truth (green), detections (red, dashed) and the sensing agents, all in the ego's frame
+    (the frame the detections are in); moved vehicles circled, with an arrow from where they stood
+    in ``initial``."""
+    from ..sensors import load_lidar_spec, simulate_frame
+    from ..sensors.frame import transform_points
+
     boxes, scores, gt = detections
     ego = scene.ego
     c, s = np.cos(ego.yaw_rad), np.sin(ego.yaw_rad)
     to_ego = lambda xy: np.stack([c * (xy[:, 0] - ego.x_m) + s * (xy[:, 1] - ego.y_m),
                                   -s * (xy[:, 0] - ego.x_m) + c * (xy[:, 1] - ego.y_m)], axis=1)
+    at = lambda aid, sc=scene: to_ego(np.array([[sc.agent(aid).x_m, sc.agent(aid).y_m]]))[0]
+    for lane in scene.lane_map.lanes:
+        xy = to_ego(np.asarray(lane.centerline_xy))
+        ax.plot(xy[:, 0], xy[:, 1], color="0.75", lw=0.5, zorder=0)
     for b in scene.buildings:
         xy = to_ego(np.asarray(b.footprint_xy))
         ax.fill(xy[:, 0], xy[:, 1], color="0.88", zorder=0)
+    frame = simulate_frame(scene, load_lidar_spec())
+    ego_pose = frame.poses[frame.ego_id]
+    for k, aid in enumerate(frame.sensing_ids):
+        pts = transform_points(frame.clouds[aid], frame.poses[aid], ego_pose)
+        pts = pts[pts[:, 2] > -ego_pose.z_m + 0.2]  # no ground returns
+        ax.scatter(pts[:, 0], pts[:, 1], s=0.15, color=AGENT_COLOURS[k % len(AGENT_COLOURS)], zorder=1,
+                   rasterized=True)
+    for aid in scene.collaborators:
+        ax.plot(*np.stack([at(scene.ego_id), at(aid)]).T, color="0.3", lw=0.8, ls=":", zorder=4)
     for box in gt:
         _outline(ax, box, GT_COLOUR, "-")
     for box, score in zip(boxes, scores):
         _outline(ax, box, DET_COLOUR, "--")
     for aid in moved:
         if any(a.agent_id == aid for a in scene.agents):
-            p = to_ego(np.array([[scene.agent(aid).x_m, scene.agent(aid).y_m]]))[0]
+            p = at(aid)
             ax.add_patch(plt.Circle(p, 3.2, fill=False, color=MOVED_COLOUR, lw=1.5, zorder=4))
-    for aid in scene.sensing_ids:
-        p = to_ego(np.array([[scene.agent(aid).x_m, scene.agent(aid).y_m]]))[0]
-        ax.plot(*p, marker="^", color="k" if aid == scene.ego_id else "0.4", markersize=8, zorder=5)
+            if initial is not None and any(a.agent_id == aid for a in initial.agents):
+                q = at(aid, initial)
+                ax.annotate("", xy=p, xytext=q, arrowprops={"arrowstyle": "->", "color": MOVED_COLOUR, "lw": 1.2},
+                            zorder=4)
+    for k, aid in enumerate(frame.sensing_ids):
+        ax.plot(*at(aid), marker="^", color="k" if aid == scene.ego_id else AGENT_COLOURS[k % len(AGENT_COLOURS)],
+                mec="k", markersize=8, zorder=5)
     ax.set_xlim(-EXTENT_M, EXTENT_M)
     ax.set_ylim(-EXTENT_M, EXTENT_M)
     ax.set_aspect("equal")
