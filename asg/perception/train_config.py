@@ -55,6 +55,9 @@ class FinetuneConfig(TrainConfig):
     mix_with: tuple[str, ...] = ("normal", "detector-train")
     #: evaluated before and after (with the challenging val set of the attacked model)
     eval_sets: tuple[str, ...] = ("normal-val", "heuristic")
+    #: the views of the challenging scenes' examples ("ego": only the attacked one, the view the
+    #: attack made hard; None: ``views``, as the normal frames)
+    challenging_views: Literal["ego", "all"] | None = None
 
 
 #: the train.yaml block of the branch fit (any weights): ``asg train --fusion F --iou-branch``

@@ -151,7 +151,8 @@ def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: 
     network = NETWORK_OF_WEIGHTS[name]
     t0 = time.perf_counter()
     labels = [k for k, v in first.items() if v]
-    sources = [_Batches(network, [make_sample(s, spec) for s in first[k]], fcfg.views) for k in labels]
+    views = fcfg.challenging_views or fcfg.views
+    sources = [_Batches(network, [make_sample(s, spec) for s in first[k]], views) for k in labels]
     for mix in fcfg.mix_with:
         if not (dataset_path(mix) / "index.json").is_file():
             log(f"building data set {mix} ...")
@@ -205,7 +206,8 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
     return {"mix_with": list(fcfg.mix_with), "challenging_share": fcfg.challenging_share,
             "examples": {n: len(b.items) for n, b in zip(batches.labels, batches.sources)},
             "steps": total, "batch_size": fcfg.batch_size, "lr": fcfg.lr, "schedule": fcfg.schedule,
-            "seed": fcfg.seed, "views": fcfg.views, "threads": threads, "wall_s": round(wall_s, 1)}
+            "seed": fcfg.seed, "views": fcfg.views, "challenging_views": fcfg.challenging_views or fcfg.views,
+            "threads": threads, "wall_s": round(wall_s, 1)}
 
 
 def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, fcfg: FinetuneConfig, cache: Path,
