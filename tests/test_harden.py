@@ -157,3 +157,11 @@ def test_harden_rounds_need_the_finetune_table(capsys):
     code, err = run(capsys, "bench", "paper", "--table", "main", "--harden-rounds", "1")
     assert code == 2
     assert_one_line_error(err, "--table finetune")
+
+
+def test_challenging_views_ego_trains_the_rounds_scenes_from_the_attacked_view_only(tmp_path, data_root):
+    card = harden("attfuse", 1, tmp_path / "ego", config=replace(TINY, challenging_views="ego"),
+                  detector_factory=ORACLE, log=_quiet)
+    trained = card["rounds"][1]["trained"]
+    assert trained["examples"] == {"round-1": 1, "normal": 6}  # one view of the round's scene, all of normal's
+    assert trained["challenging_views"] == "ego" and trained["views"] == "all"
