@@ -16,8 +16,7 @@ from test_tables import write_set
 
 #: two steps a round, one scene a round from the normal train split, mixed with normal
 TINY = replace(load_harden_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
-               eval_sets=("normal-val",), scenes_per_round=1, pool=("normal",), noisy=False, reattack=False,
-               challenging_views="all")
+               eval_sets=("normal-val",), scenes_per_round=1, pool=("normal",), noisy=False, reattack=False)
 ORACLE = "fakes:oracle_factory"
 
 
