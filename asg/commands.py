@@ -373,19 +373,26 @@ def evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _table_names(args: argparse.Namespace) -> tuple[str, ...]:
+    """The tables ``--table`` names (none without it)."""
+    from .benchmarks.tables import TABLES
+
+    if args.table is None:
+        return ()
+    return TABLES if args.table == "all" else tuple(t.strip() for t in args.table.split(",") if t.strip())
+
+
 def _bench_tables(args: argparse.Namespace) -> int:
     """``asg bench paper --table NAME[,NAME]|all``: each table's files in --out, the markdown printed."""
     import shlex
 
-    from .benchmarks.tables import TABLES, TableRun, run_tables
+    from .benchmarks.tables import TableRun, run_tables
     from .generate_cmd import executor_from_args
 
-    names = TABLES if args.table == "all" else tuple(t.strip() for t in args.table.split(",") if t.strip())
+    names = _table_names(args)
     if args.budget is not None or args.fusion is not None:
         raise InputError("--budget and --fusion apply to the targets table; the paper's tables use "
                          "configs/generate.yaml and every model")
-    if args.harden_rounds and "finetune" not in names:
-        raise InputError("--harden-rounds adds rows to the finetune table; give --table finetune (or all)")
     if args.detector:
         from .generate import load_factory
 
@@ -440,10 +447,10 @@ def bench_paper(args: argparse.Namespace) -> int:
 
     from .generate_cmd import executor_from_args
 
+    if args.harden_rounds and "finetune" not in _table_names(args):
+        raise InputError("--harden-rounds adds rows to the finetune table; give --table finetune (or all)")
     if args.table is not None:
         return _bench_tables(args)
-    if args.harden_rounds:
-        raise InputError("--harden-rounds adds rows to the finetune table; give --table finetune")
     if args.detector:
         raise InputError("--detector applies to --table runs; the targets table attacks the shipped --fusion")
     from .pipeline import GenerateConfig

@@ -18,6 +18,18 @@ from ..sensors.frame import CooperativeFrame, transform_points  # noqa: E402
 AGENT_COLOURS = ("tab:red", "tab:blue", "tab:green", "tab:purple", "tab:orange")
 
 
+def points_above_ground(frame: CooperativeFrame, above_m: float = 0.2) -> list[tuple[str, np.ndarray, int]]:
+    """Per sensing agent (in ``frame.sensing_ids`` order): its id, its points in the ego's sensor
+    frame (K, 4) without ground returns (lower than ``above_m`` over the ego's ground), and how many
+    points it had in all."""
+    ego_pose = frame.poses[frame.ego_id]
+    out = []
+    for aid in frame.sensing_ids:
+        pts = transform_points(frame.clouds[aid], frame.poses[aid], ego_pose)
+        out.append((aid, pts[pts[:, 2] > -ego_pose.z_m + above_m], len(pts)))
+    return out
+
+
 def bev_figure(scene: Scene, frame: CooperativeFrame, out_path: str | Path, title: str = "",
                marked_ids: Iterable[str] = (), extent_m: float = 60.0) -> None:
     """Points of every sensing agent in the ego frame (coloured by agent), ground-truth boxes,
@@ -33,11 +45,9 @@ def bev_figure(scene: Scene, frame: CooperativeFrame, out_path: str | Path, titl
     for b in scene.buildings:
         xy = to_ego(np.asarray(b.footprint_xy))
         ax.fill(xy[:, 0], xy[:, 1], color="0.85", zorder=0)
-    for k, aid in enumerate(frame.sensing_ids):
-        pts = transform_points(frame.clouds[aid], frame.poses[aid], ego_pose)
-        above = pts[:, 2] > -ego_pose.z_m + 0.2  # hide ground returns
-        ax.scatter(pts[above, 0], pts[above, 1], s=0.3, color=AGENT_COLOURS[k % len(AGENT_COLOURS)],
-                   label=f"{aid} ({len(pts)} pts)", zorder=2)
+    for k, (aid, pts, total) in enumerate(points_above_ground(frame)):
+        ax.scatter(pts[:, 0], pts[:, 1], s=0.3, color=AGENT_COLOURS[k % len(AGENT_COLOURS)],
+                   label=f"{aid} ({total} pts)", zorder=2)
         p = frame.poses[aid]
         m = to_ego(np.array([[p.x_m, p.y_m]]))[0]
         ax.plot(m[0], m[1], marker="^", markersize=10, color=AGENT_COLOURS[k % len(AGENT_COLOURS)], mec="k", zorder=5)

@@ -30,6 +30,7 @@ from sumo_scenarios.checks import is_safe_id  # noqa: E402
 from sumo_scenarios.errors import InputError  # noqa: E402
 
 from ..scene import footprint_xy, load_scene  # noqa: E402
+from .figures import points_above_ground  # noqa: E402
 from .run import load_detections  # noqa: E402
 
 STAGES = (("initial", "initial"), ("after_acs", "after ACS"), ("final", "final"))
@@ -150,7 +151,6 @@ def _bev(ax, scene, detections: tuple, moved: list[str], initial=None) -> None:
     (the frame the detections are in); moved vehicles circled, with an arrow from where they stood
     in ``initial``."""
     from ..sensors import load_lidar_spec, simulate_frame
-    from ..sensors.frame import transform_points
 
     boxes, scores, gt = detections
     ego = scene.ego
@@ -165,10 +165,7 @@ def _bev(ax, scene, detections: tuple, moved: list[str], initial=None) -> None:
         xy = to_ego(np.asarray(b.footprint_xy))
         ax.fill(xy[:, 0], xy[:, 1], color="0.88", zorder=0)
     frame = simulate_frame(scene, load_lidar_spec())
-    ego_pose = frame.poses[frame.ego_id]
-    for k, aid in enumerate(frame.sensing_ids):
-        pts = transform_points(frame.clouds[aid], frame.poses[aid], ego_pose)
-        pts = pts[pts[:, 2] > -ego_pose.z_m + 0.2]  # no ground returns
+    for k, (_, pts, _) in enumerate(points_above_ground(frame)):
         ax.scatter(pts[:, 0], pts[:, 1], s=0.15, color=AGENT_COLOURS[k % len(AGENT_COLOURS)], zorder=1,
                    rasterized=True)
     for aid in scene.collaborators:

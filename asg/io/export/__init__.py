@@ -67,11 +67,10 @@ def net_of(scene: Scene, net: Path | None) -> Path:
         if not Path(net).is_file():
             raise InputError(f"--net {net}: file not found")
         return Path(net)
-    from sumo_scenarios.checks import is_safe_id
-    from sumo_scenarios.towns import list_towns
+    from sumo_scenarios.towns import resolve_net
 
-    towns = {p.name: p for p in list_towns()}
-    if not is_safe_id(scene.town) or f"{scene.town}.net.xml" not in towns:  # a name, never a path out of nets/
+    try:
+        return resolve_net(town=scene.town)[1]  # a name, never a path out of the towns' folders
+    except InputError:
         raise InputError(f"scene {scene.scene_id} comes from '{scene.town}', which is not a bundled or imported town; "
-                         "give its SUMO net with --net PATH")
-    return towns[f"{scene.town}.net.xml"]
+                         "give its SUMO net with --net PATH") from None
