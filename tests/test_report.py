@@ -17,17 +17,42 @@ def _chromium() -> str:
     raise AssertionError("Chromium is needed for this test: apt-get install chromium (make setup installs it)")
 
 
+WINDOW = (1300, 4200)  # tall enough to hold both scenes' views in one screenshot
+
+
+def _chromium_run(page, *args) -> subprocess.CompletedProcess:
+    return subprocess.run([_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                           f"--window-size={WINDOW[0]},{WINDOW[1]}", "--virtual-time-budget=15000", *args,
+                           page.as_uri()], capture_output=True, text=True, timeout=180)
+
+
 def test_report_renders_in_headless_chromium(capsys, tmp_path):
+    """Every inline image decodes, and each 3D view draws: its WebGL canvas, found by the page's own
+    script, holds drawn (non-background) pixels in a screenshot."""
+    import numpy as np
+    from PIL import Image
+
     out = oracle_run(tmp_path, 2, "--budget", "4")
-    assert main(["report", str(out)]) == 0
-    page = (out / "report.html").read_text()
-    assert "s0" in page and "s1" in page and "after ACS" in page
-    assert not re.search(r"(src|href)=['\"]https?:", page)  # self-contained
-    dom = subprocess.run([_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--dump-dom",
-                          (out / "report.html").as_uri()], capture_output=True, text=True, timeout=120).stdout
+    assert main(["report", str(out), "--scenes", "2"]) == 0
+    page = out / "report.html"
+    text = page.read_text()
+    assert "s0" in text and "s1" in text and "after ACS" in text
+    own = re.sub(r"<script>/\*\*\n\* plotly\.js.*?</script>", "", text, count=1, flags=re.S)
+    assert len(own) < len(text) - 1_000_000  # plotly.js is inline (its own source names web pages)
+    assert not re.search(r"(src|href)=['\"]https?:", own)  # self-contained
+    dom = _chromium_run(page, "--dump-dom").stdout
     total = int(re.search(r'data-images="(\d+)"', dom).group(1))
     decoded = int(re.search(r'data-images-ok="(\d+)"', dom).group(1))
     assert total == decoded == 3  # the loss chart and one row of three views per scene
+    rects = [tuple(map(int, r.split(","))) for r in re.search(r'data-views3d="([^"]*)"', dom).group(1).split(";")]
+    assert len(rects) == 2 and all(w > 300 and h > 300 for _, _, w, h in rects)
+    _chromium_run(page, f"--screenshot={tmp_path / 'shot.png'}")
+    shot = np.asarray(Image.open(tmp_path / "shot.png").convert("RGB")).astype(int)
+    for x, y, w, h in rects:
+        assert y + h <= WINDOW[1], "the 3D view lies below the screenshot: raise WINDOW"
+        canvas = shot[y:y + h, x:x + w]
+        drawn = (np.abs(canvas - canvas[2, 2]).sum(axis=2) > 60).mean()  # differs from the corner's background
+        assert drawn > 0.01, f"the 3D view at {(x, y, w, h)} is blank ({drawn:.4f} of its pixels drawn)"
     capsys.readouterr()
 
 

@@ -1,4 +1,5 @@
-"""``asg report RUN_DIR``: one self-contained HTML page (images inline as PNG data, no network).
+"""``asg report RUN_DIR``: one self-contained HTML page (images inline as PNG data, plotly.js
+inline for the 3D views: no network).
 
 RUN_DIR is an ``asg generate`` run folder, or any folder holding such run folders (the output of
 ``asg bench paper``: its configuration runs, and its tables ``TABLE.json`` when present). The page
@@ -8,7 +9,8 @@ against the evaluation count, and bird's-eye views of the scenes that lost the m
 stage (initial, after ACS, final): the lanes, every sensing agent's LiDAR points coloured by agent
 (rendered again from the stage's scene), the ego and its links to the collaborators, the ground
 truth and the detections in distinct colours, and each moved vehicle's displacement from where it
-was; then the paper's tables beside ours. Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
+was; below each scene's row, an interactive 3D view of its final stage (the fused cloud with
+ground truth and detections); then the paper's tables beside ours. Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
 """
 from __future__ import annotations
 
@@ -16,8 +18,10 @@ import base64
 import csv
 import html
 import io
+import itertools
 import json
 from pathlib import Path
+from typing import Iterator
 
 import matplotlib
 
@@ -32,6 +36,7 @@ from sumo_scenarios.errors import InputError  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
 from .figures import points_above_ground  # noqa: E402
 from .run import load_detections  # noqa: E402
+from .view3d import plotly_script, scene_view_html  # noqa: E402
 
 STAGES = (("initial", "initial"), ("after_acs", "after ACS"), ("final", "final"))
 #: colours: ground truth, detections, moved vehicles
@@ -55,11 +60,14 @@ def write_report(root: Path, out: Path | None = None, scenes_shown: int = 6) -> 
     if not runs and not tables:
         raise InputError(f"{root}: no run folder (summary.json) or table (TABLE.json) to report; "
                          "give a folder written by 'asg generate' or 'asg bench paper'")
+    view_ids = itertools.count()  # the 3D views' div ids, unique in the page
     parts = [f"<h1>asg report: {html.escape(str(root))}</h1>"]
-    parts += [_guarded(_run_section, r, "summary.json", scenes_shown) for r in runs]
+    parts += [_guarded(_run_section, r, "summary.json", scenes_shown, view_ids) for r in runs]
     parts += [_guarded(_table_section, p, p.name) for p in tables]
+    body = "\n".join(parts)
+    head = plotly_script() if "class=view3d" in body else ""
     out = Path(out) if out is not None else root / "report.html"
-    write_text_atomic(out, _PAGE.format(body="\n".join(parts)))
+    write_text_atomic(out, _PAGE.format(head=head, body=body))
     return out
 
 
@@ -88,7 +96,7 @@ def _is_table(path: Path) -> bool:
     return isinstance(data, dict) and {"table", "rows", "command"} <= set(data)
 
 
-def _run_section(run: Path, scenes_shown: int) -> str:
+def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
     summary = json.loads((run / "summary.json").read_text())
     cfg, agg, entries = summary["config"], summary["aggregate"], summary["scenes"]
     fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7")) if ap else "-"
@@ -101,7 +109,7 @@ def _run_section(run: Path, scenes_shown: int) -> str:
     implausible = sum(any(v for v in e.get("plausibility", {}).values()) for e in entries)
     config = ", ".join(f"{_text(k)}: {_text(json.dumps(v))}" for k, v in cfg.items() if k not in ("objective", "space"))
     hardest = sorted((e for e in entries if is_safe_id(str(e["scene_id"]))), key=_ap_lost, reverse=True)
-    views = "".join(_scene_views(run, e) for e in hardest[:scenes_shown])
+    views = "".join(_scene_views(run, e, next(view_ids)) for e in hardest[:scenes_shown])
     return (f"<section><h2>{html.escape(run.name)}</h2><p class=config>{config}</p>"
             f"<p>{_text(agg['scenes'])} scenes, median {_text(agg['seconds_per_scene_median'])} s a scene; "
             f"plausibility: {len(entries) - implausible} of {len(entries)} scenes with no collision, nothing off "
@@ -126,32 +134,42 @@ def _ap_lost(entry: dict) -> float:
         return 0.0
 
 
-def _scene_views(run: Path, entry: dict) -> str:
+def _scene_views(run: Path, entry: dict, index: int) -> str:
+    """The scene's row of bird's-eye views (initial, after ACS, final) and the 3D view of its final
+    stage (a ``<div>`` with id ``view3d-INDEX``)."""
+    from ..sensors import load_lidar_spec, simulate_frame
+
     folder = run / "scenes" / entry["scene_id"]
     dets = load_detections(run, entry["scene_id"])
     fig, axes = plt.subplots(1, 3, figsize=(13.5, 4.8), dpi=80)
     initial = load_scene(folder / "initial.yaml") if (folder / "initial.yaml").is_file() else None
+    view3d = ""
     for ax, (key, label) in zip(axes, STAGES):
         scene_file = folder / f"{key}.yaml"
         if key in dets and scene_file.is_file():
             ap = entry[{"initial": "ap_normal", "after_acs": "ap_after_acs", "final": "ap_final"}[key]]
-            _bev(ax, load_scene(scene_file), dets[key], entry.get("moved", []) if key == "final" else [],
+            scene = load_scene(scene_file)
+            frame = simulate_frame(scene, load_lidar_spec())
+            _bev(ax, scene, frame, dets[key], entry.get("moved", []) if key == "final" else [],
                  initial if key == "final" else None)
             ax.set_title(f"{label}: AP@0.7 {100 * ap['0.7']:.1f}", fontsize=10)
+            if key == "final":
+                view3d = scene_view_html(frame, dets[key][0], f"view3d-{index}", AGENT_COLOURS, GT_COLOUR, DET_COLOUR)
         else:
             ax.set_axis_off()
     fig.suptitle(entry["scene_id"], fontsize=10, parse_math=False)  # an id is text, never TeX
     fig.tight_layout()
-    return f"<figure>{_img(fig)}</figure>"
+    caption = (f"<figcaption>{_text(entry['scene_id'])}, final stage in 3D: the fused cloud (each agent's points "
+               "in its colour, ground left out), ground truth and detections; drag to turn, scroll to zoom"
+               "</figcaption>") if view3d else ""
+    return f"<figure>{_img(fig)}</figure>" + (f"<figure class=view3d>{view3d}{caption}</figure>" if view3d else "")
 
 
-def _bev(ax, scene, detections: tuple, moved: list[str], initial=None) -> None:
-    """Lanes, buildings, every sensing agent's LiDAR points (rendered from ``scene``), the links,
-    ground truth (green), detections (red, dashed) and the sensing agents, all in the ego's frame
-    (the frame the detections are in); moved vehicles circled, with an arrow from where they stood
-    in ``initial``."""
-    from ..sensors import load_lidar_spec, simulate_frame
-
+def _bev(ax, scene, frame, detections: tuple, moved: list[str], initial=None) -> None:
+    """Lanes, buildings, every sensing agent's LiDAR points (``frame``, rendered from ``scene``),
+    the links, ground truth (green), detections (red, dashed) and the sensing agents, all in the
+    ego's frame (the frame the detections are in); moved vehicles circled, with an arrow from where
+    they stood in ``initial``."""
     boxes, scores, gt = detections
     ego = scene.ego
     c, s = np.cos(ego.yaw_rad), np.sin(ego.yaw_rad)
@@ -164,7 +182,6 @@ def _bev(ax, scene, detections: tuple, moved: list[str], initial=None) -> None:
     for b in scene.buildings:
         xy = to_ego(np.asarray(b.footprint_xy))
         ax.fill(xy[:, 0], xy[:, 1], color="0.88", zorder=0)
-    frame = simulate_frame(scene, load_lidar_spec())
     for k, (_, pts, _) in enumerate(points_above_ground(frame)):
         ax.scatter(pts[:, 0], pts[:, 1], s=0.15, color=AGENT_COLOURS[k % len(AGENT_COLOURS)], zorder=1,
                    rasterized=True)
@@ -259,12 +276,13 @@ def _img(fig) -> str:
 
 _PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>asg report</title>
+{head}
 <style>
 body {{ font-family: sans-serif; margin: 1.5em; color: #222; }}
 table {{ border-collapse: collapse; margin: 0.6em 0; font-size: 0.85em; }}
 td, th {{ border: 1px solid #bbb; padding: 2px 7px; text-align: right; }}
 th {{ background: #eee; }} td:first-child {{ text-align: left; }}
-img {{ max-width: 100%; }} .config {{ font-size: 0.8em; color: #555; }}
+img {{ max-width: 100%; }} figure.view3d {{ max-width: 1080px; border: 1px solid #ddd; }} .config {{ font-size: 0.8em; color: #555; }}
 section {{ border-top: 2px solid #ccc; margin-top: 1.2em; }}
 </style></head>
 <body>
@@ -275,6 +293,13 @@ window.addEventListener("load", function () {{
   var imgs = Array.prototype.slice.call(document.images);
   document.body.setAttribute("data-images", imgs.length);
   document.body.setAttribute("data-images-ok", imgs.filter(function (i) {{ return i.complete && i.naturalWidth > 0; }}).length);
+  // the 3D views: where each one's WebGL canvas lies on the page (x, y, width, height in CSS pixels)
+  var rects = Array.prototype.slice.call(document.querySelectorAll(".view3d .js-plotly-plot")).map(function (d) {{
+    var c = d.querySelector("canvas"); if (!c) {{ return "none"; }}
+    var r = c.getBoundingClientRect();
+    return [r.left + window.scrollX, r.top + window.scrollY, r.width, r.height].map(Math.round).join(",");
+  }});
+  document.body.setAttribute("data-views3d", rects.join(";"));
 }});
 </script>
 </body></html>
