@@ -278,3 +278,27 @@ def test_empty_scene_is_refused(cross_map):
     scene = make_scene(cross_map, [rsu("r", 8.0, 8.0)])
     with pytest.raises(InputError, match="empty scene"):
         simulate_frame(scene, SMALL)
+
+
+@pytest.mark.parametrize("type_id", ["car", "suv", "van", "truck", "bus"])
+def test_vehicle_meshes_lie_strictly_inside_their_box(type_id):
+    from asg.sensors.meshes import MESH_INSET_M, vehicle_template
+
+    l, w, h = 4.6, 1.9, 1.7
+    v = vehicle_template(type_id, l, w, h).vertices
+    assert np.abs(v[:, 0]).max() == pytest.approx(l / 2 - MESH_INSET_M)
+    assert np.abs(v[:, 1]).max() == pytest.approx(w / 2 - MESH_INSET_M)
+    assert v[:, 2].max() == pytest.approx(h - MESH_INSET_M) and v[:, 2].min() == pytest.approx(0.0)
+
+
+def test_every_return_off_a_vehicle_passes_a_strict_in_box_test(cross_map):
+    """OpenCOOD keeps a point in a box only strictly inside it: each vehicle's returns (above the
+    ground) are counted the same with no margin as with a generous one."""
+    scene = make_scene(cross_map, [car("ego", 0.0, -1.6), car("a", 9.0, -1.6), car("b", -8.0, 1.6, math.pi),
+                                   car("c", 2.0, 12.0, math.radians(70))])
+    frame = simulate_frame(scene, SMALL)
+    pts = frame.clouds["ego"]
+    above = pts[pts[:, 2] > frame.ego_boxes[:, 2].min() - frame.ego_boxes[:, 5].max() / 2 + 0.05]
+    strict = count_points_in_boxes(above, frame.ego_boxes, margin_m=-1e-6)
+    loose = count_points_in_boxes(above, frame.ego_boxes, margin_m=0.3)
+    assert (loose > 10).all() and strict.tolist() == loose.tolist()

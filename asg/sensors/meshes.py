@@ -1,8 +1,11 @@
 """Meshes of the 3D world: vehicles shaped by class, buildings, RSU poles, ground.
 
 Vehicle meshes are built in the vehicle's local frame: origin at the centre of its footprint on
-the ground, x forward, y left, z up, metres; they fit inside the (length, width, height) box.
-Each is a union of parts (body, cabin or cargo box, wheels), not a single box.
+the ground, x forward, y left, z up, metres; they lie strictly inside the (length, width, height)
+box, ``MESH_INSET_M`` in from its sides, front, back and top (the wheels stand on the ground), as a
+real car sits inside its labelled box: every LiDAR return off a vehicle lies inside its ground-truth
+box, also for a reader with a strict in-box test (OpenCOOD's). Each is a union of parts (body,
+cabin or cargo box, wheels), not a single box.
 """
 from __future__ import annotations
 
@@ -16,6 +19,8 @@ from sumo_scenarios.buildings import Building
 #: surface classes, stored per triangle; reflectivity in [0, 1] scales the intensity
 SURFACES = {"ground": 0, "building": 1, "vehicle": 2, "pole": 3}
 REFLECTIVITY = np.array([0.20, 0.35, 0.60, 0.50], dtype=np.float32)
+#: how far a vehicle's mesh stays inside its box on every side but the bottom (m)
+MESH_INSET_M = 0.02
 
 
 def _box(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float) -> trimesh.Trimesh:
@@ -80,8 +85,11 @@ def vehicle_parts(type_id: str, length_m: float, width_m: float, height_m: float
 
 @lru_cache(maxsize=64)
 def vehicle_template(type_id: str, length_m: float, width_m: float, height_m: float) -> trimesh.Trimesh:
-    """A vehicle mesh in its local frame (cached per class and size)."""
+    """A vehicle mesh in its local frame (cached per class and size), ``MESH_INSET_M`` inside its box."""
     mesh = trimesh.util.concatenate(vehicle_parts(type_id, length_m, width_m, height_m))
+    inset = MESH_INSET_M
+    mesh.apply_transform(np.diag([(length_m - 2 * inset) / length_m, (width_m - 2 * inset) / width_m,
+                                  (height_m - inset) / height_m, 1.0]))
     mesh.metadata["surface"] = SURFACES["vehicle"]
     return mesh
 
