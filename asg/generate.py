@@ -116,6 +116,9 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
                 write_summary(out, in_order(), config, time.perf_counter() - started)
             if on_scene:
                 on_scene(n, len(todo), item["scene_id"])
+    except BaseException:  # interrupted, or a worker lost: the workers are stopped; what they half-wrote goes
+        remove_stale_partials(out / "scenes")  # (a Ray actor is killed, not left to clean up)
+        raise
     finally:
         _ON_STEP = None
     if not entries:

@@ -11,7 +11,9 @@ Executors are registered by name (``local``, ``ray``): ``build_executor(name, wo
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence
@@ -104,3 +106,26 @@ def build_executor(name: str, workers: int, threads: int = 1, address: str | Non
     if address is not None and name != "ray":
         raise InputError("--address applies to --executor ray only")
     return lookup("executor", name)(workers=workers, threads=threads, address=address)
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """SIGINT and SIGTERM that arrive inside the block take effect when it ends (main thread only),
+    through the handlers in place before it (also when the block replaced them): workers start
+    whole (a signal taken while a process forks can be swallowed by an at-fork hook, and a spawned
+    worker half-started prints a traceback). Yields the list of signals that arrived so far."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield []
+        return
+    arrived: list[int] = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: arrived.append(signum))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield arrived
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        if arrived:
+            signal.raise_signal(arrived[0])

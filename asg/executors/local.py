@@ -10,7 +10,6 @@ if no item finishes between MAX_ATTEMPTS breaks in a row, the batch stops with W
 """
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import multiprocessing
 import os
@@ -21,7 +20,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Iterator, Sequence
 
 from ..registry import register
-from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads
+from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, signals_deferred
 
 _STATE: Any = None
 #: is this worker inside an item (which may hold temporary files) rather than starting or idle?
@@ -117,7 +116,7 @@ class LocalExecutor(Executor):
         finished: list[int] = []
         broken = False
         try:
-            with _signals_deferred():  # a worker half-spawned by an interrupted start would print a traceback
+            with signals_deferred():  # a worker half-spawned by an interrupted start would print a traceback
                 pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
                                            mp_context=multiprocessing.get_context("spawn"),
                                            initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
@@ -139,27 +138,6 @@ class LocalExecutor(Executor):
             if pool is not None:
                 _stop(pool)
         return finished, broken
-
-
-@contextlib.contextmanager
-def _signals_deferred():
-    """SIGINT and SIGTERM that arrive inside the block take effect when it ends (main thread only):
-    the pool starts its workers (spawn writes each its start-up data through a pipe) whole."""
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    arrived: list[int] = []
-    previous = {sig: signal.signal(sig, lambda signum, frame: arrived.append(signum))
-                for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
-        if arrived:
-            signal.raise_signal(arrived[0])
 
 
 def _stop(pool: ProcessPoolExecutor) -> None:

@@ -5,17 +5,26 @@ Ray is an optional extra (``pip install 'asg[ray]'``). Each actor builds its sta
 one item at a time; Ray restarts an actor whose process dies and retries its task (at most
 MAX_ATTEMPTS times, then the batch stops with WorkerLost). Workers get this process's import
 path, so a detector factory importable here is importable there.
+
+Signals: ``ray.init`` puts its own SIGTERM handlers in place (Abseil's failure handler, which
+aborts the process 3 s after a SIGTERM with a stack dump, and a Python one that exits 15); the
+Python one is kept out, a signal that arrives while Ray starts is held (``signals_deferred``) and
+this process's handlers are put back once Ray has started; the driver waits for results in short
+slices, each with signals held (a handler's exception inside Ray's C++ wait is lost). So SIGTERM or Ctrl-C ends a Ray
+batch as it ends a local one (asg.cli: "terminated", exit 143; "interrupted", 130).
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import sys
 from typing import Any, Iterator, Sequence
 
 from sumo_scenarios.errors import InputError
 
 from ..registry import register
-from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads
+from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, signals_deferred
 
 
 class _Worker:
@@ -32,6 +41,10 @@ class _Worker:
 
 #: seconds to wait for a cluster's port to answer (Ray itself retries for minutes)
 PROBE_TIMEOUT_S = 5.0
+#: longest an interrupted batch waits for its killed actors to be gone
+KILL_WAIT_S = 10.0
+#: longest the driver waits for a result at a time (a signal is handled between two waits)
+WAIT_SLICE_S = 0.5
 
 
 def _probe(address: str) -> None:
@@ -58,6 +71,23 @@ def _import_ray():
     return ray
 
 
+@contextlib.contextmanager
+def _ray_leaves_sigterm_alone(ray):
+    """While inside: ``ray.init`` does not replace this process's SIGTERM handler with its own
+    (which exits 15, and whose exception an at-fork hook swallows when the signal comes while Ray
+    forks its node's processes). Ray's private helper; if a Ray release lacks it, nothing changes."""
+    utils = getattr(getattr(ray, "_private", None), "utils", None)
+    original = getattr(utils, "set_sigterm_handler", None)
+    if original is None:
+        yield
+        return
+    utils.set_sigterm_handler = lambda handler: None
+    try:
+        yield
+    finally:
+        utils.set_sigterm_handler = original
+
+
 @register("executor", "ray")
 class RayExecutor(Executor):
     """``workers`` Ray actors of ``threads`` CPUs each."""
@@ -75,17 +105,28 @@ class RayExecutor(Executor):
         if self.address:
             _probe(self.address)
         env = {"env_vars": {"PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}}
-        try:
-            if self.address:
-                ray.init(address=self.address, runtime_env=env, log_to_driver=False, logging_level="ERROR")
-            else:
-                ray.init(num_cpus=self.workers * self.threads, runtime_env=env, include_dashboard=False,
-                         log_to_driver=False, logging_level="ERROR")
-        except Exception as exc:  # Ray raises ConnectionError, RuntimeError, ValueError ... for a bad address
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            where = f"the Ray cluster at {self.address}" if self.address else "a local Ray instance"
-            raise InputError(f"could not connect to {where} ({first[:160]}); check --address") from None
-        self._started = True
+        took_sigterm = False
+        with signals_deferred() as arrived, _ray_leaves_sigterm_alone(ray):  # Ray forks its node's processes here
+            try:
+                if self.address:
+                    ray.init(address=self.address, runtime_env=env, log_to_driver=False, logging_level="ERROR")
+                else:
+                    ray.init(num_cpus=self.workers * self.threads, runtime_env=env, include_dashboard=False,
+                             log_to_driver=False, logging_level="ERROR")
+                self._started = True
+                if arrived:
+                    signal.alarm(0)  # Abseil's handler took the SIGTERM too and set an abort 3 s later
+            except SystemExit as exc:  # Ray's own SIGTERM handler, in place while Ray starts, took one
+                if exc.code != signal.SIGTERM:
+                    raise
+                took_sigterm = True
+            except Exception as exc:  # Ray raises ConnectionError, RuntimeError, ValueError ... for a bad address
+                first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                where = f"the Ray cluster at {self.address}" if self.address else "a local Ray instance"
+                raise InputError(f"could not connect to {where} ({first[:160]}); check --address") from None
+        if took_sigterm:  # handled as any SIGTERM is, by this process's own handler
+            ray.shutdown()
+            signal.raise_signal(signal.SIGTERM)
 
     def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
         ray = self.ray
@@ -102,7 +143,10 @@ class RayExecutor(Executor):
                     actor = idle.pop()
                     i, item = queue.pop(0)
                     running[actor.run.remote(item)] = (actor, i)
-                ready, _ = ray.wait(list(running), num_returns=1)
+                ready: list = []
+                while not ready:  # in slices: a signal is handled between two, not inside Ray's C++ wait
+                    with signals_deferred():  # (a handler's exception there becomes a SystemError)
+                        ready, _ = ray.wait(list(running), num_returns=1, timeout=WAIT_SLICE_S)
                 ref = ready[0]
                 actor, i = running.pop(ref)
                 try:
@@ -116,6 +160,8 @@ class RayExecutor(Executor):
         finally:
             for a in actors:
                 ray.kill(a)
+            if running:  # interrupted: until the killed actors are gone (no write of theirs comes later)
+                ray.wait(list(running), num_returns=len(running), timeout=KILL_WAIT_S)
 
     def close(self) -> None:
         if self._started and self.ray.is_initialized():
