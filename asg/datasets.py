@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import gzip
 import json
-import os
 import shutil
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -23,47 +22,12 @@ import numpy as np
 from sumo_scenarios.atomic import atomic_dir, remove_stale_partials_of
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.log import NEAR_RADIUS_M
-from sumo_scenarios.paths import configs_dir, runs_dir
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
-from sumo_scenarios.strict import from_mapping, read_yaml
 
+from .dataset_spec import DatasetSpec, data_root, load_spec  # noqa: F401  (this module's API too)
 from .scene import Scene, load_scene
 from .scene.from_log import ExtractParams, extract_scenes
 from .scene.neighbours import random_collaborators, vehicles_within
-
-
-@dataclass(frozen=True)
-class DatasetSpec:
-    towns: tuple[str, ...]
-    densities: tuple[str, ...] = ("normal",)
-    seeds: tuple[int, ...] = (1,)
-    duration_s: float = 60.0
-    every: int = 10
-    ego_rsu_share: float = 0.5
-    collaborators: int = 2
-    frames_per_log: int | None = None
-    total: int | None = None
-    val: int | None = None
-    #: only the first this many (town, density, seed) logs
-    max_logs: int | None = None
-    #: the split that holds every frame of a set without ``total`` (a test-only set: "test")
-    split: str = "train"
-    #: keep frames with this many vehicles (ego aside) within the evaluation range, inclusive
-    vehicles_in_range: tuple[int, int] | None = None
-    #: keep this share of the frames (those passing the other filters) whose vehicles in range hold
-    #: the fewest fused LiDAR points on average: the most occluded ones
-    fewest_points_share: float | None = None
-
-
-def data_root() -> Path:
-    return Path(os.environ.get("ASG_DATA", runs_dir() / "datasets"))
-
-
-def load_spec(name: str) -> DatasetSpec:
-    data = read_yaml(configs_dir() / "datasets.yaml")
-    if name not in data:
-        raise InputError(f"unknown data set '{name}'; known: {', '.join(sorted(data))}")
-    return from_mapping(DatasetSpec, data[name], f"datasets.yaml:{name}")
 
 
 def _choose_agents(scene: Scene, rng: np.random.Generator, use_rsu: bool, collaborators: int) -> Scene | None:

@@ -15,17 +15,16 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
-from sumo_scenarios.atomic import remove_stale_partials, write_text_atomic
-from sumo_scenarios.checks import inside, output_dir
+from sumo_scenarios.atomic import remove_stale_partials
+from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
 
 from .executors import Executor, Job
 from .executors.local import LocalExecutor
+from .io.run_record import RUN_RECORD, claim
 from .pipeline import GenerateConfig, Generator
 from .scene import Scene
 
-#: the file in a run folder that records its settings
-RUN_RECORD = "run.json"
 #: temporary work (a simulated log) inside the run folder, removed when the run ends
 WORK_DIR = ".work"
 #: what a run folder may hold: the only names ``force`` removes
@@ -77,6 +76,67 @@ SceneProgress = Callable[[int, int, str], None]
 StepProgress = Callable[[int], None]
 
 
+@dataclass(frozen=True)
+class OpenRun:
+    """A claimed run folder and the scenes it will run (:func:`open_run`); ``generate`` runs them."""
+
+    cfg: GenerateConfig
+    out: Path
+    scenes: tuple[Scene, ...]
+    seed: int
+    #: this run created ``out``: bad input that stops it before any scene is done removes it again
+    fresh: bool
+
+    def generate(self, *, detector_factory: str | None = None, executor: Executor | None = None,
+                 on_scene: SceneProgress | None = None, on_step: StepProgress | None = None,
+                 artifacts: bool = True) -> GenerateRun:
+        """:func:`generate` on this folder's scenes (resuming what an earlier run finished)."""
+        try:
+            return generate(self.cfg, self.scenes, self.out, seed=self.seed, detector_factory=detector_factory,
+                            executor=executor, on_scene=on_scene, on_step=on_step, artifacts=artifacts)
+        except InputError:
+            if self.fresh and not any((self.out / "scenes").glob("*/result.json")):
+                shutil.rmtree(self.out, ignore_errors=True)
+            raise
+
+
+def open_run(cfg: GenerateConfig, out: Path, *, source: SceneSource | None = None,
+             scenes: Sequence[Scene] | None = None, count: int | None = None,
+             pick: Callable[[list[Scene]], list[Scene]] | None = None, record: dict | None = None,
+             seed: int = 1, force: bool = False) -> OpenRun:
+    """The one entry of a generator run (``asg generate``, the challenging sets, the tables, the
+    paper and scale benchmarks, hardening): claim run folder ``out`` for these settings (run.json:
+    ``cfg``, ``seed``, the scene count, ``source`` described, ``record``; a folder of other settings
+    is refused, ``force`` starts it over), then take the scenes: ``scenes`` as given, or the first
+    ``count`` of ``source`` (all of a scene folder or set when None; a town or net needs a count,
+    its traffic simulated inside ``out``), and refuse what cannot run before any scene is computed.
+    ``pick``: which of the scenes taken to run (the settings count them all)."""
+    if (source is None) == (scenes is None):
+        raise ValueError("open_run takes a source or scenes")
+    if scenes is None and count is None and source.scenes is None:
+        raise ValueError("a town or net source needs a count")
+    out = Path(out)
+    fresh = not out.exists()
+    taken = list(scenes) if scenes is not None else None
+    if taken is None and count is None:  # a scene folder or set: read whole before the claim counts it
+        taken = load_scenes(source, 10**6, seed, out / WORK_DIR)
+    described = (source.describe() if source is not None else {}) | (record or {})
+    prepare_run(out, run_settings(cfg, seed, len(taken) if count is None else count, described), force=force)
+    try:
+        if taken is None:
+            taken = load_scenes(source, count, seed, out / WORK_DIR,
+                                log_dir=out / LOG_DIR if cfg.space.needs_past else None)
+        chosen = pick(taken) if pick else taken
+        check_scenes(cfg, chosen)
+    except BaseException:
+        if fresh:  # bad input: leave no trace of the folder this run created
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    finally:
+        shutil.rmtree(out / WORK_DIR, ignore_errors=True)
+    return OpenRun(cfg, out, tuple(chosen), seed, fresh)
+
+
 def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: int = 1,
              detector_factory: str | None = None, executor: Executor | None = None,
              on_scene: SceneProgress | None = None, on_step: StepProgress | None = None,
@@ -88,7 +148,7 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
     per worker (default: the shipped ``cfg.fusion`` and AttFuse). ``executor``: where the scenes run
     (default: this process, one thread). A scene's result depends only on the scene, ``cfg`` and
     ``seed``, so any executor and worker count gives the same summary (timings aside).
-    ``on_step`` reports evaluations only when the scenes run in this process. ``artifacts``: write
+    ``on_step`` reports evaluations only when the scenes run in this process (``executor.in_process``). ``artifacts``: write
     each scene's final clouds and pictures too (off for data sets of challenging scenes)."""
     from .io.run import load_done, previous_wall_s, write_summary
 
@@ -104,9 +164,9 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
     order = [s.scene_id for s in scenes]
     in_order = lambda: [entries[i] for i in order if i in entries]
     skipped: list[tuple[str, str]] = []
-    job = Job(_worker_setup, _worker_run, (cfg, detector_factory, str(out), seed, artifacts))
-    global _ON_STEP
-    _ON_STEP = on_step
+    # the evaluation callback reaches the generator only where it runs in this process
+    job = Job(_worker_setup, _worker_run,
+              (cfg, detector_factory, str(out), seed, artifacts, on_step if executor.in_process else None))
     try:
         for n, (item, (status, value)) in enumerate(executor.map_unordered(job, todo), start=1):
             if status == "skipped":
@@ -119,8 +179,6 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
     except BaseException:  # interrupted, or a worker lost: the workers are stopped; what they half-wrote goes
         remove_stale_partials(out / "scenes")  # (a Ray actor is killed, not left to clean up)
         raise
-    finally:
-        _ON_STEP = None
     if not entries:
         reasons = "; ".join(f"{sid}: {why}" for sid, why in skipped[:2])
         raise InputError(f"no scene could be generated ({reasons})")
@@ -130,14 +188,12 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
 
 
 # ---- one worker ------------------------------------------------------------------------------------
-#: the evaluation callback of a run in this process (workers in other processes report none)
-_ON_STEP: StepProgress | None = None
-
-
-def _worker_setup(cfg: GenerateConfig, detector_factory: str | None, out: str, seed: int, artifacts: bool):
-    """A worker's state: the generator with its detectors, where to write, the seed, what to write."""
+def _worker_setup(cfg: GenerateConfig, detector_factory: str | None, out: str, seed: int, artifacts: bool,
+                  on_step: StepProgress | None):
+    """A worker's state: the generator with its detectors, where to write, the seed, what to write,
+    the evaluation callback (a worker in this process only)."""
     target, acs_model = factory_models(detector_factory, cfg) if detector_factory else _shipped_models(cfg)
-    return Generator(cfg, target, acs_model), Path(out), seed, artifacts
+    return Generator(cfg, target, acs_model), Path(out), seed, artifacts, on_step
 
 
 def _worker_run(state, scene_dict: dict) -> tuple[str, object]:
@@ -145,9 +201,8 @@ def _worker_run(state, scene_dict: dict) -> tuple[str, object]:
     why) when the scene cannot be attacked (too few vehicles, nothing plausible to move)."""
     from .io.run import write_scene
 
-    gen, out, seed, artifacts = state
+    gen, out, seed, artifacts, on_step = state
     scene = Scene.from_dict(scene_dict)
-    on_step = _ON_STEP
     try:
         result = gen.generate(scene, seed, on_step=(lambda e: on_step(e.step)) if on_step else None)
     except InputError as exc:
@@ -241,32 +296,15 @@ def folder_digest(folder: Path) -> str:
 
 
 def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
-    """Check and claim run folder ``out`` before any scene is computed: it must be a writable
-    folder; if it records other settings the run is refused (``force``: start it over). Removes
-    stale partial files left by an interrupted run."""
+    """Check and claim run folder ``out`` before any scene is computed (asg.io.run_record.claim):
+    a writable folder that records no other settings while it holds finished scenes (``force``:
+    start it over); removes stale partial files and work left by an interrupted run."""
     out = Path(out)
-    settings = json.loads(json.dumps(settings))  # as run.json will hold them (tuples become lists)
-    output_dir(out)
-    record = out / RUN_RECORD
-    if force:
-        for name in RUN_CONTENTS:
-            p = out / name
-            shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
-    elif record.is_file() and _has_finished_scenes(out):
-        earlier = with_new_defaults(_read_record(record))
-        diff = _first_difference(earlier, settings)
-        if diff:
-            raise InputError(f"{out} holds a run made with other settings ({diff}); give another --out, "
-                             f"or --force to start it over")
-    elif not record.is_file() and _has_finished_scenes(out):
-        raise InputError(f"{out} holds scenes of a run that recorded no settings; give another --out, or --force")
+    claim(out, settings, force, what="a run", contents=RUN_CONTENTS, holds_results=_has_finished_scenes,
+          as_today=with_new_defaults)
     remove_stale_partials(out)
     remove_stale_partials(out / "scenes")
     shutil.rmtree(out / WORK_DIR, ignore_errors=True)
-    try:
-        write_text_atomic(record, json.dumps(settings, indent=1, sort_keys=True))
-    except OSError as exc:
-        raise InputError(f"--out {out}: cannot write in it ({exc.strerror}); give a writable folder") from None
 
 
 def with_new_defaults(record: dict) -> dict:
@@ -286,27 +324,6 @@ def _has_finished_scenes(out: Path) -> bool:
     """Does run folder ``out`` hold a scene that a rerun would keep? (A folder claimed by a run that
     failed before its first scene holds none, and may be claimed anew with other settings.)"""
     return any((out / "scenes").glob("*/result.json"))
-
-
-def _read_record(path: Path) -> dict:
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        raise InputError(f"{path} is unreadable; give another --out, or --force to start it over") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{path} is not a run record; give another --out, or --force to start it over")
-    return data
-
-
-def _first_difference(a, b, where: str = "") -> str | None:
-    """The first setting that differs between two records, as 'key: old -> new' (None if equal)."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        for k in sorted(set(a) | set(b)):
-            d = _first_difference(a.get(k), b.get(k), f"{where}.{k}" if where else k)
-            if d:
-                return d
-        return None
-    return None if a == b else f"{where}: {a!r} -> {b!r}"
 
 
 def check_scenes(cfg: GenerateConfig, scenes: Sequence[Scene]) -> None:

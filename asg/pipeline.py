@@ -6,7 +6,7 @@ What the CLI and the benchmarks call. Works with any detector behind the V2XDete
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Literal
 
@@ -90,6 +90,19 @@ def load_generate_config(path: Path | None = None, **overrides) -> GenerateConfi
         if str(path) in text or text.startswith("--"):
             raise
         raise InputError(f"{path}: {text}") from None
+
+
+def with_space_flags(cfg: GenerateConfig, plausibility: str | None, spaces: str | None) -> GenerateConfig:
+    """``cfg`` with the --plausibility and --space flags (``spaces``: comma-separated names) applied."""
+    changes = {}
+    if plausibility is not None:
+        changes["plausibility"] = plausibility
+    if spaces is not None:
+        changes["kinds"] = tuple(k.strip() for k in spaces.split(",") if k.strip())
+    if not changes:
+        return cfg
+    fields = {f: getattr(cfg.space, f) for f in SpaceConfig.__dataclass_fields__} | changes
+    return replace(cfg, space=SpaceConfig(**fields))
 
 
 def search_params(name: str) -> dict:

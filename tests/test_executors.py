@@ -133,3 +133,36 @@ def test_evaluate_on_workers_gives_the_same_ap(capsys, tmp_path):
         assert main(["evaluate", "--fusion", "none", "--set", str(scenes), "--workers", workers, "--json"]) == 0
         results.append(json.loads(capsys.readouterr().out))
     assert results[0] == results[1] and results[0]["frames"] == 3
+
+
+def test_progress_reaches_the_caller_in_process_and_a_pool_runs_without_it(tmp_path):
+    """The evaluation callback travels with the job (no module state): called at every evaluation
+    when the scenes run in this process; worker processes (which cannot call back) run the same."""
+    from asg.generate import open_run
+
+    steps: list[int] = []
+    with build_executor("local", 1) as one:
+        assert one.in_process
+        open_run(CFG, tmp_path / "one", scenes=_scenes(), seed=3).generate(
+            detector_factory="fakes:oracle_factory", executor=one, on_step=steps.append)
+    assert steps and max(steps) == CFG.budget and len(steps) >= 3 * CFG.budget
+    with build_executor("local", 2) as two:
+        assert not two.in_process
+        open_run(CFG, tmp_path / "two", scenes=_scenes(), seed=3).generate(
+            detector_factory="fakes:oracle_factory", executor=two, on_step=lambda step: pytest.fail("called"))
+    assert _numbers(tmp_path / "one") == _numbers(tmp_path / "two")
+
+
+def test_open_run_refuses_other_settings_and_removes_a_folder_it_made_for_bad_input(tmp_path):
+    from dataclasses import replace
+
+    from asg.generate import open_run
+    from sumo_scenarios.errors import InputError
+
+    open_run(CFG, tmp_path / "run", scenes=_scenes(), seed=3).generate(detector_factory="fakes:oracle_factory")
+    with pytest.raises(InputError, match="other settings"):
+        open_run(replace(CFG, budget=5), tmp_path / "run", scenes=_scenes(), seed=3)
+    twice = _scenes() + _scenes()[:1]
+    with pytest.raises(InputError, match="appears twice"):
+        open_run(CFG, tmp_path / "fresh", scenes=twice, seed=3)
+    assert not (tmp_path / "fresh").exists()

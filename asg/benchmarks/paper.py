@@ -76,13 +76,12 @@ def pick_scenes(scene_dir: Path, count: int, set_name: str = "normal") -> Path:
 def _run_config(run_dir: Path, scene_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str,
                 seed: int, executor: Executor | None = None) -> None:
     """One configuration as an ``asg generate`` run into ``run_dir`` (resumes a partial one)."""
-    from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
-    from ..generate_cmd import print_table
+    from ..generate import SceneSource, open_run
+    from ..io.run import print_table
     from ..pipeline import load_generate_config
     from ..progress import console
 
     cfg = load_generate_config(fusion=fusion, search=search, acs=acs, aps=True, budget=budget)
     source = SceneSource(scenes=scene_dir)
-    prepare_run(run_dir, run_settings(cfg, seed, scenes, source.describe()))
-    run = generate(cfg, load_scenes(source, scenes, seed, run_dir), run_dir, seed=seed, executor=executor)
+    run = open_run(cfg, run_dir, source=source, count=scenes, seed=seed).generate(executor=executor)
     print_table(run.summary, console)  # per-scene tables to stderr: stdout holds the result

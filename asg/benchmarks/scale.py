@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from ..executors import build_executor
-from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+from ..generate import SceneSource, open_run
 from ..pipeline import load_generate_config
 from .paper import pick_scenes
 
@@ -44,15 +44,13 @@ def bench_scale(out: Path, scenes: int = 8, budget: int = 50, seed: int = 1, way
     numbers = {}
     for name, executor_name, workers, threads in ways:
         run_dir = out / name
-        prepare_run(run_dir, run_settings(cfg, seed, scenes, source.describe()), force=True)
-        picked = load_scenes(source, scenes, seed, run_dir)
+        run_folder = open_run(cfg, run_dir, source=source, count=scenes, seed=seed, force=True)
         with build_executor(executor_name, workers, threads or (os.cpu_count() or 1)) as executor:
             if executor_name == "ray":
                 executor.connect()  # Ray's own start-up is not the generator's cost
             first: list = []
             t0 = time.perf_counter()
-            run = generate(cfg, picked, run_dir, seed=seed, executor=executor,
-                           on_scene=lambda n, total, sid: first or first.append((time.perf_counter() - t0, sid)))
+            run = run_folder.generate(executor=executor, on_scene=lambda n, total, sid: first or first.append((time.perf_counter() - t0, sid)))
             wall = time.perf_counter() - t0
         seconds = {e["scene_id"]: e["seconds"] for e in run.summary["scenes"]}
         startup = max(0.0, first[0][0] - seconds[first[0][1]])  # until the first scene started

@@ -270,9 +270,8 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     the config's): an ``asg generate`` folder under OUT/runs/, resumed if there."""
     import statistics
 
-    from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
-    from ..generate_cmd import with_space_flags
-    from ..pipeline import load_generate_config
+    from ..generate import SceneSource, open_run
+    from ..pipeline import load_generate_config, with_space_flags
 
     cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
                            plausibility, kinds)
@@ -285,11 +284,9 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     if movers is not None:
         name += f"-movers_{movers}"
     run_dir = run.out / "runs" / name
-    picked = load_scenes(source, run.scenes or 10**6, run.seed, run_dir / ".work")
-    settings = run_settings(cfg, run.seed, len(picked), source.describe() | {"detector": run.detector_factory})
-    prepare_run(run_dir, settings)
-    summary = generate(cfg, picked, run_dir, seed=run.seed, detector_factory=run.detector_factory,
-                       executor=run.executor, artifacts=False).summary
+    summary = open_run(cfg, run_dir, source=source, count=run.scenes, record={"detector": run.detector_factory},
+                       seed=run.seed).generate(detector_factory=run.detector_factory, executor=run.executor,
+                                               artifacts=False).summary
     agg, entries = summary["aggregate"], summary["scenes"]
     return {"scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"],
             "mean_loss": round(statistics.fmean(e["loss_final"] for e in entries), 6),

@@ -57,6 +57,12 @@ class Executor(ABC):
         retried on a fresh worker (at most MAX_ATTEMPTS times, then WorkerLost); an exception
         raised by ``run`` propagates."""
 
+    @property
+    def in_process(self) -> bool:
+        """Does the job run in this process (so that its setup may take callables that do not
+        pickle, such as a progress callback)?"""
+        return False
+
     def close(self) -> None:
         """Release the workers (called when the batch is done)."""
 

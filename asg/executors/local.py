@@ -76,8 +76,12 @@ def _worker_run(job: Job, item: Any) -> Any:
 class LocalExecutor(Executor):
     """``workers`` processes (or this process alone when ``workers`` is 1)."""
 
+    @property
+    def in_process(self) -> bool:
+        return self.workers == 1
+
     def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
-        if self.workers == 1:
+        if self.in_process:
             yield from self._in_process(job, items)
             return
         pending = dict(enumerate(items))

@@ -170,3 +170,24 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
     }
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=1))
     return summary
+
+
+def print_table(summary: dict, out) -> None:
+    """The before/after AP table of a run's summary on rich console ``out``."""
+    from rich.table import Table
+
+    table = Table(title="AP before / after (fractions)")
+    table.add_column("scene")
+    for col in ("normal 0.3/0.5/0.7", "after ACS", "final", "moved", "s"):
+        table.add_column(col, justify="right")
+    fmt = lambda ap: " / ".join(f"{ap[k]:.2f}" for k in ("0.3", "0.5", "0.7"))
+    for e in summary["scenes"]:
+        table.add_row(e["scene_id"][-32:], fmt(e["ap_normal"]), fmt(e["ap_after_acs"]), fmt(e["ap_final"]),
+                      str(len(e.get("moved", e["perturbed"] if e["delta"] else []))), f"{e['seconds']:.1f}")
+    agg = summary["aggregate"]
+    after_ap, pooled = after_acs_ap(agg.get("ap_after_acs"), agg["mean_scene_ap_after_acs"])
+    table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(after_ap) + ("" if pooled else "*"),
+                  fmt(agg["ap_challenging"]), "", f"{agg['seconds_per_scene_median']:.1f}")
+    out.print(table)
+    if not pooled:
+        out.print("* mean over scenes (this folder has scenes written before after-ACS detections were stored)")

@@ -106,7 +106,7 @@ def _data_set_request(scene: Scene, max_delay_s: float):
     from sumo_scenarios.simulate import SimulationRequest
     from sumo_scenarios.strict import read_yaml
 
-    from ..datasets import data_root, load_spec
+    from ..dataset_spec import data_root, load_spec
 
     if not scene.log or "/" in scene.log:
         return None

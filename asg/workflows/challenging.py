@@ -39,7 +39,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     ``count``: only the first scenes (a quick build); ``weights_file``: attack these weights of
     ``fusion`` instead of the shipped ones (then give ``out``: the set is not the shipped model's).
     Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT)."""
-    from ..generate import SceneSource, generate, load_scenes, prepare_run, run_settings
+    from ..generate import SceneSource, open_run
     from ..io.run import load_done
     from ..pipeline import load_generate_config
     from ..perception import detector_names
@@ -53,15 +53,16 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     cfg = load_generate_config(fusion=fusion, weights=None if weights_file is None else str(weights_file))
     source = SceneSource(scenes=Path("normal-val" if split == "val" else "normal"))
     out = Path(out) if out is not None else data_root() / set_name(fusion, split)
-    every = load_scenes(source, 10**6, SEED, out / ".work")
     run_dir = out / "run"
-    # the first ``count`` scenes, and every scene an earlier, larger build finished (kept in the set)
-    wanted = {s.scene_id for s in (every[:count] if count else every)} | set(load_done(run_dir))
-    scenes = [s for s in every if s.scene_id in wanted]
+
+    def wanted(every: list) -> list:
+        """The first ``count`` scenes, and every scene an earlier, larger build finished (kept)."""
+        ids = {s.scene_id for s in (every[:count] if count else every)} | set(load_done(run_dir))
+        return [s for s in every if s.scene_id in ids]
+
     # the split's size, not --count, is the setting: a later build with a larger --count resumes
-    prepare_run(run_dir, run_settings(cfg, SEED, len(every), source.describe() | {"detector": detector_factory}))
-    run = generate(cfg, scenes, run_dir, seed=SEED, detector_factory=detector_factory, executor=executor,
-                   on_scene=on_scene, artifacts=False)
+    run = open_run(cfg, run_dir, source=source, pick=wanted, record={"detector": detector_factory}, seed=SEED).generate(
+        detector_factory=detector_factory, executor=executor, on_scene=on_scene, artifacts=False)
     ids = [e["scene_id"] for e in run.summary["scenes"]]
     with atomic_path(out / "frames.jsonl.gz") as tmp:
         with gzip.open(tmp, "wt", encoding="utf-8") as fh:

@@ -18,7 +18,6 @@ over). The shipped weights are never written.
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -32,6 +31,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
 from ..datasets import iter_frames
+from ..io.run_record import claim
 from ..sensors import load_lidar_spec
 from ..perception.checkpoint import load_checkpoint
 from ..perception.config import load_detector_config
@@ -40,9 +40,6 @@ from ..perception.model import AttFuse, PointPillars
 from .train import BRANCH_KEYS, Steps, _Batches, _scheduler, draw_examples, run_steps
 from ..perception.train_config import NETWORK_OF_WEIGHTS, FinetuneConfig, load_finetune_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, load_state
-
-#: the file in OUT that records the settings of the fine-tuning run
-RUN_RECORD = "run.json"
 
 
 class MixedBatches:
@@ -92,7 +89,7 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
 
     settings = {"fusion": fusion, "on": on, "start_weights": str(start), "start_sha256": file_digest(start),
                 "steps": total, "config": asdict(fcfg)}
-    claim(out, settings, force)
+    claim(out, settings, force, what="a fine-tuning run")
     ft_weights = out / f"{finetuned_name(fusion)}.pt"
     card_path = out / f"{finetuned_name(fusion)}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {}
@@ -109,29 +106,6 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
         card["reattack"] = reattack(fusion, ft_weights, out / "reattack", executor, log)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
-
-
-def claim(out: Path, settings: dict, force: bool) -> None:
-    """Make ``out`` the folder of this run: refused if it records other settings (``force``
-    empties it first)."""
-    from ..generate import _first_difference, _read_record
-
-    settings = json.loads(json.dumps(settings))
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out} is a file; give a folder")
-    record = out / RUN_RECORD
-    if force and out.is_dir():
-        shutil.rmtree(out)
-    elif record.is_file():
-        diff = _first_difference(_read_record(record), settings)
-        if diff:
-            raise InputError(f"{out} holds a fine-tuning run with other settings ({diff}); give another --out, "
-                             "or --force to start it over")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(record, json.dumps(settings, indent=1, sort_keys=True))
-    except (FileExistsError, NotADirectoryError):
-        raise InputError(f"--out {out}: a part of the path is a file; give a folder") from None
 
 
 def training_sources(name: str, on: str, fcfg: FinetuneConfig, log: Callable[[str], None]) -> MixedBatches:

@@ -38,7 +38,8 @@ from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
 
 from . import MAX_ROUNDS
-from .finetune import claim, fit_chunk, mixed_sources
+from .finetune import fit_chunk, mixed_sources
+from ..io.run_record import claim
 from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR
 from ..scene import Scene, load_scene
@@ -115,7 +116,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
     settings = {"fusion": fusion, "start_weights": str(start), "start_sha256": file_digest(start),
                 "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory}
-    claim(out, settings, force)
+    claim(out, settings, force, what="a hardening run")
     card_path = out / "card.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
@@ -207,7 +208,7 @@ def _pool(cfg: HardenConfig) -> list[Scene]:
 def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfig, space, run_dir: Path, executor,
                detector_factory: str | None, log: Callable[[str], None]) -> tuple[list[Scene], dict]:
     """The round's training scenes (see ``cfg.data``) and a record of how they were made."""
-    from ..generate import generate, prepare_run, run_settings
+    from ..generate import open_run
     from ..pipeline import load_generate_config
 
     gen_cfg = load_generate_config(fusion=fusion, weights=str(weights))
@@ -219,9 +220,8 @@ def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfi
         made = [random_draw(s, gen_cfg, ATTACK_SEED) for s in scenes]
         return made, {"kind": "random", "scenes": len(made), "moved": sum(m is not s for m, s in zip(made, scenes))}
     log(f"attacking {len(scenes)} scenes against {weights} ...")
-    prepare_run(run_dir, run_settings(gen_cfg, ATTACK_SEED, len(scenes), {"harden": str(run_dir)} | {"detector": detector_factory}))
-    run = generate(gen_cfg, scenes, run_dir, seed=ATTACK_SEED, detector_factory=detector_factory, executor=executor,
-                   artifacts=False)
+    run = open_run(gen_cfg, run_dir, scenes=scenes, record={"harden": str(run_dir), "detector": detector_factory},
+                   seed=ATTACK_SEED).generate(detector_factory=detector_factory, executor=executor, artifacts=False)
     ids = [e["scene_id"] for e in run.summary["scenes"]]
     made = [load_scene(run_dir / "scenes" / i / "final.yaml") for i in ids]
     agg = run.summary["aggregate"]

@@ -19,9 +19,9 @@ from pathlib import Path
 import asg.pipeline as pipeline
 from asg.benchmarks.tables import UNION
 from asg.executors import build_executor
-from asg.generate import SceneSource, generate, load_scenes, prepare_run, run_settings
-from asg.generate_cmd import with_space_flags
-from asg.pipeline import load_generate_config
+from asg.datasets import scenes_of
+from asg.generate import open_run
+from asg.pipeline import load_generate_config, with_space_flags
 
 
 def _value(text: str):
@@ -49,13 +49,13 @@ def run_variant(scenes: Path, out: Path, variant: str) -> dict:
             cfg = replace(cfg, space=replace(cfg.space, n_q=int(n_q)))
         run_dir = out / (variant.replace(":", "_").replace(",", "_").replace("=", "").replace("@", "_budget")
                          + (f"_movers{movers}" if movers else "") + (f"_nq{n_q}" if n_q else ""))
-        picked = load_scenes(SceneSource(scenes=scenes), 10**6, 1, run_dir / ".work")
-        prepare_run(run_dir, run_settings(cfg, 1, len(picked), {"scenes": str(scenes), "variant": variant}))
+        run_folder = open_run(cfg, run_dir, scenes=list(scenes_of(str(scenes))),
+                              record={"scenes": str(scenes), "variant": variant}, seed=1)
         workers = int(os.environ.get("WORKERS", "0"))
         if workers and params:
             raise SystemExit("WORKERS applies to variants without settings (the workers read the searches' yaml)")
         executor = build_executor("local", workers) if workers else None
-        agg = generate(cfg, picked, run_dir, seed=1, artifacts=False, executor=executor).summary["aggregate"]
+        agg = run_folder.generate(artifacts=False, executor=executor).summary["aggregate"]
     finally:
         pipeline.search_params = defaults
     return {"variant": variant, "budget": cfg.budget, "movers": cfg.perturbed, "n_q": cfg.space.n_q, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}

@@ -1,0 +1,48 @@
+"""What each bundled data set is (``configs/datasets.yaml``) and where data sets live on disk.
+
+The lowest layer of the package (it reads a yaml file and the environment, nothing of asg), so
+that the scene layer may find a data set's log; building and reading data sets is asg.datasets.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import configs_dir, runs_dir
+from sumo_scenarios.strict import from_mapping, read_yaml
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    towns: tuple[str, ...]
+    densities: tuple[str, ...] = ("normal",)
+    seeds: tuple[int, ...] = (1,)
+    duration_s: float = 60.0
+    every: int = 10
+    ego_rsu_share: float = 0.5
+    collaborators: int = 2
+    frames_per_log: int | None = None
+    total: int | None = None
+    val: int | None = None
+    #: only the first this many (town, density, seed) logs
+    max_logs: int | None = None
+    #: the split that holds every frame of a set without ``total`` (a test-only set: "test")
+    split: str = "train"
+    #: keep frames with this many vehicles (ego aside) within the evaluation range, inclusive
+    vehicles_in_range: tuple[int, int] | None = None
+    #: keep this share of the frames (those passing the other filters) whose vehicles in range hold
+    #: the fewest fused LiDAR points on average: the most occluded ones
+    fewest_points_share: float | None = None
+
+
+def data_root() -> Path:
+    return Path(os.environ.get("ASG_DATA", runs_dir() / "datasets"))
+
+
+def load_spec(name: str) -> DatasetSpec:
+    data = read_yaml(configs_dir() / "datasets.yaml")
+    if name not in data:
+        raise InputError(f"unknown data set '{name}'; known: {', '.join(sorted(data))}")
+    return from_mapping(DatasetSpec, data[name], f"datasets.yaml:{name}")

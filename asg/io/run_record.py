@@ -1,0 +1,74 @@
+"""The settings record of a run folder (``OUT/run.json``) and claiming a folder for a run.
+
+Every command that writes a resumable run folder (``asg generate`` and everything built on the
+generator, ``asg finetune``, ``asg harden``) claims it here: a folder whose record holds other
+settings is refused in one line (``force`` empties it first); a rerun with the same settings resumes.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Callable, Iterable
+
+from sumo_scenarios.atomic import write_text_atomic
+from sumo_scenarios.checks import output_dir
+from sumo_scenarios.errors import InputError
+
+#: the file in a run folder that records its settings
+RUN_RECORD = "run.json"
+
+
+def claim(out: Path, settings: dict, force: bool = False, *, what: str = "a run",
+          contents: Iterable[str] | None = None, holds_results: Callable[[Path], bool] | None = None,
+          as_today: Callable[[dict], dict] = lambda record: record) -> dict:
+    """Make ``out`` the folder of a run with ``settings`` and record them; returns them as recorded
+    (JSON: tuples become lists).
+
+    Refused (InputError) if ``out`` records other settings while ``holds_results(out)`` (default:
+    whenever it has a record), or holds results and no record. ``force`` removes ``contents`` (names
+    in ``out``; None: the whole folder) first. ``as_today`` fills in a record written before a
+    setting existed (its default)."""
+    out = Path(out)
+    holds_results = holds_results or (lambda folder: (folder / RUN_RECORD).is_file())
+    settings = json.loads(json.dumps(settings))
+    if force and out.is_dir():
+        for name in ([None] if contents is None else contents):
+            p = out if name is None else out / name
+            shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
+    output_dir(out)
+    record = out / RUN_RECORD
+    if record.is_file() and holds_results(out):
+        diff = first_difference(as_today(read_record(record)), settings)
+        if diff:
+            raise InputError(f"{out} holds {what} made with other settings ({diff}); give another --out, "
+                             f"or --force to start it over")
+    elif not record.is_file() and holds_results(out):
+        raise InputError(f"{out} holds {what} that recorded no settings; give another --out, or --force")
+    try:
+        write_text_atomic(record, json.dumps(settings, indent=1, sort_keys=True))
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write in it ({exc.strerror}); give a writable folder") from None
+    return settings
+
+
+def first_difference(a, b, where: str = "") -> str | None:
+    """The first setting that differs between two records, as 'key: old -> new' (None if equal)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            d = first_difference(a.get(k), b.get(k), f"{where}.{k}" if where else k)
+            if d:
+                return d
+        return None
+    return None if a == b else f"{where}: {a!r} -> {b!r}"
+
+
+def read_record(path: Path) -> dict:
+    """A run folder's record; InputError if it is unreadable or not a mapping."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        raise InputError(f"{path} is unreadable; give another --out, or --force to start it over") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path} is not a run record; give another --out, or --force to start it over")
+    return data
