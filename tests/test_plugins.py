@@ -57,6 +57,18 @@ def test_a_plugin_is_evaluated_and_attacked_by_name(capsys, installed, scenes, t
     assert summary["config"]["fusion"] == "toy" and summary["aggregate"]["scenes"] == 2
 
 
+@pytest.mark.parametrize("command", [["train"], ["finetune", "--out", "OUT"], ["harden", "--rounds", "1", "--out", "OUT"]],
+                         ids=["train", "finetune", "harden"])
+def test_training_a_plugin_says_why_not_in_one_line(capsys, installed, tmp_path, command):
+    """Every command that takes --fusion knows a plugin: the ones that train say it brings its own
+    weights (not "unknown fusion"), before any work."""
+    out = tmp_path / "out"
+    code, err = run(capsys, *[str(out) if a == "OUT" else a for a in command], "--fusion", "toy")
+    assert code == 2
+    assert_one_line_error(err, "'toy' is a detector plugin")
+    assert not out.exists()
+
+
 def test_bad_plugins_are_one_line_naming_them(capsys, installed, scenes, tmp_path):
     for name, needle in (("toy-broken", "could not be loaded"), ("toy-bad-shape", "(K, 7)"), ("toy-nan", "non-finite")):
         code, err = run(capsys, "evaluate", "--fusion", name, "--set", str(scenes))

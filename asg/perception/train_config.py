@@ -11,17 +11,12 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 
 from .branch_fit import BranchFitConfig
 
-FUSION_TO_WEIGHTS = {"none": "single", "late": "single", "early": "early", "attfuse": "attfuse",
-                     "attfuse-ft": "attfuse-ft"}
-#: the network behind each weights file (what ``asg train`` and ``asg finetune`` build and feed)
-NETWORK_OF_WEIGHTS = {"single": "single", "early": "early", "attfuse": "attfuse", "attfuse-ft": "attfuse"}
-
-
 def weights_for(fusion: str) -> str:
-    """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError if unknown."""
-    if fusion not in FUSION_TO_WEIGHTS:
-        raise InputError(f"unknown fusion '{fusion}'; choose one of {', '.join(FUSION_TO_WEIGHTS)}")
-    return FUSION_TO_WEIGHTS[fusion]
+    """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError for a
+    plugin or an unknown name (asg.perception.fusion.shipped_model)."""
+    from .fusion import shipped_model
+
+    return shipped_model(fusion).weights
 
 
 @dataclass(frozen=True)

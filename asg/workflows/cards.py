@@ -10,7 +10,7 @@ from typing import Callable
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
-from ..perception.train_config import FUSION_TO_WEIGHTS
+from ..perception.fusion import fusions_of, weights_names
 from ..perception.weights_io import WEIGHTS_DIR
 from ..sensors.lidar_spec import DEFAULT_LIDAR
 
@@ -19,7 +19,7 @@ def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: 
                 dataset: str, examples: int, batch_size: int, branch_fit: dict | None = None) -> None:
     """The model card of ``name``: the chunks that made it (whole-network ones count as detector
     steps), their total wall time and, when the last step was a branch fit, that fit."""
-    card = {"weights": f"{name}.pt", "fusion": [f for f, w in FUSION_TO_WEIGHTS.items() if w == name],
+    card = {"weights": f"{name}.pt", "fusion": fusions_of(name),
             "dataset": dataset, "examples": examples,
             # detector steps: the chunks that trained the whole network (branch chunks and fits are listed apart)
             "steps": sum(c["steps"] for c in chunks if c.get("part", "all") == "all"),
@@ -43,7 +43,7 @@ def card_validation(name: str, log: Callable[[str], None] = print, set_name: str
     card_path = weights_dir / f"{name}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {"weights": f"{name}.pt"}
     card["validation"] = {}
-    for fusion in [f for f, w in FUSION_TO_WEIGHTS.items() if w == name]:  # none and late share 'single'
+    for fusion in fusions_of(name):  # none and late share 'single'
         t0 = time.perf_counter()
         res = evaluate(fusion, set_name, weights_file=str(weights_dir / f"{name}.pt"))
         card["validation"][fusion] = {"set": set_name, "frames": res["frames"],
@@ -74,7 +74,7 @@ def previous_training(name: str, weights_dir: Path = WEIGHTS_DIR) -> dict:
 def init_record(init_from: str, weights_dir: Path) -> dict:
     """What a new sequence starts from: the weights name, their steps and training time (from
     their card), recorded in the new model card."""
-    names = sorted(set(FUSION_TO_WEIGHTS.values()))
+    names = weights_names()
     if init_from not in names:
         raise InputError(f"unknown weights '{init_from}' for --init-from; choose one of {', '.join(names)}")
     if not (weights_dir / f"{init_from}.pt").is_file():

@@ -36,9 +36,9 @@ from ..sensors import load_lidar_spec
 from ..perception.checkpoint import load_checkpoint
 from ..perception.config import load_detector_config
 from ..perception.data import make_sample
-from ..perception.model import AttFuse, PointPillars
 from .train import BRANCH_KEYS, Steps, _Batches, _scheduler, draw_examples, run_steps
-from ..perception.train_config import NETWORK_OF_WEIGHTS, FinetuneConfig, load_finetune_config, weights_for
+from ..perception.fusion import build_network, network_of
+from ..perception.train_config import FinetuneConfig, load_finetune_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, load_state
 
 
@@ -122,7 +122,7 @@ def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: 
     from ..datasets import build_dataset, dataset_path
 
     spec = load_lidar_spec()
-    network = NETWORK_OF_WEIGHTS[name]
+    network = network_of(name)
     t0 = time.perf_counter()
     labels = [k for k, v in first.items() if v]
     views = fcfg.challenging_views or fcfg.views
@@ -156,7 +156,7 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
     torch.set_num_threads(threads)
     torch.manual_seed(fcfg.seed)
     rng = np.random.default_rng([fcfg.seed, 0])
-    model = AttFuse(cfg) if NETWORK_OF_WEIGHTS[name] == "attfuse" else PointPillars(cfg)
+    model = build_network(name, cfg)
     load_state(model, start, allow_missing=BRANCH_KEYS)
     opt = torch.optim.Adam(model.parameters(), lr=fcfg.lr, weight_decay=fcfg.weight_decay)
     sched = _scheduler(opt, fcfg, total)

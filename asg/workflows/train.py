@@ -34,6 +34,7 @@ from ..perception.branch_fit import CACHE_NAME, BranchFitConfig, collect_cached,
 from ..perception.config import load_detector_config
 from ..perception.data import Sample, augment, make_sample
 from ..perception.head import detection_loss, iou_loss, refine_loss
+from ..perception.fusion import build_network, network_of
 from ..perception.model import AttFuse, PointPillars
 from .cards import card_validation, init_record, previous_training, write_card
 from ..perception.checkpoint import load_checkpoint, save_checkpoint
@@ -179,7 +180,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     chunk = len(previous.get("chunks", []))  # a continuation chunk draws other batches than the first
     torch.manual_seed(tcfg.seed + 1000 * chunk)
     rng = np.random.default_rng([tcfg.seed, chunk])
-    model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
+    model = build_network(name, cfg)
     params = list(model.parameters())
     opt = torch.optim.Adam(params, lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     sched = _scheduler(opt, tcfg, total)
@@ -206,7 +207,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     t0 = time.perf_counter()
     log(f"rendering {tcfg.dataset} ...")
     samples = render_samples(tcfg.dataset, "train")
-    batches = _Batches(name, samples, tcfg.views)
+    batches = _Batches(network_of(name), samples, tcfg.views)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     wall = run_steps(model, opt, sched, batches, rng, Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every),
                      cfg, ckpt, wall, previous, log, progress)
@@ -282,11 +283,11 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
         raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit the branches to; train them first")
     torch.set_num_threads(threads)
     run_dir = out_dir or runs_dir() / "train" / name
-    model = AttFuse(cfg) if name == "attfuse" else PointPillars(cfg)
+    model = build_network(name, cfg)
     load_state(model, weights_dir / f"{name}.pt", allow_missing=BRANCH_KEYS)
     started = time.perf_counter()
     log(f"rendering {fcfg.dataset} ...")
-    items = _Batches(name, render_samples(fcfg.dataset, "train"), fcfg.views).items
+    items = _Batches(network_of(name), render_samples(fcfg.dataset, "train"), fcfg.views).items
     t_collect = time.perf_counter()
     cands = collect_cached(model, name == "attfuse", items, fcfg, run_dir, log,
                            (lambda i, n: progress(i, n, float("nan"))) if progress else None)

@@ -5,7 +5,8 @@ from sumo_scenarios.errors import InputError
 from . import attfuse, early, single  # noqa: F401  (fill the registry)
 from .base import Detections, V2XDetector
 
-__all__ = ["Detections", "V2XDetector", "build_detector", "check_weights_file", "detector_names"]
+__all__ = ["Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
+           "fusions_of", "network_of", "shipped_model", "weights_names"]
 
 
 def detector_names() -> list[str]:
@@ -30,6 +31,57 @@ def build_detector(name: str, **kwargs):
     if kwargs.get("weights_file"):
         raise InputError(f"--weights applies to the shipped models; the plugin '{name}' loads its own")
     return plugin
+
+
+def shipped_model(fusion: str) -> type[V2XDetector]:
+    """The registry's entry of a shipped model: its detector class, which knows its weights file
+    (``weights``), its network (``network``) and how to build and load it. InputError for a plugin
+    (it brings its own weights: nothing of asg trains it) or an unknown name."""
+    from ...registry import lookup, names
+    from ..plugins import plugin_names
+
+    if fusion in names("fusion"):
+        return lookup("fusion", fusion)
+    shipped = ", ".join(names("fusion"))
+    if fusion in plugin_names():
+        raise InputError(f"'{fusion}' is a detector plugin: it brings its own weights, and asg trains, fine-tunes and "
+                         f"hardens the shipped models only ({shipped})")
+    raise InputError(f"unknown fusion '{fusion}'; choose one of {shipped}")
+
+
+def _entries() -> list[type[V2XDetector]]:
+    from ...registry import lookup, names
+
+    return [lookup("fusion", f) for f in names("fusion")]
+
+
+def weights_names() -> list[str]:
+    """The shipped weights files' names (none and late share 'single')."""
+    return sorted({cls.weights for cls in _entries()})
+
+
+def fusions_of(weights_name: str) -> list[str]:
+    """The shipped fusion names that run the weights ``weights_name``."""
+    from ...registry import lookup, names
+
+    return [f for f in names("fusion") if lookup("fusion", f).weights == weights_name]
+
+
+def _entry_of(weights_name: str) -> type[V2XDetector]:
+    for cls in _entries():
+        if cls.weights == weights_name:
+            return cls
+    raise InputError(f"unknown weights '{weights_name}'; choose one of {', '.join(weights_names())}")
+
+
+def network_of(weights_name: str) -> str:
+    """The network behind a weights file: single, early or attfuse."""
+    return _entry_of(weights_name).network
+
+
+def build_network(weights_name: str, cfg):
+    """A fresh (untrained) network of the weights ``weights_name``, as its detector builds it."""
+    return _entry_of(weights_name).new_network(cfg)
 
 
 def check_weights_file(fusion: str, path) -> None:

@@ -14,9 +14,11 @@ from .base import Detections, V2XDetector
 @register("fusion", "attfuse")
 class AttFuseDetector(V2XDetector):
     weights = "attfuse"
+    network = "attfuse"
 
-    def build_model(self) -> torch.nn.Module:
-        return AttFuse(self.cfg)
+    @classmethod
+    def new_network(cls, cfg) -> torch.nn.Module:
+        return AttFuse(cfg)
 
     def _clouds(self, frame: CooperativeFrame) -> list[torch.Tensor]:
         return [torch.from_numpy(c) for c in frame.clouds_in_frame_of(frame.ego_id)]

@@ -20,6 +20,8 @@ class V2XDetector(ABC):
     registry_name: str = ""
     #: the shipped weights file under asg/perception/weights/
     weights: str = ""
+    #: the network those weights belong to (what training builds and feeds: single, early, attfuse)
+    network: str = ""
 
     def __init__(self, cfg: DetectorConfig | None = None, weights_file: str | None = None, load: bool = True):
         self.cfg = cfg or load_detector_config()
@@ -34,8 +36,13 @@ class V2XDetector(ABC):
         # oneDNN a reorder per convolution
         self.model.to(memory_format=torch.channels_last)
 
-    @abstractmethod
-    def build_model(self) -> torch.nn.Module: ...
+    @classmethod
+    def new_network(cls, cfg: DetectorConfig) -> torch.nn.Module:
+        """A fresh, trainable network of this model (what its weights load into and training builds)."""
+        raise NotImplementedError(f"{cls.__name__} defines no network")
+
+    def build_model(self) -> torch.nn.Module:
+        return self.new_network(self.cfg)
 
     @abstractmethod
     def detect(self, frame: CooperativeFrame) -> Detections:

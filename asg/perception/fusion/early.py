@@ -17,9 +17,11 @@ def fused_cloud(frame: CooperativeFrame) -> np.ndarray:
 @register("fusion", "early")
 class EarlyFusion(V2XDetector):
     weights = "early"
+    network = "early"
 
-    def build_model(self) -> torch.nn.Module:
-        return PointPillars(self.cfg)
+    @classmethod
+    def new_network(cls, cfg) -> torch.nn.Module:
+        return PointPillars(cfg)
 
     @torch.no_grad()
     def detect(self, frame: CooperativeFrame) -> Detections:

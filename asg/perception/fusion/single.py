@@ -13,9 +13,11 @@ from .base import Detections, V2XDetector
 
 class _Single(V2XDetector):
     weights = "single"
+    network = "single"
 
-    def build_model(self) -> torch.nn.Module:
-        return PointPillars(self.cfg)
+    @classmethod
+    def new_network(cls, cfg) -> torch.nn.Module:
+        return PointPillars(cfg)
 
     @torch.no_grad()
     def detect_own(self, clouds: list[np.ndarray]) -> list[Detections]:
