@@ -17,6 +17,7 @@ from sumo_scenarios.errors import InputError
 
 from . import __version__, commands
 from .executors.base import WorkerLost
+from .registry import names
 from .workflows import MAX_ROUNDS
 
 
@@ -271,7 +272,8 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--scenes", type=Path, help="...or take the scenes of this folder (scene yaml or a data set) or set (normal, normal-val)")
     p.add_argument("--fusion", default=None, help="target model: none, late, early, attfuse (default attfuse)")
     p.add_argument("--search", default=None, help="rs, ga, bo or ng (nevergrad; default bo)")
-    p.add_argument("--acs", default=None, choices=["attention", "random", "off"])
+    p.add_argument("--acs", default=None, choices=[*acs_strategies(), "off"],
+                   help="collaborator search: attention (ACS-A), random (ACS-R) or off (default attention)")
     p.add_argument("--aps", default=None, choices=["on", "off"])
     p.add_argument("--movers", type=_whole(0, 64, "--movers"), default=None,
                    help="vehicles the perturbation search moves (m; default 3, the paper's)")
@@ -308,6 +310,13 @@ def _executor_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--executor", choices=["local", "ray"], default="local",
                    help="local processes (default) or Ray actors (pip install 'asg[ray]')")
     p.add_argument("--address", default=None, help="an existing Ray cluster (default: a local Ray instance)")
+
+
+def acs_strategies() -> list[str]:
+    """The registered collaborator searches (asg.collaborators)."""
+    from . import collaborators  # noqa: F401  (fill the registry)
+
+    return names("acs")
 
 
 class Terminated(Exception):

@@ -95,7 +95,7 @@ def simulate(args: argparse.Namespace) -> int:
 
 
 def scenes_extract(args: argparse.Namespace) -> int:
-    from .pipeline import GenerateConfig
+    from .generator_config import GenerateConfig
 
     k = GenerateConfig().sensing_agents - 1 if args.collaborators is None else args.collaborators
     params = ExtractParams(every=args.every, radius_m=args.radius, ego=args.ego, min_vehicles=args.min_vehicles,
@@ -453,7 +453,7 @@ def bench_paper(args: argparse.Namespace) -> int:
         return _bench_tables(args)
     if args.detector:
         raise InputError("--detector applies to --table runs; the targets table attacks the shipped --fusion")
-    from .pipeline import GenerateConfig
+    from .generator_config import GenerateConfig
 
     scenes = args.scenes or 30
     defaults = GenerateConfig()

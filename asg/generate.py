@@ -22,7 +22,8 @@ from sumo_scenarios.errors import InputError
 from .executors import Executor, Job
 from .executors.local import LocalExecutor
 from .io.run_record import RUN_RECORD, claim
-from .pipeline import GenerateConfig, Generator
+from .generator_config import GenerateConfig
+from .pipeline import Generator
 from .scene import Scene
 
 #: temporary work (a simulated log) inside the run folder, removed when the run ends

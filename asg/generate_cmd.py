@@ -10,7 +10,7 @@ from sumo_scenarios.errors import InputError
 from .executors import Executor, build_executor, default_workers
 from .generate import SceneSource, factory_models, open_run
 from .io.run import print_table
-from .pipeline import load_generate_config, with_space_flags
+from .generator_config import load_generate_config, with_space_flags
 from .progress import console, progress_bar, stdout
 
 #: the no-argument demo: a held-out town, the strongest shipped model as target (Early Fusion:

@@ -6,111 +6,28 @@ What the CLI and the benchmarks call. Works with any detector behind the V2XDete
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Callable, Literal
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
-from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
-from sumo_scenarios.paths import configs_dir
-from sumo_scenarios.strict import from_mapping, read_yaml
 
-from .objective import ObjectiveConfig, adversarial_loss, ap_at
+from .generator_config import MAX_BUDGET, GenerateConfig, load_generate_config, search_params, with_space_flags  # noqa: F401  (re-exported)
+from .objective import adversarial_loss, ap_at
 from .scene import Scene
 from .perception.data import in_range
 from .scene.feasibility import Plausibility, in_eval_range
 from .scene.recheck import recheck
-from .scene.neighbours import COMM_RANGE_M, vehicles_within
-from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, SpaceConfig, best_of, build_optimizer, check_settings, run_search
+from .scene.neighbours import vehicles_within
+from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, best_of, build_optimizer, check_settings, run_search
 from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
-from .sensors.lidar_spec import DEFAULT_LIDAR
 from .sensors.frame import CooperativeFrame, apply_link, delayed_view, render_frame
-
-#: evaluations per scene at most (a scene at 50 takes seconds; this many is a day)
-MAX_BUDGET = 100_000
 
 Detections = tuple[np.ndarray, np.ndarray, np.ndarray]  # boxes (K, 7), scores (K,), ground truth (M, 7)
 
 
-@dataclass(frozen=True)
-class GenerateConfig:
-    """The generator's settings; configs/generate.yaml mirrors these defaults (a test checks it)."""
-
-    fusion: str = "attfuse"
-    #: the target's weights file (.pt) instead of the fusion's shipped weights (e.g. a fine-tuned model)
-    weights: str | None = None
-    search: str = "bo"
-    acs: Literal["attention", "random", "off"] = "attention"
-    aps: bool = True
-    budget: int = 50
-    sensing_agents: int = 3
-    acs_samples: int = 3
-    acs_tau: float = 0.03
-    attention_cells: Literal["all", "vehicles"] = "all"
-    perturbed: int = 3
-    comm_range_m: float = COMM_RANGE_M
-    lidar: str = DEFAULT_LIDAR
-    objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
-    space: SpaceConfig = field(default_factory=SpaceConfig)
-
-    def validate(self) -> "GenerateConfig":
-        from .registry import names
-        from . import search as _  # noqa: F401
-
-        if self.search not in names("search"):
-            raise InputError(f"unknown search algorithm '{self.search}'; known: {', '.join(names('search'))}")
-        if self.acs not in ("attention", "random", "off"):
-            raise InputError(f"--acs must be attention, random or off, got {self.acs!r}")
-        if not 1 <= self.budget <= MAX_BUDGET:
-            raise InputError(f"--budget must be between 1 and {MAX_BUDGET}, got {self.budget}")
-        checks.number(self.sensing_agents, "sensing_agents", 1, 16)
-        checks.number(self.acs_samples, "acs_samples", 1, 1000)
-        checks.number(self.acs_tau, "acs_tau", 0.0, 100.0, lo_open=True)
-        checks.number(self.perturbed, "perturbed", 0, 64)
-        checks.number(self.comm_range_m, "comm_range_m", 0.0, 1000.0, lo_open=True)
-        return self
-
-
-def load_generate_config(path: Path | None = None, **overrides) -> GenerateConfig:
-    """The generator's settings: ``path`` (default configs/generate.yaml), then the non-None
-    ``overrides`` (CLI flags); an error names the file it came from."""
-    path = Path(path) if path is not None else configs_dir() / "generate.yaml"
-    data = read_yaml(path)
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a mapping of settings (key: value), got a {type(data).__name__}")
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    try:
-        return from_mapping(GenerateConfig, data, str(path)).validate()
-    except InputError as exc:  # a range check inside a component's config: say which file it came from
-        text = str(exc)
-        if str(path) in text or text.startswith("--"):
-            raise
-        raise InputError(f"{path}: {text}") from None
-
-
-def with_space_flags(cfg: GenerateConfig, plausibility: str | None, spaces: str | None) -> GenerateConfig:
-    """``cfg`` with the --plausibility and --space flags (``spaces``: comma-separated names) applied."""
-    changes = {}
-    if plausibility is not None:
-        changes["plausibility"] = plausibility
-    if spaces is not None:
-        changes["kinds"] = tuple(k.strip() for k in spaces.split(",") if k.strip())
-    if not changes:
-        return cfg
-    fields = {f: getattr(cfg.space, f) for f in SpaceConfig.__dataclass_fields__} | changes
-    return replace(cfg, space=SpaceConfig(**fields))
-
-
-def search_params(name: str) -> dict:
-    p = configs_dir() / "search" / f"{name}.yaml"
-    return (read_yaml(p) or {}) if p.is_file() else {}
-
-
-@dataclass
+@dataclass(kw_only=True)
 class SceneResult:
     scene_id: str
     initial: Scene
@@ -184,25 +101,22 @@ class Generator:
         return scene.with_collaborators([cands[i] for i in pick])
 
     def collaborator_search(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> "AcsOutcome":
-        """The lowest-loss of the sampled collaborator combinations, with ACS-A's probabilities."""
-        from .collaborators import attention_combinations, random_combinations
+        """The lowest-loss of the combinations ``cfg.acs``'s strategy proposes (asg.collaborators),
+        with the strategy's probabilities."""
+        from .registry import lookup
 
+        strategy = lookup("acs", self.cfg.acs)(self.cfg.acs_samples, self.cfg.acs_tau)
         cands = [a.agent_id for a in vehicles_within(scene, scene.ego_id, self.cfg.comm_range_m)]
         size = self.cfg.sensing_agents - 1
         if len(cands) < size:
             notes.append(f"ACS: {len(cands)} candidate collaborators for {size} places; using what exists")
-        probs: dict[str, float] = {}
-        if self.cfg.acs == "attention":
+        attention_of = None
+        if strategy.needs_attention:
             if self.acs_model is None:
-                raise InputError("ACS-A needs the AttFuse model; pass --acs random or off")
-            everyone = render_frame(World(scene.with_collaborators(cands), self.spec))
-            weights = self.acs_model.attention_weights(everyone, self.cfg.attention_cells)
-            combos, p = attention_combinations(weights, cands, size, self.cfg.acs_samples, self.cfg.acs_tau, rng)
-            from .collaborators.sampling import all_combinations
-
-            probs = {"+".join(c): float(v) for c, v in zip(all_combinations(cands, size), p) if v > 1e-4}
-        else:
-            combos = random_combinations(cands, size, self.cfg.acs_samples, rng)
+                raise InputError(f"ACS-{self.cfg.acs} needs an attention model (AttFuse); pass --acs random or off")
+            attention_of = lambda s: self.acs_model.attention_weights(render_frame(World(s, self.spec)),  # noqa: E731
+                                                                      self.cfg.attention_cells)
+        combos, probs = strategy.propose(scene, cands, size, rng, attention_of)
         best: Scored | None = None
         combos = combos or [tuple()]
         for combo in combos:
@@ -258,11 +172,14 @@ class Generator:
         final = aps.best
         stages = {"initial": normal, "after_acs": after, "final": final}
         return SceneResult(
-            scene.scene_id, initial, after.scene, final.scene, normal.ap, after.ap, final.ap, normal.loss, final.loss,
-            1 + acs.combinations + len(aps.history), time.perf_counter() - t0, aps.perturbed, aps.delta, plaus,
-            aps.history, {k: v.frame for k, v in stages.items()}, notes, acs.probabilities,
-            [e.optimizer_s for e in aps.history], {k: self._detections(v.frame) for k, v in stages.items()},
-            aps.columns, aps.values, aps.space, aps.inserted)
+            scene_id=scene.scene_id, initial=initial, after_acs=after.scene, final=final.scene,
+            ap_normal=normal.ap, ap_after_acs=after.ap, ap_final=final.ap, loss_normal=normal.loss,
+            loss_final=final.loss, evaluations=1 + acs.combinations + len(aps.history),
+            seconds=time.perf_counter() - t0, perturbed=aps.perturbed, delta=aps.delta, plausibility=plaus,
+            history=aps.history, frames={k: v.frame for k, v in stages.items()}, notes=notes,
+            acs_probabilities=acs.probabilities, bo_overhead_s=[e.optimizer_s for e in aps.history],
+            detections={k: self._detections(v.frame) for k, v in stages.items()}, history_columns=aps.columns,
+            history_values=aps.values, space=aps.space, inserted=aps.inserted)
 
     def _perturb(self, start_at: "Scored", perturbed: list[str], rng: np.random.Generator, on_step) -> "ApsOutcome":
         """Search the spaces of ``cfg.space.kinds`` from ``start_at`` (``perturbed``: the vehicles the

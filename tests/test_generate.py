@@ -172,3 +172,26 @@ def test_acs_that_ends_easier_than_the_start_says_so(busy_scene, monkeypatch):
     real = make_gen().generate(start, seed=4)  # the note only when it happened
     after_loss = adversarial_loss(real.ap_after_acs, FAST.objective)
     assert any(n.startswith("ACS ended easier") for n in real.notes) == (after_loss > real.loss_normal)
+
+
+def test_a_new_collaborator_search_is_one_class_and_one_registry_line(busy_scene, capsys, tmp_path):
+    """A strategy registered under "acs" runs in the generator and from the command line."""
+    from dataclasses import replace
+
+    from asg.collaborators import CollaboratorSearch
+    from asg.registry import _REGISTRIES, register
+
+    @register("acs", "first-two")
+    class FirstTwo(CollaboratorSearch):
+        def propose(self, scene, candidates, size, rng, attention_of):
+            return [tuple(sorted(candidates)[:size])], {}
+
+    try:
+        result = make_gen(replace(FAST, acs="first-two")).generate(busy_scene, seed=4)
+        cands = sorted(a.agent_id for a in busy_scene.vehicles if a.agent_id != busy_scene.ego_id)
+        assert result.evaluations == 1 + 1 + 8 and set(result.after_acs.collaborators) <= set(cands)
+        from asg.cli import build_parser
+
+        assert build_parser().parse_args(["generate", "--acs", "first-two"]).acs == "first-two"
+    finally:
+        del _REGISTRIES["acs"]["first-two"]

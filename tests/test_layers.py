@@ -1,9 +1,10 @@
 """The package reads top-down: every import (also one inside a function) goes to a lower layer.
 
 Layers, lowest first: settings and registries; the scene; the stages (sensors, objective, search,
-collaborators); perception (networks and detectors) and the executors; data sets and the pipeline;
-outputs (io); the generator; the workflows; the benchmarks; the command line. A new module has to
-be given its layer here, which is the point: a test that fails when an arrow runs upward."""
+collaborators); perception (networks and detectors) and the executors; data sets and the
+generator's settings; the pipeline (one scene); outputs (io); the generator; the workflows; the
+benchmarks; the command line. A new module has to be given its layer here, which is the point: a
+test that fails when an arrow runs upward."""
 import ast
 from pathlib import Path
 
@@ -15,14 +16,15 @@ LAYERS = {
     "scene": 1,
     "sensors": 2, "objective": 2, "search": 2, "collaborators": 2,
     "metrics": 3, "perception": 3, "executors": 3,
-    "datasets": 4, "pipeline": 4,
-    "io": 5,
-    "generate": 6,
-    "workflows": 7,
-    "benchmarks": 8,
-    "generate_cmd": 9,
-    "commands": 10,
-    "cli": 11,
+    "datasets": 4, "generator_config": 4,
+    "pipeline": 5,
+    "io": 6,
+    "generate": 7,
+    "workflows": 8,
+    "benchmarks": 9,
+    "generate_cmd": 10,
+    "commands": 11,
+    "cli": 12,
 }
 
 

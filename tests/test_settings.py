@@ -5,7 +5,7 @@ import inspect
 import pytest
 
 from asg.perception.config import DetectorConfig, load_detector_config
-from asg.pipeline import GenerateConfig, load_generate_config, search_params
+from asg.generator_config import GenerateConfig, load_generate_config, search_params
 from asg.registry import lookup, names
 from asg.sensors import LidarSpec, load_lidar_spec
 
@@ -24,7 +24,7 @@ def test_lidar_preset_mirrors_lidar_spec():
 
 def _optimizer_defaults(name: str) -> dict:
     """The optimiser's own default for each of its settings (GA keeps them in GAParams)."""
-    from asg.search.algorithms import GAParams
+    from asg.search.genetic import GAParams
 
     if name == "ga":
         return {f.name: f.default for f in dataclasses.fields(GAParams)}

@@ -10,7 +10,8 @@ import numpy as np
 
 from ..perception import build_detector
 from ..datasets import scenes_of
-from ..pipeline import Generator, load_generate_config
+from ..generator_config import load_generate_config
+from ..pipeline import Generator
 
 
 def bench_generate(scenes: int = 5, budget: int = 50, seed: int = 1) -> dict:

@@ -78,7 +78,7 @@ def _run_config(run_dir: Path, scene_dir: Path, acs: str, search: str, scenes: i
     """One configuration as an ``asg generate`` run into ``run_dir`` (resumes a partial one)."""
     from ..generate import SceneSource, open_run
     from ..io.run import print_table
-    from ..pipeline import load_generate_config
+    from ..generator_config import load_generate_config
     from ..progress import console
 
     cfg = load_generate_config(fusion=fusion, search=search, acs=acs, aps=True, budget=budget)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..executors import build_executor
 from ..generate import SceneSource, open_run
-from ..pipeline import load_generate_config
+from ..generator_config import load_generate_config
 from .paper import pick_scenes
 
 #: (name, executor, workers, threads per worker)

@@ -212,7 +212,7 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
     benchmark's scenes (``run.scenes`` of them, default 30), at the config's plausibility level;
     the spaces that place vehicles (TRAFFIC_SPACES) also at the ``traffic`` level, and the union
     with WIDE_UNION_MOVERS moved vehicles. Drop = AP on the normal scenes minus AP after the search."""
-    from ..pipeline import load_generate_config
+    from ..generator_config import load_generate_config
     from .paper import pick_scenes
 
     count = run.scenes or BENCHMARK_SCENES
@@ -271,7 +271,7 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     import statistics
 
     from ..generate import SceneSource, open_run
-    from ..pipeline import load_generate_config, with_space_flags
+    from ..generator_config import load_generate_config, with_space_flags
 
     cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
                            plausibility, kinds)

@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-from .algorithms import Optimizer
+from .optimizer import Optimizer
 from .space import FeasibleSet, nearest_index
 
 #: evaluates a normalised perturbation: returns (loss, AP by threshold)

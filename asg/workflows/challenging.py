@@ -41,7 +41,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT)."""
     from ..generate import SceneSource, open_run
     from ..io.run import load_done
-    from ..pipeline import load_generate_config
+    from ..generator_config import load_generate_config
     from ..perception import detector_names
 
     if split not in SPLITS:

@@ -39,7 +39,7 @@ def target_detector(fusion: str, weights_file: str | None = None, detector_facto
     that ``detector_factory`` ("module:function", as for ``asg generate --detector``) returns for it."""
     if detector_factory:
         from ..generate import factory_models
-        from ..pipeline import GenerateConfig
+        from ..generator_config import GenerateConfig
 
         return factory_models(detector_factory, GenerateConfig(fusion=fusion))[0]
     return build_detector(fusion, weights_file=weights_file)

@@ -209,7 +209,7 @@ def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfi
                detector_factory: str | None, log: Callable[[str], None]) -> tuple[list[Scene], dict]:
     """The round's training scenes (see ``cfg.data``) and a record of how they were made."""
     from ..generate import open_run
-    from ..pipeline import load_generate_config
+    from ..generator_config import load_generate_config
 
     gen_cfg = load_generate_config(fusion=fusion, weights=str(weights))
     if space:

@@ -48,7 +48,7 @@ def main(count: int) -> None:
     print(f"{count} scenes, {total:.1f} s: {total / count:.2f} s a scene")
     for stage, (suffix, name) in STAGES.items():
         if suffix is None:
-            cum = sum(_outermost(stats, "search/algorithms.py", n) for n in ("ask", "tell"))
+            cum = sum(_outermost(stats, "search/bayesian.py", n) for n in ("ask", "tell"))
         else:
             cum = _outermost(stats, suffix, name)
         print(f"  {stage:52s} {cum:6.2f} s  {100 * cum / total:5.1f} %")

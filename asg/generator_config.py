@@ -1,0 +1,97 @@
+"""The generator's settings (``GenerateConfig``), mirrored by configs/generate.yaml, and how they
+are read: the yaml, then the command line's flags (``load_generate_config``, ``with_space_flags``),
+and each search algorithm's own yaml (``search_params``)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal
+
+from sumo_scenarios import checks
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.paths import configs_dir
+from sumo_scenarios.strict import from_mapping, read_yaml
+
+from .objective import ObjectiveConfig
+from .scene.neighbours import COMM_RANGE_M
+from .search import SpaceConfig
+from .sensors.lidar_spec import DEFAULT_LIDAR
+
+#: evaluations per scene at most (a scene at 50 takes seconds; this many is a day)
+MAX_BUDGET = 100_000
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """The generator's settings; configs/generate.yaml mirrors these defaults (a test checks it)."""
+
+    fusion: str = "attfuse"
+    #: the target's weights file (.pt) instead of the fusion's shipped weights (e.g. a fine-tuned model)
+    weights: str | None = None
+    search: str = "bo"
+    #: the collaborator search: a registered strategy (asg.collaborators: attention, random) or off
+    acs: str = "attention"
+    aps: bool = True
+    budget: int = 50
+    sensing_agents: int = 3
+    acs_samples: int = 3
+    acs_tau: float = 0.03
+    attention_cells: Literal["all", "vehicles"] = "all"
+    perturbed: int = 3
+    comm_range_m: float = COMM_RANGE_M
+    lidar: str = DEFAULT_LIDAR
+    objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
+    space: SpaceConfig = field(default_factory=SpaceConfig)
+
+    def validate(self) -> "GenerateConfig":
+        from .registry import names
+        from . import collaborators as _c, search as _s  # noqa: F401  (fill the registries)
+
+        if self.search not in names("search"):
+            raise InputError(f"unknown search algorithm '{self.search}'; known: {', '.join(names('search'))}")
+        if self.acs not in (*names("acs"), "off"):
+            raise InputError(f"--acs must be {', '.join(names('acs'))} or off, got {self.acs!r}")
+        if not 1 <= self.budget <= MAX_BUDGET:
+            raise InputError(f"--budget must be between 1 and {MAX_BUDGET}, got {self.budget}")
+        checks.number(self.sensing_agents, "sensing_agents", 1, 16)
+        checks.number(self.acs_samples, "acs_samples", 1, 1000)
+        checks.number(self.acs_tau, "acs_tau", 0.0, 100.0, lo_open=True)
+        checks.number(self.perturbed, "perturbed", 0, 64)
+        checks.number(self.comm_range_m, "comm_range_m", 0.0, 1000.0, lo_open=True)
+        return self
+
+
+def load_generate_config(path: Path | None = None, **overrides) -> GenerateConfig:
+    """The generator's settings: ``path`` (default configs/generate.yaml), then the non-None
+    ``overrides`` (CLI flags); an error names the file it came from."""
+    path = Path(path) if path is not None else configs_dir() / "generate.yaml"
+    data = read_yaml(path)
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a mapping of settings (key: value), got a {type(data).__name__}")
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        return from_mapping(GenerateConfig, data, str(path)).validate()
+    except InputError as exc:  # a range check inside a component's config: say which file it came from
+        text = str(exc)
+        if str(path) in text or text.startswith("--"):
+            raise
+        raise InputError(f"{path}: {text}") from None
+
+
+def with_space_flags(cfg: GenerateConfig, plausibility: str | None, spaces: str | None) -> GenerateConfig:
+    """``cfg`` with the --plausibility and --space flags (``spaces``: comma-separated names) applied."""
+    changes = {}
+    if plausibility is not None:
+        changes["plausibility"] = plausibility
+    if spaces is not None:
+        changes["kinds"] = tuple(k.strip() for k in spaces.split(",") if k.strip())
+    if not changes:
+        return cfg
+    fields = {f: getattr(cfg.space, f) for f in SpaceConfig.__dataclass_fields__} | changes
+    return replace(cfg, space=SpaceConfig(**fields))
+
+
+def search_params(name: str) -> dict:
+    p = configs_dir() / "search" / f"{name}.yaml"
+    return (read_yaml(p) or {}) if p.is_file() else {}

@@ -1,0 +1,78 @@
+"""A genetic algorithm (ga) over Q's members."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..registry import register
+from .optimizer import Optimizer
+
+
+@dataclass
+class GAParams:
+    population: int = 15
+    elites: int = 2
+    temperature: float = 0.8
+    crossover: float = 0.5
+    mutation_p: float = 0.5
+    mutation_p_min: float = 0.1
+    mutation_range: float = 1.0
+    mutation_range_min: float = 0.3
+    decay: float = 0.9
+
+
+@register("search", "ga")
+class GeneticAlgorithm(Optimizer):
+    """Elitism, softmax parent selection on negated loss (temperature 0.8), uniform crossover,
+    adaptive mutation: probability and range shrink by x0.9 when a generation does not improve.
+
+    The first generation is ``population`` random points; each later one ``population - elites``
+    children, bred from the best ``population`` of the last generation plus the elites carried over
+    with their known loss (an elite is not evaluated again)."""
+
+    @classmethod
+    def settings(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(GAParams))
+
+    def __init__(self, dim: int, budget: int, rng: np.random.Generator, **params):
+        super().__init__(dim, budget, rng)
+        self.p = GAParams(**params)
+        self.queue: list[np.ndarray] = [rng.uniform(-1, 1, dim) for _ in range(self.p.population)]
+        self.generation: list[tuple[np.ndarray, float]] = []
+        self.elites: list[tuple[np.ndarray, float]] = []
+        self.best = math.inf
+        self.mut_p = self.p.mutation_p
+        self.mut_r = self.p.mutation_range
+
+    def ask(self, candidates: np.ndarray) -> np.ndarray:
+        if not self.queue:
+            self._breed()
+        return self.queue.pop(0)
+
+    def tell(self, x: np.ndarray, loss: float) -> None:
+        self.generation.append((np.asarray(x, dtype=float), float(loss)))
+
+    def _breed(self) -> None:
+        pop = sorted(self.elites + self.generation, key=lambda t: t[1])[: self.p.population] or [(np.zeros(self.dim), 0.0)]
+        gen_best = pop[0][1]
+        if gen_best < self.best - 1e-9:
+            self.best = gen_best
+        else:
+            self.mut_p = max(self.p.mutation_p_min, self.mut_p * self.p.decay)
+            self.mut_r = max(self.p.mutation_range_min, self.mut_r * self.p.decay)
+        fitness = -np.array([l for _, l in pop]) / self.p.temperature
+        prob = np.exp(fitness - fitness.max())
+        prob /= prob.sum()
+        self.elites = pop[: self.p.elites]
+        children: list[np.ndarray] = []
+        while len(children) < max(1, self.p.population - len(self.elites)):
+            a, b = self.rng.choice(len(pop), size=2, p=prob)
+            mask = self.rng.random(self.dim) < self.p.crossover
+            child = np.where(mask, pop[a][0], pop[b][0])
+            mutate = self.rng.random(self.dim) < self.mut_p
+            child = child + mutate * self.rng.uniform(-self.mut_r, self.mut_r, self.dim)
+            children.append(np.clip(child, -1.0, 1.0))
+        self.queue = children
+        self.generation = []

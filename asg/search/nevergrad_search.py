@@ -1,0 +1,41 @@
+"""Any nevergrad optimiser (ng; default NGOpt)."""
+from __future__ import annotations
+
+import numpy as np
+
+from sumo_scenarios.errors import InputError
+
+from ..registry import register
+from .optimizer import Optimizer
+
+
+@register("search", "ng")
+class NevergradSearch(Optimizer):
+    """A nevergrad optimiser (default NGOpt, its own pick of algorithm for the dimension and budget;
+    nevergrad also handles discrete and mixed dimensions) over the box [-1, 1]^D, seeded from the
+    scene's generator. ``tell`` gives it the loss of the member of Q nearest to what it asked (the
+    projection is part of the objective it sees); the unperturbed start, which it did not ask for,
+    is not told to it."""
+
+    def __init__(self, dim: int, budget: int, rng: np.random.Generator, optimizer: str = "NGOpt"):
+        super().__init__(dim, budget, rng)
+        import warnings
+
+        import nevergrad as ng
+
+        warnings.filterwarnings("ignore", module="nevergrad")  # advice on bound widths, not errors
+        if optimizer not in ng.optimizers.registry:
+            raise InputError(f"search ng: unknown nevergrad optimizer {optimizer!r} (configs/search/ng.yaml)")
+        param = ng.p.Array(shape=(dim,), lower=-1.0, upper=1.0)
+        param.random_state = np.random.RandomState(int(rng.integers(2**31 - 1)))
+        self._opt = ng.optimizers.registry[optimizer](parametrization=param, budget=budget, num_workers=1)
+        self._asked = None
+
+    def ask(self, candidates: np.ndarray) -> np.ndarray:
+        self._asked = self._opt.ask()
+        return np.asarray(self._asked.value, dtype=float)
+
+    def tell(self, x: np.ndarray, loss: float) -> None:
+        if self._asked is not None:
+            self._opt.tell(self._asked, float(loss))
+            self._asked = None
