@@ -16,6 +16,7 @@ from sumo_scenarios.log import NEAR_RADIUS_M
 from sumo_scenarios.paths import nets_dir
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
+from .objective import ap_text
 from .progress import console, progress_bar, stdout
 from .scene.from_log import ExtractParams, extract_scenes
 from .scene.scene import save_scene
@@ -208,7 +209,7 @@ def _build_challenging(args: argparse.Namespace) -> int:
         out = build_challenging(args.fusion, args.split, executor, args.count,
                                 on_scene=lambda done, total, sid: bar.update(task, completed=done, total=total))
     index = json.loads((out / "index.json").read_text())
-    fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7"))
+    fmt = ap_text
     console.print(f"wrote {out}: {index['frames']} scenes; AP normal {fmt(index['ap_normal'])} -> "
                   f"challenging {fmt(index['ap_challenging'])}")
     return 0
@@ -325,7 +326,7 @@ def finetune(args: argparse.Namespace) -> int:
     table = Table(title=f"asg finetune --fusion {args.fusion} --on {on}: AP@0.3 / 0.5 / 0.7")
     for col in ("set", "frames", "before", "after"):
         table.add_column(col, justify="left" if col == "set" else "right")
-    fmt = lambda ap: " / ".join(f"{100 * ap[k]:.1f}" for k in ("0.3", "0.5", "0.7"))
+    fmt = ap_text
     for set_name, row in card.get("evaluation", {}).items():
         table.add_row(set_name, str(row["frames"]), fmt(row["before"]), fmt(row["after"]))
     if "reattack" in card:
@@ -467,7 +468,7 @@ def bench_paper(args: argparse.Namespace) -> int:
         for col in ("ACS-search", "normal 0.3/0.5/0.7", "after ACS", "challenging 0.3/0.5/0.7", "scenes"):
             table.add_column(col)
         for k, v in result["table"].items():
-            fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7"))
+            fmt = ap_text
             after_ap, pooled = after_acs_ap(v["after_acs"], v["after_acs_mean"])
             after = fmt(after_ap) + ("" if pooled else " (mean)")
             table.add_row(k, fmt(v["normal"]), after, fmt(v["challenging"]), str(v["scenes"]))

@@ -24,12 +24,13 @@ from typing import Callable
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
+from ..objective import AP_KEYS
 from . import paper_figures as paper
 
 TABLES = ("main", "finetune", "transfer", "acs", "ablation", "blackbox", "spaces")
 #: the four shipped models of the paper, in its order
 MODELS = ("none", "late", "early", "attfuse")
-THRESHOLDS = ("0.3", "0.5", "0.7")
+THRESHOLDS = AP_KEYS  # the keys of AP@0.3 / 0.5 / 0.7 in results (asg.objective)
 
 
 @dataclass(frozen=True)

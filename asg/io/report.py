@@ -33,6 +33,7 @@ from sumo_scenarios.atomic import write_text_atomic  # noqa: E402
 from sumo_scenarios.checks import is_safe_id  # noqa: E402
 from sumo_scenarios.errors import InputError  # noqa: E402
 
+from ..objective import ap_text  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
 from .figures import points_above_ground  # noqa: E402
 from .run import load_detections  # noqa: E402
@@ -99,7 +100,7 @@ def _is_table(path: Path) -> bool:
 def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
     summary = json.loads((run / "summary.json").read_text())
     cfg, agg, entries = summary["config"], summary["aggregate"], summary["scenes"]
-    fmt = lambda ap: " / ".join(f"{100 * ap[t]:.1f}" for t in ("0.3", "0.5", "0.7")) if ap else "-"
+    fmt = ap_text
     rows = [["pooled", fmt(agg["ap_normal"]), fmt(agg.get("ap_after_acs")), fmt(agg["ap_challenging"]), "", ""]]
     for e in entries:
         p = e.get("plausibility", {})

@@ -28,6 +28,7 @@ import numpy as np
 from sumo_scenarios.atomic import atomic_dir, atomic_path, write_text_atomic
 from sumo_scenarios.checks import inside
 
+from ..objective import AP_KEYS, ap_at, ap_text
 from ..pipeline import SceneResult
 from ..scene import save_scene
 from .figures import bev_figure
@@ -59,7 +60,7 @@ def write_scene(out_dir: Path, r: SceneResult, artifacts: bool = True) -> dict:
         w = csv.writer(buf)
         w.writerow(["step", *r.history_columns, "loss", "ap_0.3", "ap_0.5", "ap_0.7"])
         for e, values in zip(r.history, r.history_values):
-            w.writerow([e.step, *values, round(e.loss, 6), *[round(e.ap.get(k, 0.0), 6) for k in ("0.3", "0.5", "0.7")]])
+            w.writerow([e.step, *values, round(e.loss, 6), *[round(e.ap.get(k, 0.0), 6) for k in AP_KEYS]])
         (work / "history.csv").write_text(buf.getvalue())
         if artifacts:
             _write_artifacts(work, r)
@@ -129,18 +130,16 @@ def pooled_ap(per_scene: list[dict[str, tuple]], key: str) -> dict[str, float] |
     """AP over one stage's detections of all scenes together (one global ranking), as the paper's
     tables; ``per_scene`` as load_detections gives them. None if a scene lacks that stage (a folder
     written before it was stored)."""
-    from ..objective import ap_at
-
     if any(key not in d for d in per_scene):
         return None
     frames = [d[key] for d in per_scene]
-    return {k: round(v, 6) for k, v in ap_at(frames).items()} if frames else {"0.3": 0.0, "0.5": 0.0, "0.7": 0.0}
+    return {k: round(v, 6) for k, v in ap_at(frames).items()} if frames else dict.fromkeys(AP_KEYS, 0.0)
 
 
 def mean_ap(entries: list[dict], key: str) -> dict[str, float]:
     if not entries:
-        return {"0.3": 0.0, "0.5": 0.0, "0.7": 0.0}
-    return {t: round(float(np.mean([e[key][t] for e in entries])), 6) for t in ("0.3", "0.5", "0.7")}
+        return dict.fromkeys(AP_KEYS, 0.0)
+    return {t: round(float(np.mean([e[key][t] for e in entries])), 6) for t in AP_KEYS}
 
 
 def after_acs_ap(pooled: dict[str, float] | None, mean: dict[str, float]) -> tuple[dict[str, float], bool]:
@@ -180,7 +179,7 @@ def print_table(summary: dict, out) -> None:
     table.add_column("scene")
     for col in ("normal 0.3/0.5/0.7", "after ACS", "final", "moved", "s"):
         table.add_column(col, justify="right")
-    fmt = lambda ap: " / ".join(f"{ap[k]:.2f}" for k in ("0.3", "0.5", "0.7"))
+    fmt = lambda ap: ap_text(ap, scale=1.0, digits=2)  # noqa: E731
     for e in summary["scenes"]:
         table.add_row(e["scene_id"][-32:], fmt(e["ap_normal"]), fmt(e["ap_after_acs"]), fmt(e["ap_final"]),
                       str(len(e.get("moved", e["perturbed"] if e["delta"] else []))), f"{e['seconds']:.1f}")

@@ -88,7 +88,20 @@ def ap_from_matches(scores: Sequence[np.ndarray], tps: Sequence[np.ndarray], n_g
     return voc_ap(recall, precision)
 
 
-def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = (0.3, 0.5, 0.7)) -> dict[str, float]:
+#: the IoU thresholds every table reports (AP@0.3/0.5/0.7, the paper's), and their keys in results
+REPORTED_THRESHOLDS = (0.3, 0.5, 0.7)
+AP_KEYS = tuple(f"{t:g}" for t in REPORTED_THRESHOLDS)
+
+
+def ap_text(ap, scale: float = 100.0, digits: int = 1, missing: str = "-") -> str:
+    """AP@0.3 / 0.5 / 0.7 of a result mapping as text, e.g. "90.2 / 87.2 / 73.3" (``scale`` 100:
+    percent; 1: fractions); ``missing`` for None."""
+    if ap is None:
+        return missing
+    return " / ".join(f"{scale * ap[k]:.{digits}f}" for k in AP_KEYS)
+
+
+def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS) -> dict[str, float]:
     """{"0.3": AP, "0.5": AP, "0.7": AP} over the same frames."""
     frames = list(frames)
     return {f"{t:g}": average_precision(frames, t) for t in thresholds}

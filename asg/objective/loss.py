@@ -6,8 +6,7 @@ from dataclasses import dataclass, field
 
 from sumo_scenarios.errors import InputError
 
-#: the IoU thresholds every table reports (AP@0.3/0.5/0.7, the paper's)
-REPORTED_THRESHOLDS = (0.3, 0.5, 0.7)
+from .ap import REPORTED_THRESHOLDS
 
 
 @dataclass(frozen=True)
