@@ -27,7 +27,6 @@ from sumo_scenarios.errors import InputError
 from ..objective import AP_KEYS
 from . import paper_figures as paper
 
-TABLES = ("main", "finetune", "transfer", "acs", "ablation", "blackbox", "spaces")
 #: the four shipped models of the paper, in its order
 MODELS = ("none", "late", "early", "attfuse")
 THRESHOLDS = AP_KEYS  # the keys of AP@0.3 / 0.5 / 0.7 in results (asg.objective)
@@ -64,7 +63,7 @@ def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None]
 def run_table(name: str, run: TableRun, log: Callable[[str], None] = print) -> dict:
     log(f"table {name} ...")
     started = time.perf_counter()
-    rows, scenes = _BUILDERS[name](run)
+    rows, scenes = _REGISTRY[name].build(run)
     result = {"table": name, "command": run.command, "scenes": scenes, "seconds": round(time.perf_counter() - started, 1),
               "commit": _commit(), "machine": _machine(), "detector": run.detector_factory or "shipped", "rows": rows}
     write_text_atomic(run.out / f"{name}.json", json.dumps(result, indent=1))
@@ -241,10 +240,6 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
     return rows, min(counts, default=0)
 
 
-_BUILDERS = {"main": main_table, "finetune": finetune_table, "transfer": transfer_table, "acs": acs_table,
-             "ablation": ablation_table, "blackbox": blackbox_table, "spaces": spaces_table}
-
-
 # ---- shared measurements -------------------------------------------------------------------------------
 def _challenging(model: str, split: str, run: TableRun) -> dict:
     """{"scenes", "normal", "challenging"}: the model's challenging set of ``split`` (built or
@@ -348,7 +343,7 @@ def to_markdown(result: dict) -> str:
     """The table as markdown (AP in %, ours beside the paper's) under the command that made it."""
     head = (f"`{result['command']}`: {result['scenes']} scenes, {result['seconds']:.0f} s, commit {result['commit']}, "
             f"{result['machine']}; detector {result['detector']}. AP@0.3 / 0.5 / 0.7 in %.\n\n")
-    return head + _MD[result["table"]](result["rows"]) + "\n"
+    return head + _REGISTRY[result["table"]].markdown(result["rows"]) + "\n"
 
 
 def _md_table(header: list[str], lines: list[list[str]]) -> str:
@@ -414,5 +409,17 @@ def _md_spaces(rows):
                        for r in rows]))
 
 
-_MD = {"spaces": _md_spaces, "main": _md_main, "finetune": _md_finetune, "transfer": _md_transfer, "acs": _md_acs, "ablation": _md_ablation,
-       "blackbox": _md_blackbox}
+@dataclass(frozen=True)
+class _Table:
+    """A table: how its rows are measured (rows, scenes) and how they print as markdown."""
+
+    build: Callable[["TableRun"], tuple[list, int]]
+    markdown: Callable[[list], str]
+
+
+#: every table, in the order `--table all` runs them: one entry each
+_REGISTRY = {"main": _Table(main_table, _md_main), "finetune": _Table(finetune_table, _md_finetune),
+             "transfer": _Table(transfer_table, _md_transfer), "acs": _Table(acs_table, _md_acs),
+             "ablation": _Table(ablation_table, _md_ablation), "blackbox": _Table(blackbox_table, _md_blackbox),
+             "spaces": _Table(spaces_table, _md_spaces)}
+TABLES = tuple(_REGISTRY)
