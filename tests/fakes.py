@@ -124,3 +124,12 @@ def wrong_return_factory(cfg):
 
 
 NOT_CALLABLE = 3
+
+
+def hang_with_short_limit_factory(cfg):
+    """hang_factory's detector in a worker whose time limit per call is 1 s (set in the worker's own
+    process: the factory runs there; a Ray actor gets no test's monkeypatch)."""
+    import asg.perception.plugins as plugins
+
+    plugins.CALL_TIME_LIMIT_S = 1.0
+    return hang_factory(cfg)

@@ -166,3 +166,15 @@ def test_open_run_refuses_other_settings_and_removes_a_folder_it_made_for_bad_in
     with pytest.raises(InputError, match="appears twice"):
         open_run(CFG, tmp_path / "fresh", scenes=twice, seed=3)
     assert not (tmp_path / "fresh").exists()
+
+
+def test_a_hanging_detector_is_stopped_inside_a_ray_actor_too(capsys, tmp_path):
+    """The time limit per detector call holds where Ray runs the scenes (an actor's task runs on its
+    process's main thread, where the limit's alarm can be set): one line, exit 2."""
+    pytest.importorskip("ray")
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("s0"))
+    code, err = run(capsys, "generate", "--scenes", str(scenes), "--detector", "fakes:hang_with_short_limit_factory",
+                    "--budget", "3", "--workers", "1", "--executor", "ray", "--out", str(tmp_path / "run"))
+    assert code == 2
+    assert_one_line_error(err, "ran over 1 s on one frame")
