@@ -69,6 +69,29 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     assert follow["start"]["weights"].endswith("round-2/weights.pt")
 
 
+def test_the_report_shows_a_hardening_run_round_by_round(capsys, tmp_path, data_root):
+    """asg report on a harden folder: a row a round and the training curves (each round's loss.csv,
+    written as it trains); a card someone edited is one line."""
+    from asg.cli import main
+
+    out = tmp_path / "h"
+    harden("attfuse", 2, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    for k in (1, 2):
+        lines = (out / f"round-{k}" / "loss.csv").read_text().splitlines()
+        assert lines[0] == "step,loss" and lines[-1].startswith("2,")
+    assert main(["report", str(out)]) == 0
+    page = (out / "report.html").read_text()
+    assert "asg harden --fusion attfuse" in page and "challenging-attfuse-val" in page
+    assert page.count("<tr><td>") == 3 and page.count("<img") == 1  # rounds 0, 1, 2; AP by round and the curves
+    capsys.readouterr()
+    card = json.loads((out / "card.json").read_text())
+    card["rounds"][1]["evaluation"]["normal-val"]["0.7"] = "<script>alert(1)</script>"
+    (out / "card.json").write_text(json.dumps(card))
+    code, err = run(capsys, "report", str(out))
+    assert code == 2
+    assert_one_line_error(err, "the training card")
+
+
 @pytest.mark.parametrize("data", ["random", "normal"])
 def test_the_controls_draw_the_scenes_they_claim(tmp_path, data_root, data):
     from asg.datasets import iter_frames

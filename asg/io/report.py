@@ -10,7 +10,9 @@ stage (initial, after ACS, final): the lanes, every sensing agent's LiDAR points
 (rendered again from the stage's scene), the ego and its links to the collaborators, the ground
 truth and the detections in distinct colours, and each moved vehicle's displacement from where it
 was; below each scene's row, an interactive 3D view of its final stage (the fused cloud with
-ground truth and detections); then the paper's tables beside ours. Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
+ground truth and detections); then the paper's tables beside ours; for an ``asg harden`` or ``asg
+finetune`` folder, the table a round (or before / after) and the training curves
+(asg.io.report_training). Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
 """
 from __future__ import annotations
 
@@ -37,6 +39,7 @@ from ..objective import ap_text  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
 from .figures import points_above_ground  # noqa: E402
 from .run import load_detections  # noqa: E402
+from .report_training import training_folders, training_section  # noqa: E402
 from .view3d import plotly_script, scene_view_html  # noqa: E402
 
 STAGES = (("initial", "initial"), ("after_acs", "after ACS"), ("final", "final"))
@@ -58,13 +61,16 @@ def write_report(root: Path, out: Path | None = None, scenes_shown: int = 6) -> 
     root = Path(root)
     runs = run_folders(root)
     tables = sorted(p for p in root.glob("*.json") if _is_table(p))
-    if not runs and not tables:
-        raise InputError(f"{root}: no run folder (summary.json) or table (TABLE.json) to report; "
-                         "give a folder written by 'asg generate' or 'asg bench paper'")
+    trainings = training_folders(root)
+    if not runs and not tables and not trainings:
+        raise InputError(f"{root}: no run folder (summary.json), table (TABLE.json) or training run (asg harden, "
+                         "asg finetune) to report; give a folder written by 'asg generate', 'asg bench paper', "
+                         "'asg harden' or 'asg finetune'")
     view_ids = itertools.count()  # the 3D views' div ids, unique in the page
     parts = [f"<h1>asg report: {html.escape(str(root))}</h1>"]
     parts += [_guarded(_run_section, r, "summary.json", scenes_shown, view_ids) for r in runs]
     parts += [_guarded(_table_section, p, p.name) for p in tables]
+    parts += [_guarded(training_section, f, "the training card", _img, _html_table) for f in trainings]
     body = "\n".join(parts)
     head = plotly_script() if "class=view3d" in body else ""
     out = Path(out) if out is not None else root / "report.html"

@@ -31,6 +31,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
 from ..datasets import iter_frames
+from ..io.curves import LOSS_CURVE, LossCurve
 from ..io.run_record import claim
 from ..sensors import load_lidar_spec
 from ..perception.checkpoint import load_checkpoint
@@ -171,8 +172,9 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
         torch.set_rng_state(state["torch_rng"])
         log(f"resumed fine-tuning at step {step}")
     batches = sources()
+    curve = LossCurve(ckpt.with_name(LOSS_CURVE), resumed_at=step)
     wall_s = run_steps(model, opt, sched, batches, rng, Steps(step, total, fcfg.batch_size, fcfg.checkpoint_every),
-                       cfg, ckpt, wall_s, {}, log, progress)
+                       cfg, ckpt, wall_s, {}, log, progress, curve.add)
     with atomic_path(weights_out) as tmp:
         torch.save(model.state_dict(), tmp)
     ckpt.unlink(missing_ok=True)

@@ -239,10 +239,12 @@ class Steps:
 
 def run_steps(model: torch.nn.Module, opt, sched, batches, rng: np.random.Generator, steps: Steps, cfg,
               ckpt: Path, wall_s: float, previous: dict, log: Callable[[str], None],
-              progress: Callable[[int, int, float], None] | None) -> float:
+              progress: Callable[[int, int, float], None] | None,
+              curve: Callable[[int, float], None] | None = None) -> float:
     """Train ``model`` from ``steps.done`` to ``steps.total`` on batches drawn from ``batches``
     (anything with ``draw(rng, batch, anchors, cfg)``), checkpointing to ``ckpt``; returns the
-    chunk's wall time so far (``wall_s`` plus this run's). Leaves the model in eval mode."""
+    chunk's wall time so far (``wall_s`` plus this run's). ``curve(step, mean loss of the last 50
+    steps)`` every 50 steps and at the last. Leaves the model in eval mode."""
     anchors = model.anchors.numpy()
     model.train()
     started = time.perf_counter()
@@ -260,6 +262,8 @@ def run_steps(model: torch.nn.Module, opt, sched, batches, rng: np.random.Genera
         if step % 50 == 0:
             parts = " ".join(f"{k} {float(v.detach()):.3f}" for k, v in loss.items() if k != "total")
             log(f"step {step}/{total} loss {np.mean(losses[-50:]):.4f} ({parts})")
+        if curve and (step % 50 == 0 or step == total):
+            curve(step, float(np.mean(losses[-50:])))
         if step % steps.checkpoint_every == 0 or step == total:
             save_checkpoint(ckpt, model, opt, sched, step, wall_s + time.perf_counter() - started, rng, previous)
     model.eval()

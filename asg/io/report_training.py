@@ -1,0 +1,131 @@
+"""The report's sections for training runs: ``asg harden`` (one row a round, AP@0.7 by round,
+each round's training loss) and ``asg finetune`` (before / after on each set, the training loss).
+
+Every value comes from the run's own files (card.json, the fine-tuning card, loss.csv) and is
+escaped; a file that is not what asg wrote ends in one InputError (asg.io.report's guard).
+"""
+from __future__ import annotations
+
+import html
+import json
+from pathlib import Path
+from typing import Callable
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..objective import ap_text  # noqa: E402
+from .curves import LOSS_CURVE, read_loss_curve  # noqa: E402
+
+#: the files that make a folder a training run
+HARDEN_CARD = "card.json"
+
+
+def training_kind(folder: Path) -> str | None:
+    """"harden", "finetune" or None: what training run ``folder`` holds."""
+    card = _json(folder / HARDEN_CARD)
+    if isinstance(card, dict) and "rounds" in card:
+        return "harden"
+    return "finetune" if _finetune_card(folder) is not None else None
+
+
+def training_folders(root: Path) -> list[Path]:
+    """``root`` if it is a training run, else its sub-folders that are (sorted)."""
+    if training_kind(root):
+        return [root]
+    return sorted(p for p in root.iterdir() if p.is_dir() and training_kind(p)) if root.is_dir() else []
+
+
+def training_section(folder: Path, img: Callable, table: Callable) -> str:
+    """The section of a harden or fine-tuning folder (``img(fig)``: an inline picture, ``table(head,
+    rows)``: an HTML table, both escaping what they get)."""
+    if training_kind(folder) == "harden":
+        return _harden(folder, img, table)
+    return _finetune(folder, img, table)
+
+
+def _harden(folder: Path, img: Callable, table: Callable) -> str:
+    card = json.loads((folder / HARDEN_CARD).read_text())
+    rounds = sorted(card["rounds"], key=lambda r: int(r["round"]))
+    sets = sorted({s for r in rounds for s in r.get("evaluation", {})})
+    rows = []
+    for r in rounds:
+        ev, re_ = r.get("evaluation", {}), r.get("reattack")
+        reattacked = f"{_pct(re_['normal'])} -> {_pct(re_['challenging'])}" if re_ else "-"
+        trained = r.get("trained") or {}
+        rows.append([str(int(r["round"])), str((r.get("data") or {}).get("kind", "start weights")),
+                     str(trained.get("steps", "-")), *[_pct(ev.get(s)) for s in sets], reattacked])
+    fig, (ax_ap, ax_loss) = plt.subplots(1, 2, figsize=(12, 3.6), dpi=80)
+    ks = [int(r["round"]) for r in rounds]
+    for s in sets:
+        ax_ap.plot(ks, [_num(r.get("evaluation", {}).get(s)) for r in rounds], marker="o", label=s)
+    ax_ap.set_xlabel("round")
+    ax_ap.set_ylabel("AP@0.7 (%)")
+    ax_ap.set_xticks(ks)
+    ax_ap.legend(fontsize=7)
+    for k in ks[1:]:
+        curve = read_loss_curve(folder / f"round-{k}" / LOSS_CURVE)
+        if curve:
+            ax_loss.plot(*np.array(curve, dtype=float).T, label=f"round {k}")
+    ax_loss.set_xlabel("step")
+    ax_loss.set_ylabel("training loss (mean of 50 steps)")
+    if ax_loss.lines:
+        ax_loss.legend(fontsize=7)
+    else:
+        ax_loss.text(0.5, 0.5, "no training curve recorded", ha="center", va="center", transform=ax_loss.transAxes)
+    fig.tight_layout()
+    return (f"<section><h2>{html.escape(folder.name)}: asg harden --fusion {html.escape(str(card.get('fusion')))} "
+            f"({html.escape(str(card.get('data')))} scenes)</h2><p>AP@0.7 (%) a round on the fixed evaluation sets; "
+            f"round 0 is the start weights; re-attacked: normal-val -> the paper's attack against the round's weights.</p>"
+            + table(["round", "data", "steps", *sets, "re-attacked"], rows) + img(fig) + "</section>")
+
+
+def _finetune(folder: Path, img: Callable, table: Callable) -> str:
+    name, card = _finetune_card(folder)
+    rows = [[s, str(v.get("frames", "-")), ap_text(v.get("before")), ap_text(v.get("after"))]
+            for s, v in sorted((card.get("evaluation") or {}).items())]
+    re_ = card.get("reattack")
+    if re_:
+        rows.append(["re-attacked on normal-val", str(re_.get("frames", "-")), ap_text(re_.get("normal")),
+                     ap_text(re_.get("challenging"))])
+    curve = read_loss_curve(folder / LOSS_CURVE)
+    chart = ""
+    if curve:
+        fig, ax = plt.subplots(figsize=(7, 3.2), dpi=80)
+        ax.plot(*np.array(curve, dtype=float).T)
+        ax.set_xlabel("step")
+        ax.set_ylabel("training loss (mean of 50 steps)")
+        fig.tight_layout()
+        chart = img(fig)
+    return (f"<section><h2>{html.escape(folder.name)}: asg finetune ({html.escape(name)})</h2>"
+            "<p>AP@0.3 / 0.5 / 0.7 (%) before and after.</p>"
+            + table(["set", "frames", "before", "after"], rows) + chart + "</section>")
+
+
+def _finetune_card(folder: Path) -> tuple[str, dict] | None:
+    if not (folder / "run.json").is_file():
+        return None
+    for p in sorted(folder.glob("*.json")):
+        card = _json(p)
+        if p.name != "run.json" and isinstance(card, dict) and "trained" in card and "weights" in card:
+            return p.stem, card
+    return None
+
+
+def _json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _num(ap) -> float:
+    """AP@0.7 in % of a result mapping, NaN when missing (a gap in a chart)."""
+    return 100 * float(ap["0.7"]) if ap else float("nan")
+
+
+def _pct(ap) -> str:
+    return f"{_num(ap):.1f}" if ap else "-"
