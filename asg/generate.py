@@ -149,8 +149,9 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
     per worker (default: the shipped ``cfg.fusion`` and AttFuse). ``executor``: where the scenes run
     (default: this process, one thread). A scene's result depends only on the scene, ``cfg`` and
     ``seed``, so any executor and worker count gives the same summary (timings aside).
-    ``on_step`` reports evaluations only when the scenes run in this process (``executor.in_process``). ``artifacts``: write
-    each scene's final clouds and pictures too (off for data sets of challenging scenes)."""
+    ``on_step`` reports evaluations only when the scenes run in this process
+    (``executor.in_process``). ``artifacts``: write each scene's final clouds and pictures too (off
+    for data sets of challenging scenes)."""
     from .io.run import load_done, previous_wall_s, write_summary
 
     check_scenes(cfg, scenes)

@@ -50,7 +50,8 @@ def bench_scale(out: Path, scenes: int = 8, budget: int = 50, seed: int = 1, way
                 executor.connect()  # Ray's own start-up is not the generator's cost
             first: list = []
             t0 = time.perf_counter()
-            run = run_folder.generate(executor=executor, on_scene=lambda n, total, sid: first or first.append((time.perf_counter() - t0, sid)))
+            run = run_folder.generate(
+                executor=executor, on_scene=lambda n, total, sid: first or first.append((time.perf_counter() - t0, sid)))
             wall = time.perf_counter() - t0
         seconds = {e["scene_id"]: e["seconds"] for e in run.summary["scenes"]}
         startup = max(0.0, first[0][0] - seconds[first[0][1]])  # until the first scene started
