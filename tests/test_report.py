@@ -112,3 +112,25 @@ def test_tampered_run_folders_are_one_line(capsys, tmp_path):
             continue
         assert code == 2, name
         assert_one_line_error(err, str(out))
+
+
+def test_the_final_view_marks_inserted_vehicles(cross_map):
+    """A vehicle in the final scene and not in the initial one (the insert space) is drawn in a square."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from asg.io.report import _bev
+    from asg.sensors import load_lidar_spec, simulate_frame
+    from conftest import car, make_scene, rsu
+
+    initial = make_scene(cross_map, [rsu("r", 8.0, 8.0), car("a", -10.0, -1.6)], collaborators=["a"])
+    final = make_scene(cross_map, [rsu("r", 8.0, 8.0), car("a", -10.0, -1.6), car("new", 15.0, 1.6)],
+                       collaborators=["a"])
+    none = (np.zeros((0, 7)), np.zeros(0), np.zeros((0, 7)))
+    squares = []
+    for scene in (initial, final):
+        fig, ax = plt.subplots()
+        _bev(ax, scene, simulate_frame(scene, load_lidar_spec()), none, [], initial)
+        squares.append(sum(line.get_marker() == "s" for line in ax.lines))
+        plt.close(fig)
+    assert squares == [0, 1]

@@ -128,7 +128,8 @@ def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
             f"ego frame, metres)</h3>"
             f"<p><span style='color:{GT_COLOUR}'>&#9632; ground truth</span> "
             f"<span style='color:{DET_COLOUR}'>&#9632; detections</span> "
-            f"<span style='color:{MOVED_COLOUR}'>&#9675;&rarr; moved vehicles and their displacement</span> "
+            f"<span style='color:{MOVED_COLOUR}'>&#9675;&rarr; moved vehicles and their displacement, "
+            f"&#9633; inserted vehicles</span> "
             f"&#9650; the ego (black) and its collaborators, linked; dots: each agent's LiDAR points (its colour, "
             f"ground returns left out); grey lines: lane centres</p>{views}</section>")
 
@@ -176,7 +177,7 @@ def _bev(ax, scene, frame, detections: tuple, moved: list[str], initial=None) ->
     """Lanes, buildings, every sensing agent's LiDAR points (``frame``, rendered from ``scene``),
     the links, ground truth (green), detections (red, dashed) and the sensing agents, all in the
     ego's frame (the frame the detections are in); moved vehicles circled, with an arrow from where
-    they stood in ``initial``."""
+    they stood in ``initial``; vehicles not in ``initial`` (inserted) in a square."""
     boxes, scores, gt = detections
     ego = scene.ego
     c, s = np.cos(ego.yaw_rad), np.sin(ego.yaw_rad)
@@ -206,6 +207,11 @@ def _bev(ax, scene, frame, detections: tuple, moved: list[str], initial=None) ->
                 q = at(aid, initial)
                 ax.annotate("", xy=p, xytext=q, arrowprops={"arrowstyle": "->", "color": MOVED_COLOUR, "lw": 1.2},
                             zorder=4)
+    if initial is not None:  # vehicles the search inserted (the insert space): a square around each
+        before = {a.agent_id for a in initial.agents}
+        for a in scene.vehicles:
+            if a.agent_id not in before:
+                ax.plot(*at(a.agent_id), marker="s", ms=14, mfc="none", mec=MOVED_COLOUR, mew=1.5, zorder=4)
     for k, aid in enumerate(frame.sensing_ids):
         ax.plot(*at(aid), marker="^", color="k" if aid == scene.ego_id else AGENT_COLOURS[k % len(AGENT_COLOURS)],
                 mec="k", markersize=8, zorder=5)
