@@ -209,9 +209,8 @@ def _build_challenging(args: argparse.Namespace) -> int:
         out = build_challenging(args.fusion, args.split, executor, args.count,
                                 on_scene=lambda done, total, sid: bar.update(task, completed=done, total=total))
     index = json.loads((out / "index.json").read_text())
-    fmt = ap_text
-    console.print(f"wrote {out}: {index['frames']} scenes; AP normal {fmt(index['ap_normal'])} -> "
-                  f"challenging {fmt(index['ap_challenging'])}")
+    console.print(f"wrote {out}: {index['frames']} scenes; AP normal {ap_text(index['ap_normal'])} -> "
+                  f"challenging {ap_text(index['ap_challenging'])}")
     return 0
 
 
@@ -326,13 +325,12 @@ def finetune(args: argparse.Namespace) -> int:
     table = Table(title=f"asg finetune --fusion {args.fusion} --on {on}: AP@0.3 / 0.5 / 0.7")
     for col in ("set", "frames", "before", "after"):
         table.add_column(col, justify="left" if col == "set" else "right")
-    fmt = ap_text
     for set_name, row in card.get("evaluation", {}).items():
-        table.add_row(set_name, str(row["frames"]), fmt(row["before"]), fmt(row["after"]))
+        table.add_row(set_name, str(row["frames"]), ap_text(row["before"]), ap_text(row["after"]))
     if "reattack" in card:
         r = card["reattack"]
-        table.add_row("own attack on normal-val", str(r["frames"]), fmt(r["original"]["challenging"]),
-                      fmt(r["finetuned"]["challenging"]))
+        table.add_row("own attack on normal-val", str(r["frames"]), ap_text(r["original"]["challenging"]),
+                      ap_text(r["finetuned"]["challenging"]))
     stdout.print(table)
     console.print(f"weights and card: {card.get('weights')} in {args.out or 'runs/finetune/' + args.fusion + '-ft'}")
     return 0
@@ -468,9 +466,8 @@ def bench_paper(args: argparse.Namespace) -> int:
         for col in ("ACS-search", "normal 0.3/0.5/0.7", "after ACS", "challenging 0.3/0.5/0.7", "scenes"):
             table.add_column(col)
         for k, v in result["table"].items():
-            fmt = ap_text
             after_ap, pooled = after_acs_ap(v["after_acs"], v["after_acs_mean"])
-            after = fmt(after_ap) + ("" if pooled else " (mean)")
-            table.add_row(k, fmt(v["normal"]), after, fmt(v["challenging"]), str(v["scenes"]))
+            after = ap_text(after_ap) + ("" if pooled else " (mean)")
+            table.add_row(k, ap_text(v["normal"]), after, ap_text(v["challenging"]), str(v["scenes"]))
         stdout.print(table)
     return 0

@@ -106,11 +106,11 @@ def _is_table(path: Path) -> bool:
 def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
     summary = json.loads((run / "summary.json").read_text())
     cfg, agg, entries = summary["config"], summary["aggregate"], summary["scenes"]
-    fmt = ap_text
-    rows = [["pooled", fmt(agg["ap_normal"]), fmt(agg.get("ap_after_acs")), fmt(agg["ap_challenging"]), "", ""]]
+    rows = [["pooled", ap_text(agg["ap_normal"]), ap_text(agg.get("ap_after_acs")), ap_text(agg["ap_challenging"]),
+             "", ""]]
     for e in entries:
         p = e.get("plausibility", {})
-        rows.append([e["scene_id"], fmt(e["ap_normal"]), fmt(e["ap_after_acs"]), fmt(e["ap_final"]),
+        rows.append([e["scene_id"], ap_text(e["ap_normal"]), ap_text(e["ap_after_acs"]), ap_text(e["ap_final"]),
                      str(len(e.get("moved", []))),
                      f"{p.get('collisions', '-')} / {p.get('off_road', '-')} / {p.get('out_of_range', '-')}"])
     implausible = sum(any(v for v in e.get("plausibility", {}).values()) for e in entries)

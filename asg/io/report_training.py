@@ -128,4 +128,4 @@ def _num(ap) -> float:
 
 
 def _pct(ap) -> str:
-    return f"{_num(ap):.1f}" if ap else "-"
+    return ap_text(ap or None, keys=("0.7",))

@@ -93,12 +93,12 @@ REPORTED_THRESHOLDS = (0.3, 0.5, 0.7)
 AP_KEYS = tuple(f"{t:g}" for t in REPORTED_THRESHOLDS)
 
 
-def ap_text(ap, scale: float = 100.0, digits: int = 1, missing: str = "-") -> str:
-    """AP@0.3 / 0.5 / 0.7 of a result mapping as text, e.g. "90.2 / 87.2 / 73.3" (``scale`` 100:
-    percent; 1: fractions); ``missing`` for None."""
+def ap_text(ap, scale: float = 100.0, digits: int = 1, missing: str = "-", keys: Sequence[str] = AP_KEYS) -> str:
+    """AP@0.3 / 0.5 / 0.7 (or at ``keys``) of a result mapping as text, e.g. "90.2 / 87.2 / 73.3"
+    (``scale`` 100: percent; 1: fractions); ``missing`` for None."""
     if ap is None:
         return missing
-    return " / ".join(f"{scale * ap[k]:.{digits}f}" for k in AP_KEYS)
+    return " / ".join(f"{scale * ap[k]:.{digits}f}" for k in keys)
 
 
 def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS) -> dict[str, float]:

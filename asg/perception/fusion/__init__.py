@@ -62,9 +62,7 @@ def weights_names() -> list[str]:
 
 def fusions_of(weights_name: str) -> list[str]:
     """The shipped fusion names that run the weights ``weights_name``."""
-    from ...registry import lookup, names
-
-    return [f for f in names("fusion") if lookup("fusion", f).weights == weights_name]
+    return [cls.registry_name for cls in _entries() if cls.weights == weights_name]
 
 
 def _entry_of(weights_name: str) -> type[V2XDetector]:
