@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 import errno
-import math
+import importlib
 import signal
 import sys
 from pathlib import Path
@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 from sumo_scenarios.errors import InputError
 
 from . import __version__, commands
+from .cli_args import COUNT, SEED, THREADS, executor_args, real, weights_arg, whole
 from .executors.base import WorkerLost
 from .registry import names
 from .workflows import MAX_ROUNDS
@@ -29,52 +30,39 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def _whole(lo: int, hi: int, what: str) -> Callable[[str], int]:
-    """An argparse type: a whole number in [lo, hi]."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"{value} is out of range: {what} must be between {lo} and {hi}")
-        return value
-
-    parse.__name__ = "whole number"
-    return parse
-
-
-def _real(lo: float, hi: float, what: str, lo_open: bool = False) -> Callable[[str], float]:
-    """An argparse type: a finite number in [lo, hi] (or (lo, hi] with ``lo_open``)."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not math.isfinite(value) or value < lo or value > hi or (lo_open and value <= lo):
-            low = f"above {lo:g}" if lo_open else f"at least {lo:g}"
-            raise argparse.ArgumentTypeError(f"{text} is out of range: {what} must be {low} and at most {hi:g}")
-        return value
-
-    parse.__name__ = "number"
-    return parse
-
-
-#: seeds go to SUMO and numpy: a non-negative 31-bit number
-SEED = _whole(0, 2**31 - 1, "a seed")
-#: counts of scenes, frames, repeats
-COUNT = _whole(1, 1_000_000, "a count")
-
-
 def _add(sub, name: str, help_text: str, func: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:
     p = sub.add_parser(name, help=help_text, description=help_text)
     p.set_defaults(func=func)
     return p
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: Subcommands a workflow module declares itself: (name, module, one-line help). The module holds
+#: ``add_arguments(parser)`` and ``run(args) -> exit code`` beside the workflow, and is imported only
+#: when its command is asked for, so ``asg --help`` stays quick. A new workflow: its module and one
+#: line here.
+WORKFLOW_COMMANDS = (
+    ("finetune", "asg.workflows.finetune", "train a detector further on its challenging scenes, then evaluate it "
+     "before and after and attack it again (runs/finetune/FUSION-ft/)"),
+    ("harden", "asg.workflows.harden", "iterated adversarial training: each round attacks the current weights on "
+     "fresh training scenes, fine-tunes on them and evaluates (runs/harden/FUSION/)"),
+    ("evaluate", "asg.workflows.evaluate", "AP of a detector on a scene set"),
+)
+
+
+def _add_workflow_commands(sub, argv: Sequence[str] | None) -> None:
+    """The WORKFLOW_COMMANDS subparsers; the arguments of the one ``argv`` names (all without ``argv``)."""
+    chosen = next((a for a in argv if not a.startswith("-")), None) if argv is not None else None
+    for name, module, help_text in WORKFLOW_COMMANDS:
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if argv is None or name == chosen:
+            workflow = importlib.import_module(module)
+            workflow.add_arguments(p)
+            p.set_defaults(func=workflow.run)
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The ``asg`` parser; with ``argv``, a workflow command's module is imported only if it is the
+    command ``argv`` runs (without: every one, the complete parser)."""
     parser = _Parser(prog="asg", description="Adversarial scene generation for cooperative V2X LiDAR perception.")
     parser.add_argument("--version", action="version", version=f"asg {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
@@ -116,8 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--every", type=COUNT, default=10, help="take every N-th recorded frame (default 10)")
     p.add_argument("--ego", choices=["rsu", "vehicle"], default="rsu", help="ego agent kind (default rsu: V2I)")
     p.add_argument("--radius", type=float, default=120.0, help="keep agents within this many metres of the ego")
-    p.add_argument("--min-vehicles", type=_whole(0, 10_000, "--min-vehicles"), default=1, help="skip frames with fewer vehicles within 48 m of the ego")
-    p.add_argument("--collaborators", type=_whole(0, 16, "--collaborators"), default=None,
+    p.add_argument("--min-vehicles", type=whole(0, 10_000, "--min-vehicles"), default=1, help="skip frames with fewer vehicles within 48 m of the ego")
+    p.add_argument("--collaborators", type=whole(0, 16, "--collaborators"), default=None,
                    help="sensing vehicles drawn at random within communication range of the ego, as the "
                         "data sets draw them (default: the generator's sensing_agents - 1, i.e. 2)")
     p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
@@ -128,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="PNG to write")
     p.add_argument("--lidar", default=None, help="LiDAR preset in configs/lidar/ or a yaml path (default: the "
                    "detectors' preset, v2xp)")
-    p.add_argument("--collaborators", type=_whole(0, 16, "--collaborators"), default=2, help="if the scene names none: this many nearest vehicles")
+    p.add_argument("--collaborators", type=whole(0, 16, "--collaborators"), default=2, help="if the scene names none: this many nearest vehicles")
     p.add_argument("--pcd-dir", type=Path, default=None, help="also write each agent's cloud as PCD and .npy here")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the LiDAR noise (if the preset has any)")
 
@@ -140,13 +128,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fusion", default=None, help="challenging: the shipped model attacked")
     p.add_argument("--split", default=None, help="challenging: train or val (of the normal set)")
     p.add_argument("--count", type=COUNT, default=None, help="challenging: only the first N scenes of the split")
-    _executor_args(p)
+    executor_args(p)
     ds.set_defaults(func=lambda a: (ds.print_help(), 2)[1])
 
     p = _add(sub, "train", "train a detector on CPU (resumes from runs/train/NAME/last.pt)", commands.train)
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse (none and late share weights)")
     p.add_argument("--steps", type=COUNT, default=None, help="override the configured number of steps")
-    p.add_argument("--threads", type=_whole(1, 256, "--threads"), default=2)
+    p.add_argument("--threads", type=THREADS, default=2)
     p.add_argument("--validate-only", action="store_true",
                    help="no training: re-measure the shipped weights on normal-val and update their model card "
                         "(after changing configs/detectors/pointpillars.yaml)")
@@ -168,58 +156,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = _add(sub, "report", "one self-contained HTML page of a run folder or an 'asg bench paper' folder", commands.report)
     p.add_argument("run_dir", type=Path, help="a folder written by 'asg generate' or 'asg bench paper'")
     p.add_argument("--out", type=Path, default=None, help="HTML file to write (default RUN_DIR/report.html)")
-    p.add_argument("--scenes", type=_whole(0, 10_000, "--scenes"), default=6,
+    p.add_argument("--scenes", type=whole(0, 10_000, "--scenes"), default=6,
                    help="scenes drawn as bird's-eye views per run (default 6; the tables list all)")
 
-    p = _add(sub, "finetune", "train a detector further on its challenging scenes, then evaluate it before and "
-             "after and attack it again (runs/finetune/FUSION-ft/)", commands.finetune)
-    p.add_argument("--fusion", required=True, help="the model to fine-tune: attfuse, early, none or late")
-    p.add_argument("--on", default=None, metavar="SET",
-                   help="challenging set to train on (default challenging-FUSION-train)")
-    p.add_argument("--steps", type=COUNT, default=None, help="override train.yaml's finetune steps")
-    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
-                   help="start from this weights file instead of the shipped ones")
-    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/finetune/FUSION-ft)")
-    p.add_argument("--config", type=Path, default=None,
-                   help="a yaml with a 'finetune' block (default configs/detectors/train.yaml's)")
-    p.add_argument("--stages", default="train,evaluate,reattack",
-                   help="comma-separated subset of train, evaluate, reattack (default all three)")
-    p.add_argument("--threads", type=_whole(1, 256, "--threads"), default=2, help="training threads")
-    p.add_argument("--force", action="store_true", help="start the output folder over")
-    _executor_args(p)
-
-    p = _add(sub, "harden", "iterated adversarial training: each round attacks the current weights on fresh training "
-             "scenes, fine-tunes on them and evaluates (runs/harden/FUSION/)", commands.harden)
-    p.add_argument("--fusion", required=True, help="the model to harden: attfuse, early, none or late")
-    p.add_argument("--rounds", type=_whole(1, MAX_ROUNDS, "--rounds"), required=True, help="rounds to run (resumable)")
-    p.add_argument("--data", default=None, choices=("adversarial", "random", "normal"),
-                   help="what a round trains on: adversarial (default), or a control at equal compute: random "
-                        "(one plausible random perturbation a scene) or normal (the scenes unperturbed)")
-    p.add_argument("--space", default=None, metavar="KIND[,KIND]",
-                   help="the perturbation spaces of the attacks (default configs/generate.yaml's)")
-    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
-                   help="start from this weights file, or a harden card (its last round), not the shipped weights")
-    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/harden/FUSION[-DATA])")
-    p.add_argument("--config", type=Path, default=None,
-                   help="a yaml with a 'harden' block (default configs/detectors/train.yaml's)")
-    p.add_argument("--threads", type=_whole(1, 256, "--threads"), default=2, help="training threads")
-    p.add_argument("--force", action="store_true", help="start the output folder over")
-    _executor_args(p)
-
-    p = _add(sub, "evaluate", "AP of a detector on a scene set", commands.evaluate)
-    p.add_argument("--fusion", required=True, help="none, late, early or attfuse")
-    p.add_argument("--set", default="normal", help="normal (train split), normal-val, normal-all, or a folder of scenes")
-    p.add_argument("--limit", type=COUNT, default=None, help="only the first N scenes")
-    _weights_arg(p)
-    p.add_argument("--json", action="store_true", help="print JSON only")
-    _executor_args(p)
+    _add_workflow_commands(sub, argv)
 
     bench = sub.add_parser("bench", help="benchmarks: simulate, lidar, detect, generate, train, scale, paper",
                            description="Speed benchmarks and the paper's tables.")
     bsub = bench.add_subparsers(dest="bench_command", metavar="WHAT", parser_class=_Parser)
     p = _add(bsub, "simulate", "10 simulated minutes of a dense town at 0.1 s steps", commands.bench_simulate)
     p.add_argument("--town", default="grid_small")
-    p.add_argument("--minutes", type=_real(0.0, 1440.0, "--minutes", lo_open=True), default=10.0)
+    p.add_argument("--minutes", type=real(0.0, 1440.0, "--minutes", lo_open=True), default=10.0)
     p.add_argument("--repeats", type=COUNT, default=3)
     p.add_argument("--json", action="store_true", help="print JSON only")
     p = _add(bsub, "lidar", "cooperative-frame ray casting vs Open3D, and re-render after moves", commands.bench_lidar)
@@ -255,12 +202,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fusion", default=None, help="targets table only (default attfuse)")
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="tables: a factory standing in for every model (as 'asg generate --detector')")
-    p.add_argument("--harden-rounds", type=_whole(1, MAX_ROUNDS, "--harden-rounds"), default=None,
+    p.add_argument("--harden-rounds", type=whole(1, MAX_ROUNDS, "--harden-rounds"), default=None,
                    help="finetune table: also this many rounds of 'asg harden --fusion attfuse' with adversarial, "
                         "random and normal scenes (the controls), a row a round (OUT/harden/DATA, resumable)")
     p.add_argument("--out", type=Path, default=Path("runs/bench-paper"))
-    _executor_args(p)
-    p.add_argument("--jobs", type=_whole(1, 64, "--jobs"), default=None, dest="workers", help=argparse.SUPPRESS)
+    executor_args(p)
+    p.add_argument("--jobs", type=whole(1, 64, "--jobs"), default=None, dest="workers", help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print JSON only")
     bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
 
@@ -275,7 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--acs", default=None, choices=[*acs_strategies(), "off"],
                    help="collaborator search: attention (ACS-A), random (ACS-R) or off (default attention)")
     p.add_argument("--aps", default=None, choices=["on", "off"])
-    p.add_argument("--movers", type=_whole(0, 64, "--movers"), default=None,
+    p.add_argument("--movers", type=whole(0, 64, "--movers"), default=None,
                    help="vehicles the perturbation search moves (m; default 3, the paper's)")
     p.add_argument("--plausibility", default=None, choices=["paper", "traffic"],
                    help="paper (default: on the drivable area, no collision, in range) or traffic (also in a lane "
@@ -292,24 +239,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start the run folder over when it holds a run made with other settings")
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="your own target: a function (config) -> (detector, ACS model or None); default the shipped --fusion")
-    _weights_arg(p)
-    _executor_args(p)
+    weights_arg(p)
+    executor_args(p)
     return parser
-
-
-def _weights_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
-                   help="weights file (.pt) of --fusion's model to use instead of the shipped ones "
-                        "(e.g. runs/finetune/attfuse-ft/attfuse-ft.pt)")
-
-
-def _executor_args(p: argparse.ArgumentParser) -> None:
-    """--workers, --executor, --address: how a batch command spreads its items."""
-    p.add_argument("--workers", type=_whole(1, 1024, "--workers"), default=None,
-                   help="worker processes, one thread each (default: one per core); results do not depend on it")
-    p.add_argument("--executor", choices=["local", "ray"], default="local",
-                   help="local processes (default) or Ray actors (pip install 'asg[ray]')")
-    p.add_argument("--address", default=None, help="an existing Ray cluster (default: a local Ray instance)")
 
 
 def acs_strategies() -> list[str]:
@@ -332,9 +264,10 @@ _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.ED
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as typed, for result files
+    args.argv = argv  # the command as typed, for result files
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

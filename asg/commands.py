@@ -17,7 +17,7 @@ from sumo_scenarios.paths import nets_dir
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
 from .objective import ap_text
-from .progress import console, progress_bar, stdout
+from .progress import console, print_result, progress_bar, stdout
 from .scene.from_log import ExtractParams, extract_scenes
 from .scene.scene import save_scene
 
@@ -118,24 +118,12 @@ def generate(args: argparse.Namespace) -> int:
     return run_generate(args)
 
 
-def _print_result(title: str, result: dict, as_json: bool) -> None:
-    if as_json:
-        print(json.dumps(result))
-        return
-    table = Table(title=title)
-    table.add_column("metric")
-    table.add_column("value", justify="right")
-    for k, v in result.items():
-        table.add_row(k, str(v))
-    stdout.print(table)
-
-
 def bench_simulate(args: argparse.Namespace) -> int:
     from .benchmarks.simulate import bench_simulate as run
 
     if args.minutes <= 0 or args.repeats < 1:
         raise InputError("--minutes must be positive and --repeats at least 1")
-    _print_result("asg bench simulate", run(town=args.town, minutes=args.minutes, repeats=args.repeats), args.json)
+    print_result("asg bench simulate", run(town=args.town, minutes=args.minutes, repeats=args.repeats), args.json)
     return 0
 
 
@@ -144,7 +132,7 @@ def bench_lidar(args: argparse.Namespace) -> int:
 
     if args.repeats < 1:
         raise InputError("--repeats must be at least 1")
-    _print_result("asg bench lidar", run(repeats=args.repeats), args.json)
+    print_result("asg bench lidar", run(repeats=args.repeats), args.json)
     return 0
 
 
@@ -181,7 +169,7 @@ def render(args: argparse.Namespace) -> int:
 def dataset_build(args: argparse.Namespace) -> int:
     from .datasets import build_dataset, load_spec
 
-    from .generate_cmd import executor_from_args
+    from .cli_args import executor_from_args
 
     if args.name == "challenging":
         return _build_challenging(args)
@@ -199,7 +187,7 @@ def dataset_build(args: argparse.Namespace) -> int:
 
 def _build_challenging(args: argparse.Namespace) -> int:
     from .workflows.challenging import build_challenging
-    from .generate_cmd import executor_from_args
+    from .cli_args import executor_from_args
 
     if not args.fusion or not args.split:
         raise InputError("give --fusion NAME and --split train|val, e.g. 'asg dataset build challenging "
@@ -263,115 +251,6 @@ def export(args: argparse.Namespace) -> int:
     return 0
 
 
-def harden(args: argparse.Namespace) -> int:
-    from .generate_cmd import executor_from_args
-    from .perception.train_config import weights_for
-    from .workflows.harden import default_out, harden as run, load_harden_config
-
-    weights_for(args.fusion)  # one line for an unknown fusion
-    space = tuple(k.strip() for k in args.space.split(",") if k.strip()) if args.space else None
-    config = load_harden_config(args.config, data=args.data)
-    out = args.out or default_out(args.fusion, config.data)
-    with progress_bar() as bar, executor_from_args(args, 10**6) as executor:
-        task = bar.add_task(f"hardening {args.fusion}", total=None)
-
-        def report(step: int, total: int, loss: float) -> None:
-            bar.update(task, completed=step, total=total, description=f"hardening {args.fusion} loss {loss:.3f}")
-
-        card = run(args.fusion, args.rounds, out, weights=args.weights, config=config, space=space,
-                   executor=executor, threads=args.threads, force=args.force, log=console.print, progress=report)
-    rows = card["rounds"]
-    sets = list(rows[0]["evaluation"]) if rows else []
-    table = Table(title=f"asg harden --fusion {args.fusion} ({card['data']}): AP@0.7 by round")
-    for col in ("round", *sets, *(["re-attacked"] if rows and "reattack" in rows[0] else [])):
-        table.add_column(col, justify="right")
-    for row in rows:
-        cells = [f"{100 * row['evaluation'][s]['0.7']:.1f}" for s in sets]
-        if "reattack" in row:
-            cells.append(f"{100 * row['reattack']['challenging']['0.7']:.1f}")
-        table.add_row(str(row["round"]), *cells)
-    stdout.print(table)
-    console.print(f"card and weights: {out}/card.json, {out}/round-K/weights.pt")
-    return 0
-
-
-def finetune(args: argparse.Namespace) -> int:
-    from .generate_cmd import executor_from_args
-    from .workflows.finetune import finetune as run
-    from .perception.train_config import weights_for
-
-    weights_for(args.fusion)  # one line for an unknown fusion
-    stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
-    unknown = sorted(set(stages) - {"train", "evaluate", "reattack"})
-    if unknown or not stages:
-        raise InputError(f"--stages takes train, evaluate and reattack, got {args.stages!r}")
-    if args.weights is not None:
-        from .perception import check_weights_file
-
-        check_weights_file(args.fusion, args.weights)
-    from .perception.train_config import load_finetune_config
-
-    config = load_finetune_config(args.config)
-    on = args.on or f"challenging-{args.fusion}-train"
-    with progress_bar() as bar, executor_from_args(args, 10**6) as executor:  # one worker per core by default
-        task = bar.add_task(f"fine-tuning {args.fusion}", total=None)
-
-        def report(step: int, total: int, loss: float) -> None:
-            bar.update(task, completed=step, total=total, description=f"fine-tuning {args.fusion} loss {loss:.3f}")
-
-        card = run(args.fusion, on, args.out, steps=args.steps, weights=args.weights, threads=args.threads,
-                   force=args.force, executor=executor, stages=stages, config=config, log=console.print,
-                   progress=report)
-    table = Table(title=f"asg finetune --fusion {args.fusion} --on {on}: AP@0.3 / 0.5 / 0.7")
-    for col in ("set", "frames", "before", "after"):
-        table.add_column(col, justify="left" if col == "set" else "right")
-    for set_name, row in card.get("evaluation", {}).items():
-        table.add_row(set_name, str(row["frames"]), ap_text(row["before"]), ap_text(row["after"]))
-    if "reattack" in card:
-        r = card["reattack"]
-        table.add_row("own attack on normal-val", str(r["frames"]), ap_text(r["original"]["challenging"]),
-                      ap_text(r["finetuned"]["challenging"]))
-    stdout.print(table)
-    console.print(f"weights and card: {card.get('weights')} in {args.out or 'runs/finetune/' + args.fusion + '-ft'}")
-    return 0
-
-
-def evaluate(args: argparse.Namespace) -> int:
-    from .workflows.evaluate import evaluate as run
-    from .perception import detector_names
-
-    if args.fusion not in detector_names():
-        raise InputError(f"unknown fusion '{args.fusion}'; known: {', '.join(detector_names())}")
-    import contextlib
-
-    from .executors import build_executor
-
-    weights = None if args.weights is None else str(args.weights)
-    if weights:
-        from .perception import check_weights_file
-
-        check_weights_file(args.fusion, weights)
-
-    # without --workers or --executor: this process on every thread; else workers of one thread
-    spread = args.workers is not None or args.executor != "local"
-    with progress_bar() as bar, (build_executor(args.executor, args.workers or 1, threads=1, address=args.address)
-                                 if spread else contextlib.nullcontext()) as executor:
-        task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
-        result = run(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n),
-                     weights_file=weights, executor=executor)
-    if result["without_collaborators"]:
-        console.print(f"[yellow]note: {result['without_collaborators']} of {result['frames']} scenes name no "
-                      "collaborator, so cooperation is off there (every model scores as single-agent); "
-                      "extract scenes with 'asg scenes extract --collaborators K'")
-    if args.json:
-        print(json.dumps({"ap": result["ap"], "frames": result["frames"],
-                          "without_collaborators": result["without_collaborators"]}))
-    else:
-        _print_result(f"asg evaluate --fusion {args.fusion} --set {args.set}",
-                      {**{f"AP@{k}": round(v, 4) for k, v in result["ap"].items()}, "frames": result["frames"]}, False)
-    return 0
-
-
 def _table_names(args: argparse.Namespace) -> tuple[str, ...]:
     """The tables ``--table`` names (none without it)."""
     from .benchmarks.tables import TABLES
@@ -386,7 +265,7 @@ def _bench_tables(args: argparse.Namespace) -> int:
     import shlex
 
     from .benchmarks.tables import TableRun, run_tables
-    from .generate_cmd import executor_from_args
+    from .cli_args import executor_from_args
 
     names = _table_names(args)
     if args.budget is not None or args.fusion is not None:
@@ -413,7 +292,7 @@ def _bench_tables(args: argparse.Namespace) -> int:
 def bench_detect(args: argparse.Namespace) -> int:
     from .benchmarks.detect import bench_detect as run
 
-    _print_result("asg bench detect", run(frames=args.frames), args.json)
+    print_result("asg bench detect", run(frames=args.frames), args.json)
     return 0
 
 
@@ -422,21 +301,21 @@ def bench_generate(args: argparse.Namespace) -> int:
 
     if args.scenes < 1 or args.budget < 1:
         raise InputError("--scenes and --budget must be at least 1")
-    _print_result("asg bench generate", run(scenes=args.scenes, budget=args.budget), args.json)
+    print_result("asg bench generate", run(scenes=args.scenes, budget=args.budget), args.json)
     return 0
 
 
 def bench_train(args: argparse.Namespace) -> int:
     from .benchmarks.train import bench_train as run
 
-    _print_result("asg bench train", run(steps=args.steps), args.json)
+    print_result("asg bench train", run(steps=args.steps), args.json)
     return 0
 
 
 def bench_scale(args: argparse.Namespace) -> int:
     from .benchmarks.scale import bench_scale as run
 
-    _print_result("asg bench scale", run(Path(args.out), scenes=args.scenes, budget=args.budget), args.json)
+    print_result("asg bench scale", run(Path(args.out), scenes=args.scenes, budget=args.budget), args.json)
     return 0
 
 
@@ -444,7 +323,7 @@ def bench_paper(args: argparse.Namespace) -> int:
     from .benchmarks.paper import bench_paper as run
     from .io.run import after_acs_ap
 
-    from .generate_cmd import executor_from_args
+    from .cli_args import executor_from_args
 
     if args.harden_rounds and "finetune" not in _table_names(args):
         raise InputError("--harden-rounds adds rows to the finetune table; give --table finetune (or all)")

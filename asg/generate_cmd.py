@@ -7,7 +7,7 @@ from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
-from .executors import Executor, build_executor, default_workers
+from .cli_args import executor_from_args
 from .generate import SceneSource, factory_models, open_run
 from .io.run import print_table
 from .generator_config import load_generate_config, with_space_flags
@@ -65,10 +65,3 @@ def run_generate(args: argparse.Namespace) -> int:
     print_table(run.summary, stdout)
     console.print(f"wrote {out}/summary.json and {len(run.summary['scenes'])} scene folders")
     return 0
-
-
-def executor_from_args(args: argparse.Namespace, items: int) -> Executor:
-    """The executor of ``--executor``, ``--workers`` (default: one per core, at most ``items``) and
-    ``--address``: one thread per worker."""
-    workers = args.workers if args.workers is not None else default_workers(items)
-    return build_executor(args.executor, workers, threads=1, address=args.address)

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import sys
 from typing import Iterator
 
 from rich.console import Console
+from rich.table import Table
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 console = Console(stderr=True)
@@ -19,3 +21,16 @@ def progress_bar() -> Iterator[Progress]:
         TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=False, disable=not sys.stderr.isatty(),
     ) as bar:
         yield bar
+
+
+def print_result(title: str, result: dict, as_json: bool) -> None:
+    """``result`` ({metric: value}) as one JSON line, or as a two-column table titled ``title``."""
+    if as_json:
+        print(json.dumps(result))
+        return
+    table = Table(title=title)
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for k, v in result.items():
+        table.add_row(k, str(v))
+    stdout.print(table)

@@ -235,3 +235,39 @@ def test_bench_paper_refuses_a_folder_of_other_scenes(capsys, out):
     code, err = run(capsys, "bench", "paper", "--scenes", "4", "--out", str(old))
     assert code == 2
     assert_one_line_error(err, "other scenes (a run without its scene folder)")
+
+
+def test_a_new_workflow_is_one_module_and_one_registry_line(capsys, tmp_path, monkeypatch):
+    """A workflow module declares its own subcommand (add_arguments, run); one line in
+    WORKFLOW_COMMANDS makes it a command, with its arguments, one-line errors and exit codes."""
+    import asg.cli as cli
+
+    (tmp_path / "hello_workflow.py").write_text(
+        "from asg.cli_args import COUNT\n"
+        "def add_arguments(p):\n"
+        "    p.add_argument('--times', type=COUNT, default=1)\n"
+        "def run(args):\n"
+        "    print('hello ' * args.times)\n"
+        "    return 0\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(cli, "WORKFLOW_COMMANDS", (*cli.WORKFLOW_COMMANDS, ("hello", "hello_workflow", "say hello")))
+    assert main(["hello", "--times", "2"]) == 0
+    assert capsys.readouterr().out.strip() == "hello hello"
+    with pytest.raises(SystemExit) as exc:
+        main(["hello", "--times", "0"])
+    assert exc.value.code == 2 and "out of range" in capsys.readouterr().err
+    assert "say hello" in cli.build_parser().format_help()
+
+
+def test_help_and_other_commands_do_not_import_the_workflows():
+    """``asg --help`` and a non-workflow command build the parser without importing a workflow
+    module (each pulls in torch and the data sets: seconds)."""
+    import subprocess
+    import sys
+
+    probe = ("import sys; from asg.cli import build_parser; "
+             "build_parser(['--help']); build_parser(['towns', 'list']); "
+             "print(sorted(m for m in sys.modules if m.startswith('asg.workflows.'))); "
+             "build_parser(['harden', '--help']); print('asg.workflows.harden' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert out[:2] == ["[]", "True"]

@@ -16,7 +16,7 @@ LAYERS = {
     "scene": 1,
     "sensors": 2, "objective": 2, "search": 2, "collaborators": 2,
     "metrics": 3, "perception": 3, "executors": 3,
-    "datasets": 4, "generator_config": 4,
+    "datasets": 4, "generator_config": 4, "cli_args": 4,
     "pipeline": 5,
     "io": 6,
     "generate": 7,

@@ -96,11 +96,24 @@ def make_sample(scene: Scene, spec: LidarSpec) -> Sample:
     return Sample(scene.scene_id, simulate_frame(scene, spec))
 
 
-def augment(clouds: list[np.ndarray], boxes: np.ndarray, rng: np.random.Generator) -> tuple[list[np.ndarray], np.ndarray]:
-    """Random flip across x, rotation in [-45, 45] deg and scale in [0.95, 1.05], the same for all clouds."""
-    flip = rng.random() < 0.5
-    angle = rng.uniform(-math.pi / 4, math.pi / 4)
-    scale = rng.uniform(0.95, 1.05)
+@dataclass(frozen=True)
+class Augmentation:
+    """The random transform of each training example, the same for all its clouds and boxes: a
+    flip across x (half of the examples, when ``flip``), a rotation about z drawn uniformly in
+    [-rotate_deg, rotate_deg] and a scale drawn uniformly in [1 - scale, 1 + scale]. The draws
+    are made whatever the settings, so a seeded run draws the same batches with any of them."""
+
+    flip: bool = True
+    rotate_deg: float = 45.0
+    scale: float = 0.05
+
+
+def augment(clouds: list[np.ndarray], boxes: np.ndarray, rng: np.random.Generator,
+            aug: Augmentation = Augmentation()) -> tuple[list[np.ndarray], np.ndarray]:
+    """``clouds`` (each (N, 4)) and ``boxes`` (M, 7) in one frame, transformed by ``aug``'s draw."""
+    flip = bool(rng.random() < 0.5) and aug.flip
+    angle = rng.uniform(-math.radians(aug.rotate_deg), math.radians(aug.rotate_deg))
+    scale = rng.uniform(1.0 - aug.scale, 1.0 + aug.scale)
     c, s = math.cos(angle), math.sin(angle)
     rot = np.array([[c, -s], [s, c]])
 

@@ -10,6 +10,7 @@ from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import from_mapping, read_yaml
 
 from .branch_fit import BranchFitConfig
+from .data import Augmentation
 
 def weights_for(fusion: str) -> str:
     """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError for a
@@ -37,6 +38,8 @@ class TrainConfig:
     #: fusion models: "ego" trains on each frame as its ego sees it; "all" on each sensing agent's
     #: view in turn (3 times the distinct examples from the same frames)
     views: Literal["ego", "all"] = "ego"
+    #: the random flip, rotation and scale of each training example (``augment`` in train.yaml)
+    augment: Augmentation = Augmentation()
 
 
 @dataclass(frozen=True)
@@ -76,7 +79,8 @@ def load_finetune_config(path: Path | None = None) -> FinetuneConfig:
 def check_train_config(cfg: TrainConfig, where: str):
     """``cfg`` if every setting is in range (one InputError naming the first that is not): at
     least one step, example and checkpoint interval; a learning rate in (0, 1]; weight decay in
-    [0, 1]; schedule fractions in (0, 1); a seed of 0 or more; for fine-tuning, a share in [0, 1]
+    [0, 1]; schedule fractions in (0, 1); a seed of 0 or more; a rotation of
+    at most 180 deg and a scale of at most 0.5 in the augmentation; for fine-tuning, a share in [0, 1]
     and data set names (safe names) to mix with. Checked when loaded, before any work."""
     from sumo_scenarios import checks
 
@@ -90,6 +94,8 @@ def check_train_config(cfg: TrainConfig, where: str):
     checks.number(cfg.checkpoint_every, f"{where}.checkpoint_every", 1, 10_000_000)
     for f in cfg.decay_at:
         checks.number(f, f"{where}.decay_at", 0.0, 1.0, lo_open=True)
+    checks.number(cfg.augment.rotate_deg, f"{where}.augment.rotate_deg", 0.0, 180.0)
+    checks.number(cfg.augment.scale, f"{where}.augment.scale", 0.0, 0.5)
     if cfg.pct_start >= 1.0:
         raise InputError(f"{where}.pct_start: {cfg.pct_start:g} leaves no steps to anneal; give a fraction below 1")
     if isinstance(cfg, FinetuneConfig):

@@ -1,11 +1,12 @@
 """``asg evaluate``: AP of a fusion model on a data set or a folder of scenes."""
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Callable, Iterable, Iterator
+import argparse
+from typing import Callable, Iterable
 
 from sumo_scenarios.errors import InputError
 
+from ..cli_args import COUNT, executor_args, weights_arg
 from ..datasets import SETS, scenes_of  # noqa: F401  (scenes_of, SETS: also this module's API)
 from ..objective.ap import ap_at
 from ..scene import Scene, load_scene
@@ -78,3 +79,47 @@ def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None
     result["fusion"] = fusion
     result["set"] = set_name
     return result
+
+
+# ``asg evaluate``: this workflow's command (asg.cli's WORKFLOW_COMMANDS)
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fusion", required=True, help="none, late, early or attfuse")
+    p.add_argument("--set", default="normal", help="normal (train split), normal-val, normal-all, or a folder of scenes")
+    p.add_argument("--limit", type=COUNT, default=None, help="only the first N scenes")
+    weights_arg(p)
+    p.add_argument("--json", action="store_true", help="print JSON only")
+    executor_args(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    import contextlib
+    import json
+
+    from ..executors import build_executor
+    from ..perception import check_weights_file, detector_names
+    from ..progress import console, print_result, progress_bar
+
+    if args.fusion not in detector_names():
+        raise InputError(f"unknown fusion '{args.fusion}'; known: {', '.join(detector_names())}")
+    weights = None if args.weights is None else str(args.weights)
+    if weights:
+        check_weights_file(args.fusion, weights)
+    # without --workers or --executor: this process on every thread; else workers of one thread
+    spread = args.workers is not None or args.executor != "local"
+    with progress_bar() as bar, (build_executor(args.executor, args.workers or 1, threads=1, address=args.address)
+                                 if spread else contextlib.nullcontext()) as executor:
+        task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
+        result = evaluate(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n),
+                          weights_file=weights, executor=executor)
+    if result["without_collaborators"]:
+        console.print(f"[yellow]note: {result['without_collaborators']} of {result['frames']} scenes name no "
+                      "collaborator, so cooperation is off there (every model scores as single-agent); "
+                      "extract scenes with 'asg scenes extract --collaborators K'")
+    if args.json:
+        print(json.dumps({"ap": result["ap"], "frames": result["frames"],
+                          "without_collaborators": result["without_collaborators"]}))
+    else:
+        print_result(f"asg evaluate --fusion {args.fusion} --set {args.set}",
+                     {**{f"AP@{k}": round(v, 4) for k, v in result["ap"].items()}, "frames": result["frames"]}, False)
+    return 0

@@ -17,6 +17,7 @@ over). The shipped weights are never written.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from dataclasses import asdict
@@ -30,14 +31,15 @@ from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
+from ..cli_args import COUNT, THREADS, executor_args, executor_from_args
 from ..datasets import iter_frames
 from ..io.curves import LOSS_CURVE, LossCurve
 from ..io.run_record import claim
 from ..sensors import load_lidar_spec
 from ..perception.checkpoint import load_checkpoint
 from ..perception.config import load_detector_config
-from ..perception.data import make_sample
-from .train import BRANCH_KEYS, Steps, _Batches, _scheduler, draw_examples, run_steps
+from ..perception.data import Augmentation, make_sample
+from .train import BRANCH_KEYS, Steps, _Batches, _augment_record, _scheduler, draw_examples, run_steps
 from ..perception.fusion import build_network, network_of
 from ..perception.train_config import FinetuneConfig, load_finetune_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, load_state
@@ -47,18 +49,20 @@ class MixedBatches:
     """Batches whose examples come from several sources: each example's source drawn with
     ``shares`` (summing to 1), then an example of that source uniformly."""
 
-    def __init__(self, sources: list[_Batches], shares: list[float], labels: tuple[str, ...] = ()):
+    def __init__(self, sources: list[_Batches], shares: list[float], labels: tuple[str, ...] = (),
+                 augmentation: Augmentation = Augmentation()):
         if any(not s.items for s in sources):
             raise InputError("a fine-tuning source holds no training example")
         self.sources = sources
         #: each source's name, for the card's example counts
         self.labels = labels or tuple(str(i) for i in range(len(sources)))
         self.shares = np.asarray(shares, dtype=float) / float(np.sum(shares))
+        self.augmentation = augmentation
 
     def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg, timer=None):
         which = rng.choice(len(self.sources), size=batch, p=self.shares)
         examples = [self.sources[int(s)].items[int(rng.integers(len(self.sources[int(s)].items)))] for s in which]
-        return draw_examples(examples, rng, anchors, cfg, timer)
+        return draw_examples(examples, rng, anchors, cfg, timer, self.augmentation)
 
 
 def finetuned_name(fusion: str) -> str:
@@ -135,7 +139,7 @@ def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: 
         sources.append(_Batches(network, [make_sample(s, spec) for s in iter_frames(mix, "train")], fcfg.views))
     rest = (1.0 - fcfg.challenging_share) / max(len(fcfg.mix_with), 1)
     shares = [fcfg.challenging_share / max(len(labels), 1)] * len(labels) + [rest] * len(fcfg.mix_with)
-    batches = MixedBatches(sources, shares, (*labels, *fcfg.mix_with))
+    batches = MixedBatches(sources, shares, (*labels, *fcfg.mix_with), fcfg.augment)
     counts = ", ".join(f"{n} {len(b.items)}" for n, b in zip(batches.labels, sources))
     log(f"training examples: {counts} ({time.perf_counter() - t0:.0f} s to render)")
     return batches
@@ -183,6 +187,7 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
             "examples": {n: len(b.items) for n, b in zip(batches.labels, batches.sources)},
             "steps": total, "batch_size": fcfg.batch_size, "lr": fcfg.lr, "schedule": fcfg.schedule,
             "seed": fcfg.seed, "views": fcfg.views, "challenging_views": fcfg.challenging_views or fcfg.views,
+            **_augment_record(fcfg.augment),
             "threads": threads, "wall_s": round(wall_s, 1)}
 
 
@@ -228,3 +233,61 @@ def reattack(fusion: str, ft_weights: Path, out: Path, executor, log: Callable[[
             # the original model's own attack: the challenging val set made against its shipped weights
             "original": {"weights": original["source"].get("weights") or "shipped",
                          "normal": original["ap_normal"], "challenging": original["ap_challenging"]}}
+
+
+# ``asg finetune``: this workflow's command (asg.cli's WORKFLOW_COMMANDS)
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fusion", required=True, help="the model to fine-tune: attfuse, early, none or late")
+    p.add_argument("--on", default=None, metavar="SET",
+                   help="challenging set to train on (default challenging-FUSION-train)")
+    p.add_argument("--steps", type=COUNT, default=None, help="override train.yaml's finetune steps")
+    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
+                   help="start from this weights file instead of the shipped ones")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/finetune/FUSION-ft)")
+    p.add_argument("--config", type=Path, default=None,
+                   help="a yaml with a 'finetune' block (default configs/detectors/train.yaml's)")
+    p.add_argument("--stages", default="train,evaluate,reattack",
+                   help="comma-separated subset of train, evaluate, reattack (default all three)")
+    p.add_argument("--threads", type=THREADS, default=2, help="training threads")
+    p.add_argument("--force", action="store_true", help="start the output folder over")
+    executor_args(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
+    from ..objective import ap_text
+    from ..perception import check_weights_file
+    from ..progress import console, progress_bar, stdout
+
+    weights_for(args.fusion)  # one line for an unknown fusion
+    stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
+    unknown = sorted(set(stages) - {"train", "evaluate", "reattack"})
+    if unknown or not stages:
+        raise InputError(f"--stages takes train, evaluate and reattack, got {args.stages!r}")
+    if args.weights is not None:
+        check_weights_file(args.fusion, args.weights)
+    config = load_finetune_config(args.config)
+    on = args.on or f"challenging-{args.fusion}-train"
+    with progress_bar() as bar, executor_from_args(args, 10**6) as executor:  # one worker per core by default
+        task = bar.add_task(f"fine-tuning {args.fusion}", total=None)
+
+        def report(step: int, total: int, loss: float) -> None:
+            bar.update(task, completed=step, total=total, description=f"fine-tuning {args.fusion} loss {loss:.3f}")
+
+        card = finetune(args.fusion, on, args.out, steps=args.steps, weights=args.weights, threads=args.threads,
+                        force=args.force, executor=executor, stages=stages, config=config, log=console.print,
+                        progress=report)
+    table = Table(title=f"asg finetune --fusion {args.fusion} --on {on}: AP@0.3 / 0.5 / 0.7")
+    for col in ("set", "frames", "before", "after"):
+        table.add_column(col, justify="left" if col == "set" else "right")
+    for set_name_, row in card.get("evaluation", {}).items():
+        table.add_row(set_name_, str(row["frames"]), ap_text(row["before"]), ap_text(row["after"]))
+    if "reattack" in card:
+        r = card["reattack"]
+        table.add_row("own attack on normal-val", str(r["frames"]), ap_text(r["original"]["challenging"]),
+                      ap_text(r["finetuned"]["challenging"]))
+    stdout.print(table)
+    console.print(f"weights and card: {card.get('weights')} in {args.out or default_out(args.fusion)}")
+    return 0

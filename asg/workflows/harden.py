@@ -24,6 +24,7 @@ settings: a rerun with other settings is refused (``force`` starts over).
 """
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 from dataclasses import asdict, dataclass, replace
@@ -38,6 +39,7 @@ from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
 
 from . import MAX_ROUNDS
+from ..cli_args import THREADS, executor_args, executor_from_args, whole
 from .finetune import fit_chunk, mixed_sources
 from ..io.run_record import claim
 from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
@@ -319,3 +321,55 @@ def _save_scenes(scenes: list[Scene], folder: Path) -> None:
 
 def _load_scenes(folder: Path) -> list[Scene]:
     return [load_scene(p) for p in sorted(folder.glob("*.yaml"))]
+
+
+# ``asg harden``: this workflow's command (asg.cli's WORKFLOW_COMMANDS)
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fusion", required=True, help="the model to harden: attfuse, early, none or late")
+    p.add_argument("--rounds", type=whole(1, MAX_ROUNDS, "--rounds"), required=True, help="rounds to run (resumable)")
+    p.add_argument("--data", default=None, choices=("adversarial", "random", "normal"),
+                   help="what a round trains on: adversarial (default), or a control at equal compute: random "
+                        "(one plausible random perturbation a scene) or normal (the scenes unperturbed)")
+    p.add_argument("--space", default=None, metavar="KIND[,KIND]",
+                   help="the perturbation spaces of the attacks (default configs/generate.yaml's)")
+    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
+                   help="start from this weights file, or a harden card (its last round), not the shipped weights")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/harden/FUSION[-DATA])")
+    p.add_argument("--config", type=Path, default=None,
+                   help="a yaml with a 'harden' block (default configs/detectors/train.yaml's)")
+    p.add_argument("--threads", type=THREADS, default=2, help="training threads")
+    p.add_argument("--force", action="store_true", help="start the output folder over")
+    executor_args(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
+    from ..progress import console, progress_bar, stdout
+
+    weights_for(args.fusion)  # one line for an unknown fusion
+    space = tuple(k.strip() for k in args.space.split(",") if k.strip()) if args.space else None
+    config = load_harden_config(args.config, data=args.data)
+    out = args.out or default_out(args.fusion, config.data)
+    with progress_bar() as bar, executor_from_args(args, 10**6) as executor:
+        task = bar.add_task(f"hardening {args.fusion}", total=None)
+
+        def report(step: int, total: int, loss: float) -> None:
+            bar.update(task, completed=step, total=total, description=f"hardening {args.fusion} loss {loss:.3f}")
+
+        card = harden(args.fusion, args.rounds, out, weights=args.weights, config=config, space=space,
+                      executor=executor, threads=args.threads, force=args.force, log=console.print, progress=report)
+    rows = card["rounds"]
+    sets = list(rows[0]["evaluation"]) if rows else []
+    table = Table(title=f"asg harden --fusion {args.fusion} ({card['data']}): AP@0.7 by round")
+    for col in ("round", *sets, *(["re-attacked"] if rows and "reattack" in rows[0] else [])):
+        table.add_column(col, justify="right")
+    for row in rows:
+        cells = [f"{100 * row['evaluation'][s]['0.7']:.1f}" for s in sets]
+        if "reattack" in row:
+            cells.append(f"{100 * row['reattack']['challenging']['0.7']:.1f}")
+        table.add_row(str(row["round"]), *cells)
+    stdout.print(table)
+    console.print(f"card and weights: {out}/card.json, {out}/round-K/weights.pt")
+    return 0

@@ -15,7 +15,7 @@ import json
 import time
 from contextlib import contextmanager
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -32,7 +32,7 @@ from ..perception.boxes import assign_targets
 from ..perception.branch_boxes import branch_targets
 from ..perception.branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
 from ..perception.config import load_detector_config
-from ..perception.data import Sample, augment, make_sample
+from ..perception.data import Augmentation, Sample, augment, make_sample
 from ..perception.head import detection_loss, iou_loss, refine_loss
 from ..perception.fusion import build_network, network_of
 from ..perception.model import AttFuse, PointPillars
@@ -54,8 +54,9 @@ def render_samples(dataset: str, split: str | None = "train", progress: Callable
 class _Batches:
     """Training examples of one kind, drawn with a seeded generator."""
 
-    def __init__(self, kind: str, samples: list[Sample], views: str = "ego"):
+    def __init__(self, kind: str, samples: list[Sample], views: str = "ego", augmentation: Augmentation = Augmentation()):
         self.kind = kind
+        self.augmentation = augmentation
         if kind == "single":
             self.items = [([c], b) for s in samples for c, b in s.own_views()]
         else:
@@ -67,17 +68,19 @@ class _Batches:
         """A batch: clouds (per sample, a list of (N, 4) tensors), labels (B, A), residual targets
         (B, A, 7), direction bins (B, A) and the augmented boxes (per sample, (M, 7))."""
         picks = rng.integers(len(self.items), size=batch)
-        return draw_examples([self.items[int(k)] for k in picks], rng, anchors, cfg, timer)
+        return draw_examples([self.items[int(k)] for k in picks], rng, anchors, cfg, timer, self.augmentation)
 
 
-def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray, cfg, timer: "PhaseTimer | None" = None):
-    """A batch of (clouds, boxes) examples, augmented with ``rng``: see :meth:`_Batches.draw`.
+def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray, cfg, timer: "PhaseTimer | None" = None,
+                  augmentation: Augmentation = Augmentation()):
+    """A batch of (clouds, boxes) examples, each transformed by a draw of ``augmentation`` from
+    ``rng``: see :meth:`_Batches.draw`.
     ``timer``: where the augmentation ("draw") and the target assignment ("targets") are timed."""
     timer = timer or PhaseTimer(enabled=False)
     clouds, labels, targets, dirs, gt = [], [], [], [], []
     for cl, boxes in examples:
         with timer.phase("draw"):
-            cl, boxes = augment(cl, boxes, rng)
+            cl, boxes = augment(cl, boxes, rng, augmentation)
         with timer.phase("targets"):
             lab, res, d = assign_targets(anchors, boxes, cfg)
         clouds.append([torch.from_numpy(c) for c in cl])
@@ -207,7 +210,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     t0 = time.perf_counter()
     log(f"rendering {tcfg.dataset} ...")
     samples = render_samples(tcfg.dataset, "train")
-    batches = _Batches(network_of(name), samples, tcfg.views)
+    batches = _Batches(network_of(name), samples, tcfg.views, tcfg.augment)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     wall = run_steps(model, opt, sched, batches, rng, Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every),
                      cfg, ckpt, wall, previous, log, progress)
@@ -216,6 +219,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         torch.save(model.state_dict(), tmp)
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
+                                            **_augment_record(tcfg.augment),
                                             "wall_s": round(wall, 1), "part": "all"}]
     write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
                 examples=len(batches.items), batch_size=tcfg.batch_size)
@@ -346,6 +350,12 @@ def _branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.
     return {"iou": iou_loss(torch.cat([logit for logit, _ in outs]), torch.cat([t for _, t, _, _ in per_sample])),
             "refine": refine_loss(torch.cat([res[mask] for (_, res), (_, _, mask, _) in zip(outs, per_sample)]),
                                   torch.cat([r for *_, r in per_sample]))}
+
+
+def _augment_record(aug: Augmentation) -> dict:
+    """The chunk record's augmentation entry: none for the default (cards written before the
+    setting existed read the same), else its settings."""
+    return {} if aug == Augmentation() else {"augment": asdict(aug)}
 
 
 #: the branches' parameters (IoU, refinement): weights trained before a branch existed load without it
