@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 from sumo_scenarios.errors import InputError
 
 from . import __version__, commands
-from .cli_args import COUNT, SEED, THREADS, executor_args, real, weights_arg, whole
+from .cli_args import COUNT, SEED, executor_args, real, weights_arg, whole
 from .executors.base import WorkerLost
 from .registry import names
 from .workflows import MAX_ROUNDS
@@ -41,6 +41,7 @@ def _add(sub, name: str, help_text: str, func: Callable[[argparse.Namespace], in
 #: when its command is asked for, so ``asg --help`` stays quick. A new workflow: its module and one
 #: line here.
 WORKFLOW_COMMANDS = (
+    ("train", "asg.workflows.train", "train a detector on CPU (resumes from runs/train/NAME/last.pt)"),
     ("finetune", "asg.workflows.finetune", "train a detector further on its challenging scenes, then evaluate it "
      "before and after and attack it again (runs/finetune/FUSION-ft/)"),
     ("harden", "asg.workflows.harden", "iterated adversarial training: each round attacks the current weights on "
@@ -130,20 +131,6 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p.add_argument("--count", type=COUNT, default=None, help="challenging: only the first N scenes of the split")
     executor_args(p)
     ds.set_defaults(func=lambda a: (ds.print_help(), 2)[1])
-
-    p = _add(sub, "train", "train a detector on CPU (resumes from runs/train/NAME/last.pt)", commands.train)
-    p.add_argument("--fusion", required=True, help="none, late, early or attfuse (none and late share weights)")
-    p.add_argument("--steps", type=COUNT, default=None, help="override the configured number of steps")
-    p.add_argument("--threads", type=THREADS, default=2)
-    p.add_argument("--validate-only", action="store_true",
-                   help="no training: re-measure the shipped weights on normal-val and update their model card "
-                        "(after changing configs/detectors/pointpillars.yaml)")
-    p.add_argument("--init-from", default=None, metavar="WEIGHTS",
-                   help="start a new sequence of chunks from other shipped weights (e.g. single) instead of "
-                        "continuing this model's own")
-    p.add_argument("--iou-branch", action="store_true",
-                   help="fit only the IoU and box-refinement branches on the frozen shipped weights "
-                        "(train.yaml's iou_branch block; about 10 minutes)")
 
     p = _add(sub, "export", "write scenes for other tools: OPV2V (OpenCOOD), KITTI (OpenPCDet), OpenSCENARIO "
              "1.2 + OpenDRIVE, SUMO routes", commands.export)

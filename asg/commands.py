@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from dataclasses import asdict
 from pathlib import Path
 
@@ -199,35 +198,6 @@ def _build_challenging(args: argparse.Namespace) -> int:
     index = json.loads((out / "index.json").read_text())
     console.print(f"wrote {out}: {index['frames']} scenes; AP normal {ap_text(index['ap_normal'])} -> "
                   f"challenging {ap_text(index['ap_challenging'])}")
-    return 0
-
-
-def train(args: argparse.Namespace) -> int:
-    from .workflows.cards import card_validation
-    from .workflows.train import train as run
-    from .perception.train_config import weights_for
-
-    if args.validate_only and (args.init_from or args.iou_branch):
-        raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from or --iou-branch")
-    if args.validate_only:
-        card = card_validation(weights_for(args.fusion), console.print)
-        console.print(f"updated the model card of {card['weights']}")
-        return 0
-    if args.steps is not None and args.steps < 1:
-        raise InputError("--steps must be at least 1")
-    if args.steps is not None and args.iou_branch:
-        raise InputError("--steps does not apply to --iou-branch (a fit of epochs over the collected candidates: "
-                         "set epochs in train.yaml's iou_branch block)")
-    with progress_bar() as bar:
-        task = bar.add_task(f"training {args.fusion}", total=None)
-
-        def report(step: int, total: int, loss: float) -> None:
-            what = f"training {args.fusion} loss {loss:.3f}" if math.isfinite(loss) else f"collecting {args.fusion}'s candidates"
-            bar.update(task, completed=step, total=total, description=what)
-
-        out = run(args.fusion, steps=args.steps, progress=report, threads=args.threads, log=console.print,
-                  init_from=args.init_from, iou_branch=args.iou_branch)
-    console.print(f"weights: {out}")
     return 0
 
 

@@ -201,11 +201,10 @@ def test_generate_writes_the_run_folder_and_resumes(capsys, tmp_path):
 
 
 def test_train_validate_only_updates_the_card_without_training(capsys, monkeypatch):
-    import asg.workflows.cards as cards_mod
     import asg.workflows.train as train_mod
 
     calls = []
-    monkeypatch.setattr(cards_mod, "card_validation", lambda name, log: calls.append(name) or {"weights": f"{name}.pt"})
+    monkeypatch.setattr(train_mod, "card_validation", lambda name, log: calls.append(name) or {"weights": f"{name}.pt"})
     monkeypatch.setattr(train_mod, "train", lambda *a, **k: pytest.fail("--validate-only must not train"))
     assert main(["train", "--fusion", "late", "--validate-only"]) == 0
     assert calls == ["single"]  # late shares the single-agent weights

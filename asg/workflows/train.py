@@ -11,6 +11,7 @@ chunk starting from those weights.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from contextlib import contextmanager
@@ -26,6 +27,7 @@ from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
+from ..cli_args import COUNT, THREADS
 from ..datasets import iter_frames
 from ..sensors import load_lidar_spec
 from ..perception.boxes import assign_targets
@@ -384,3 +386,45 @@ def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
         sched.milestones = Counter(int(f * total) for f in tcfg.decay_at)
 
 
+# ``asg train``: this workflow's command (asg.cli's WORKFLOW_COMMANDS)
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fusion", required=True, help="none, late, early or attfuse (none and late share weights)")
+    p.add_argument("--steps", type=COUNT, default=None, help="override the configured number of steps")
+    p.add_argument("--threads", type=THREADS, default=2)
+    p.add_argument("--validate-only", action="store_true",
+                   help="no training: re-measure the shipped weights on normal-val and update their model card "
+                        "(after changing configs/detectors/pointpillars.yaml)")
+    p.add_argument("--init-from", default=None, metavar="WEIGHTS",
+                   help="start a new sequence of chunks from other shipped weights (e.g. single) instead of "
+                        "continuing this model's own")
+    p.add_argument("--iou-branch", action="store_true",
+                   help="fit only the IoU and box-refinement branches on the frozen shipped weights "
+                        "(train.yaml's iou_branch block; about 10 minutes)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import math
+
+    from ..progress import console, progress_bar
+
+    if args.validate_only and (args.init_from or args.iou_branch):
+        raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from or --iou-branch")
+    if args.validate_only:
+        card = card_validation(weights_for(args.fusion), console.print)
+        console.print(f"updated the model card of {card['weights']}")
+        return 0
+    if args.steps is not None and args.iou_branch:
+        raise InputError("--steps does not apply to --iou-branch (a fit of epochs over the collected candidates: "
+                         "set epochs in train.yaml's iou_branch block)")
+    with progress_bar() as bar:
+        task = bar.add_task(f"training {args.fusion}", total=None)
+
+        def report(step: int, total: int, loss: float) -> None:
+            what = f"training {args.fusion} loss {loss:.3f}" if math.isfinite(loss) else f"collecting {args.fusion}'s candidates"
+            bar.update(task, completed=step, total=total, description=what)
+
+        out = train(args.fusion, steps=args.steps, progress=report, threads=args.threads, log=console.print,
+                    init_from=args.init_from, iou_branch=args.iou_branch)
+    console.print(f"weights: {out}")
+    return 0
