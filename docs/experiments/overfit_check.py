@@ -22,6 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import asg  # noqa: F401  (first: it sets OMP_WAIT_POLICY=PASSIVE before torch loads OpenMP)
 import numpy as np
 import torch
 
