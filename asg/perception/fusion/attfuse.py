@@ -53,7 +53,7 @@ class AttFuseDetector(V2XDetector):
 
 @register("fusion", "attfuse-ft")
 class AttFuseFinetunedDetector(AttFuseDetector):
-    """AttFuse fine-tuned on its own challenging scenes (``asg finetune``); what it was tuned on
-    and its table numbers are in its card, asg/perception/weights/attfuse-ft.json."""
+    """AttFuse trained further on scenes attacked against it (``asg harden``); what it was trained
+    on, how, and its AP before and after are in its card, asg/perception/weights/attfuse-ft.json."""
 
     weights = "attfuse-ft"

@@ -1,0 +1,57 @@
+"""Ship a hardening round's weights as ``--fusion attfuse-ft``: copy ``OUT/round-K/weights.pt`` to
+asg/perception/weights/attfuse-ft.pt and write its card, attfuse-ft.json, from the harden card
+(what the round trained on, each evaluation set after, the re-attack of the round's weights) and
+the shipped attfuse measured again here on every set ("before"; the original's own attack is
+challenging-attfuse-val): the card's round 0 may be a cached evaluation made by older code.
+
+    .venv/bin/python docs/experiments/ship_hardened.py runs/harden/NAME/card.json K "COMMAND"
+
+COMMAND: the asg harden command line that made the run (recorded in the card).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+
+from asg.generate import file_digest
+from asg.perception.weights_io import WEIGHTS_DIR
+
+
+def main(card_path: str, k: str, command: str) -> None:
+    card = json.loads(Path(card_path).read_text())
+    rounds = {r["round"]: r for r in card["rounds"]}
+    done = rounds[int(k)]
+    weights = Path(card_path).parent / done["weights"]
+    if file_digest(Path(card["start"]["weights"])) != file_digest(WEIGHTS_DIR / "attfuse.pt"):
+        raise SystemExit("the run did not start from the shipped attfuse weights")
+    from asg.workflows.evaluate import evaluate
+    from asg.workflows.harden import noisy_val_set
+
+    evaluation = {}
+    for set_name, after in done["evaluation"].items():
+        where = str(noisy_val_set()) if set_name == "normal-val-noisy" else set_name
+        before = evaluate("attfuse", where)["ap"]
+        print(f"{set_name}: attfuse AP@0.7 {before['0.7']:.4f} -> {after['0.7']:.4f}")
+        evaluation[set_name] = {"before": {t: before[t] for t in ("0.3", "0.5", "0.7")},
+                                "after": {t: after[t] for t in ("0.3", "0.5", "0.7")}, "frames": after["frames"]}
+    shipped = {
+        "weights": "attfuse-ft.pt", "fusion": "attfuse",
+        "start": {"weights": "attfuse.pt", "sha256": file_digest(WEIGHTS_DIR / "attfuse.pt")},
+        "trained": {"on": f"asg harden round {k}: {done['data']['scenes']} training scenes, {done['data']['kind']}",
+                    "data": done["data"], **done["trained"]},
+        "evaluation": evaluation,
+        "reattack": {"frames": done["reattack"]["frames"],
+                     "finetuned": {"normal": done["reattack"]["normal"], "challenging": done["reattack"]["challenging"]},
+                     "original": {"weights": "shipped", "normal": evaluation["normal-val"]["before"],
+                                  "challenging": evaluation["challenging-attfuse-val"]["before"]}},
+        "command": command,
+    }
+    shutil.copyfile(weights, WEIGHTS_DIR / "attfuse-ft.pt")
+    (WEIGHTS_DIR / "attfuse-ft.json").write_text(json.dumps(shipped, indent=1))
+    print(f"shipped {weights} as attfuse-ft ({file_digest(weights)[:16]})")
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:])
