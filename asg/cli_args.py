@@ -67,6 +67,16 @@ def executor_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--address", default=None, help="an existing Ray cluster (default: a local Ray instance)")
 
 
+def training_run_args(p: argparse.ArgumentParser, block: str) -> None:
+    """--config (a yaml with a ``block`` block), --threads, --force and the executor options of a
+    command that trains and writes a run folder (finetune, harden)."""
+    p.add_argument("--config", type=Path, default=None,
+                   help=f"a yaml with a '{block}' block (default configs/detectors/train.yaml's)")
+    p.add_argument("--threads", type=THREADS, default=2, help="training threads")
+    p.add_argument("--force", action="store_true", help="start the output folder over")
+    executor_args(p)
+
+
 def executor_from_args(args: argparse.Namespace, items: int) -> Executor:
     """The executor of ``--executor``, ``--workers`` (default: one per core, at most ``items``) and
     ``--address``: one thread per worker."""

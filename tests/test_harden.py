@@ -8,6 +8,7 @@ import pytest
 
 from asg.workflows.challenging import build_challenging
 from asg.scene.recheck import recheck
+from asg.perception.weights_io import WEIGHTS_DIR
 from asg.workflows.harden import harden, load_harden_config
 from sumo_scenarios.errors import InputError
 
@@ -188,3 +189,24 @@ def test_challenging_views_ego_trains_the_rounds_scenes_from_the_attacked_view_o
     trained = card["rounds"][1]["trained"]
     assert trained["examples"] == {"round-1": 1, "normal": 6}  # one view of the round's scene, all of normal's
     assert trained["challenging_views"] == "ego" and trained["views"] == "all"
+
+
+def test_round_zeros_cache_is_not_reused_by_other_scoring_code(tmp_path, monkeypatch):
+    """Round 0's cached evaluation is keyed by the weights and by what scores them: another detector
+    config (or LiDAR code or preset) gives another folder."""
+    import shutil
+
+    import asg.workflows.harden as harden_mod
+    from sumo_scenarios import paths
+
+    weights = WEIGHTS_DIR / "attfuse.pt"
+    before = harden_mod._eval_cache(tmp_path, 0, weights)
+    assert harden_mod._eval_cache(tmp_path, 0, weights) == before  # stable
+    configs = tmp_path / "configs"
+    shutil.copytree(paths.configs_dir(), configs)
+    (configs / "detectors" / "pointpillars.yaml").write_text(
+        (configs / "detectors" / "pointpillars.yaml").read_text().replace("nms_iou: 0.15", "nms_iou: 0.2"))
+    monkeypatch.setattr(paths, "configs_dir", lambda: configs)
+    after = harden_mod._eval_cache(tmp_path, 0, weights)
+    assert after.parent == before.parent and after != before
+    assert harden_mod._eval_cache(tmp_path, 1, weights) == tmp_path / "round-1" / "eval"

@@ -31,7 +31,7 @@ from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
-from ..cli_args import COUNT, THREADS, executor_args, executor_from_args
+from ..cli_args import COUNT, executor_from_args, training_run_args
 from ..datasets import iter_frames
 from ..io.curves import LOSS_CURVE, LossCurve
 from ..io.run_record import claim
@@ -245,13 +245,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", type=Path, default=None, metavar="PATH",
                    help="start from this weights file instead of the shipped ones")
     p.add_argument("--out", type=Path, default=None, help="output folder (default runs/finetune/FUSION-ft)")
-    p.add_argument("--config", type=Path, default=None,
-                   help="a yaml with a 'finetune' block (default configs/detectors/train.yaml's)")
     p.add_argument("--stages", default="train,evaluate,reattack",
                    help="comma-separated subset of train, evaluate, reattack (default all three)")
-    p.add_argument("--threads", type=THREADS, default=2, help="training threads")
-    p.add_argument("--force", action="store_true", help="start the output folder over")
-    executor_args(p)
+    training_run_args(p, "finetune")
 
 
 def run(args: argparse.Namespace) -> int:

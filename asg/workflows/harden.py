@@ -39,7 +39,7 @@ from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
 
 from . import MAX_ROUNDS
-from ..cli_args import THREADS, executor_args, executor_from_args, whole
+from ..cli_args import executor_from_args, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
 from ..io.run_record import claim
 from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
@@ -158,12 +158,33 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
 
 def _eval_cache(out: Path, k: int, weights: Path) -> Path:
     """Where round ``k``'s evaluations are cached: the round's folder, but for round 0 (the start
-    weights) a folder of the data root named by the weights' digest, shared by every run (and
-    control) that starts from the same weights."""
+    weights) a folder of the data root named by the weights' digest and :func:`scoring_digest`,
+    shared by every run (and control) that starts from the same weights with the same code."""
     from ..datasets import data_root
     from ..generate import file_digest
 
-    return out / f"round-{k}" / "eval" if k else data_root() / ".harden-start" / file_digest(weights)[:16]
+    if k:
+        return out / f"round-{k}" / "eval"
+    return data_root() / ".harden-start" / f"{file_digest(weights)[:16]}-{scoring_digest()[:12]}"
+
+
+def scoring_digest() -> str:
+    """sha256 of what decides a set's AP besides the weights: the LiDAR simulation and the
+    detectors' code (asg/sensors, asg/perception, asg/objective), the LiDAR presets and the
+    detector config. A cached evaluation made by other code (say, other vehicle meshes) is not
+    reused."""
+    import hashlib
+
+    from sumo_scenarios.paths import configs_dir
+
+    root = Path(__file__).resolve().parents[1]
+    files = sorted(p for part in ("sensors", "perception", "objective") for p in (root / part).rglob("*.py"))
+    files += sorted((configs_dir() / "lidar").glob("*.yaml")) + [configs_dir() / "detectors" / "pointpillars.yaml"]
+    h = hashlib.sha256()
+    for path in files:
+        h.update(str(path.relative_to(path.parents[1])).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
 
 
 def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
@@ -336,11 +357,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", type=Path, default=None, metavar="PATH",
                    help="start from this weights file, or a harden card (its last round), not the shipped weights")
     p.add_argument("--out", type=Path, default=None, help="output folder (default runs/harden/FUSION[-DATA])")
-    p.add_argument("--config", type=Path, default=None,
-                   help="a yaml with a 'harden' block (default configs/detectors/train.yaml's)")
-    p.add_argument("--threads", type=THREADS, default=2, help="training threads")
-    p.add_argument("--force", action="store_true", help="start the output folder over")
-    executor_args(p)
+    training_run_args(p, "harden")
 
 
 def run(args: argparse.Namespace) -> int:
