@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import sys
-from typing import Iterator
+from typing import Callable, Iterator
 
 from rich.console import Console
 from rich.table import Table
@@ -21,6 +22,17 @@ def progress_bar() -> Iterator[Progress]:
         TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=False, disable=not sys.stderr.isatty(),
     ) as bar:
         yield bar
+
+
+def loss_progress(bar: Progress, task, doing: str, without_loss: str | None = None) -> Callable[[int, int, float], None]:
+    """A training run's ``progress(step, total, loss)``: moves ``task`` on ``bar`` and shows "DOING
+    loss L" (``without_loss`` instead while the loss is not a number, e.g. a collection phase)."""
+
+    def report(step: int, total: int, loss: float) -> None:
+        what = f"{doing} loss {loss:.3f}" if without_loss is None or math.isfinite(loss) else without_loss
+        bar.update(task, completed=step, total=total, description=what)
+
+    return report
 
 
 def print_result(title: str, result: dict, as_json: bool) -> None:

@@ -255,7 +255,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..objective import ap_text
     from ..perception import check_weights_file
-    from ..progress import console, progress_bar, stdout
+    from ..progress import console, loss_progress, progress_bar, stdout
 
     weights_for(args.fusion)  # one line for an unknown fusion
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
@@ -267,11 +267,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_finetune_config(args.config)
     on = args.on or f"challenging-{args.fusion}-train"
     with progress_bar() as bar, executor_from_args(args, 10**6) as executor:  # one worker per core by default
-        task = bar.add_task(f"fine-tuning {args.fusion}", total=None)
-
-        def report(step: int, total: int, loss: float) -> None:
-            bar.update(task, completed=step, total=total, description=f"fine-tuning {args.fusion} loss {loss:.3f}")
-
+        report = loss_progress(bar, bar.add_task(f"fine-tuning {args.fusion}", total=None), f"fine-tuning {args.fusion}")
         card = finetune(args.fusion, on, args.out, steps=args.steps, weights=args.weights, threads=args.threads,
                         force=args.force, executor=executor, stages=stages, config=config, log=console.print,
                         progress=report)

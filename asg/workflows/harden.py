@@ -363,18 +363,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
-    from ..progress import console, progress_bar, stdout
+    from ..progress import console, loss_progress, progress_bar, stdout
 
     weights_for(args.fusion)  # one line for an unknown fusion
     space = tuple(k.strip() for k in args.space.split(",") if k.strip()) if args.space else None
     config = load_harden_config(args.config, data=args.data)
     out = args.out or default_out(args.fusion, config.data)
     with progress_bar() as bar, executor_from_args(args, 10**6) as executor:
-        task = bar.add_task(f"hardening {args.fusion}", total=None)
-
-        def report(step: int, total: int, loss: float) -> None:
-            bar.update(task, completed=step, total=total, description=f"hardening {args.fusion} loss {loss:.3f}")
-
+        report = loss_progress(bar, bar.add_task(f"hardening {args.fusion}", total=None), f"hardening {args.fusion}")
         card = harden(args.fusion, args.rounds, out, weights=args.weights, config=config, space=space,
                       executor=executor, threads=args.threads, force=args.force, log=console.print, progress=report)
     rows = card["rounds"]

@@ -404,9 +404,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import math
-
-    from ..progress import console, progress_bar
+    from ..progress import console, loss_progress, progress_bar
 
     if args.validate_only and (args.init_from or args.iou_branch):
         raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from or --iou-branch")
@@ -418,12 +416,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--steps does not apply to --iou-branch (a fit of epochs over the collected candidates: "
                          "set epochs in train.yaml's iou_branch block)")
     with progress_bar() as bar:
-        task = bar.add_task(f"training {args.fusion}", total=None)
-
-        def report(step: int, total: int, loss: float) -> None:
-            what = f"training {args.fusion} loss {loss:.3f}" if math.isfinite(loss) else f"collecting {args.fusion}'s candidates"
-            bar.update(task, completed=step, total=total, description=what)
-
+        report = loss_progress(bar, bar.add_task(f"training {args.fusion}", total=None), f"training {args.fusion}",
+                               without_loss=f"collecting {args.fusion}'s candidates")
         out = train(args.fusion, steps=args.steps, progress=report, threads=args.threads, log=console.print,
                     init_from=args.init_from, iou_branch=args.iou_branch)
     console.print(f"weights: {out}")
