@@ -210,3 +210,20 @@ def test_round_zeros_cache_is_not_reused_by_other_scoring_code(tmp_path, monkeyp
     after = harden_mod._eval_cache(tmp_path, 0, weights)
     assert after.parent == before.parent and after != before
     assert harden_mod._eval_cache(tmp_path, 1, weights) == tmp_path / "round-1" / "eval"
+
+
+def test_round_zeros_reattack_is_scored_by_todays_code(data_root):
+    """The original's re-attack is its own challenging set: round 0 takes that set's AP from the
+    round's evaluation, not the figure the set's index recorded when it was built (by older code)."""
+    from asg.workflows.harden import reattack_round
+
+    index_path = data_root / "challenging-attfuse-val" / "index.json"
+    index = json.loads(index_path.read_text())
+    index["ap_challenging"] = {"0.3": 0.11, "0.5": 0.11, "0.7": 0.11}  # as scored by older meshes
+    index_path.write_text(json.dumps(index))
+    evaluation = {"normal-val": {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7, "frames": 1},
+                  "challenging-attfuse-val": {"0.3": 0.6, "0.5": 0.5, "0.7": 0.4, "frames": 1}}
+    got = reattack_round("attfuse", None, data_root / "unused", None, None, _quiet, evaluation)
+    assert got == {"frames": 1, "normal": {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7},
+                   "challenging": {"0.3": 0.6, "0.5": 0.5, "0.7": 0.4}}
+    assert not (data_root / "unused").exists()  # nothing attacked

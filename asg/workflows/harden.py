@@ -42,6 +42,7 @@ from . import MAX_ROUNDS
 from ..cli_args import executor_from_args, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
 from ..io.run_record import claim
+from ..objective.ap import AP_KEYS
 from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR
 from ..scene import Scene, load_scene
@@ -150,7 +151,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         row["evaluation"] = evaluate_round(fusion, current, cfg, _eval_cache(out, k, current), executor, log)
         if cfg.reattack:
             row["reattack"] = reattack_round(fusion, current if k else None, round_dir / "reattack", executor,
-                                             detector_factory, log)
+                                             detector_factory, log, row["evaluation"])
         card["rounds"].append(row)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
@@ -309,19 +310,26 @@ def noisy_val_set() -> Path:
 
 
 def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detector_factory: str | None,
-                   log: Callable[[str], None]) -> dict:
-    """The paper's protocol on normal-val against ``weights`` (None: the original, whose own attack
-    is challenging-F-val): {"frames", "normal", "challenging"} AP by threshold."""
+                   log: Callable[[str], None], evaluation: dict) -> dict:
+    """The paper's protocol on normal-val against ``weights``: {"frames", "normal", "challenging"}
+    AP by threshold. None: the original, whose own attack is challenging-F-val; its AP is taken from
+    the round's ``evaluation`` (scored by today's code), not from the AP the set's index recorded
+    when it was built (older meshes or detectors give another figure for the same scenes)."""
     from .challenging import build_challenging, set_name
     from ..datasets import data_root
 
     if weights is None:
-        index = json.loads((data_root() / set_name(fusion, "val") / "index.json").read_text())
-    else:
-        log(f"re-attacking {weights} on normal-val ...")
-        built = build_challenging(fusion, "val", executor=executor, weights_file=str(weights), out=out,
-                                  detector_factory=detector_factory)
-        index = json.loads((built / "index.json").read_text())
+        own = set_name(fusion, "val")
+        index = json.loads((data_root() / own / "index.json").read_text())
+        scored = {"frames": evaluation[own]["frames"],
+                  "challenging": {t: evaluation[own][t] for t in AP_KEYS}}
+        if "normal-val" in evaluation:
+            scored["normal"] = {t: evaluation["normal-val"][t] for t in AP_KEYS}
+        return {"normal": index["ap_normal"]} | scored
+    log(f"re-attacking {weights} on normal-val ...")
+    built = build_challenging(fusion, "val", executor=executor, weights_file=str(weights), out=out,
+                              detector_factory=detector_factory)
+    index = json.loads((built / "index.json").read_text())
     return {"frames": index["frames"], "normal": index["ap_normal"], "challenging": index["ap_challenging"]}
 
 
