@@ -8,7 +8,7 @@ Prints each model's AP, and for each pair the gap and its 5-95 % interval over t
 usage: .venv/bin/python docs/experiments/ap_bootstrap.py SET [RESAMPLES] [MODEL ...]
   SET: any --set of asg evaluate (normal-val, heuristic, challenging-attfuse-val, a folder of scenes);
   MODEL: a shipped name, or NAME=path/to/weights.pt (AttFuse network; e.g. fine-tuned or hardened
-  weights); default the four shipped models. MODEL@SET scores that model on SET instead (e.g. each
+  weights), or NAME=FUSION:path/to/weights.pt (another shipped network, e.g. early:runs/.../weights.pt); default the four shipped models. MODEL@SET scores that model on SET instead (e.g. each
   model on its own re-attack of normal-val: frames are paired by scene id, the scenes every set
   holds). Intervals: 5-95 % and 2.5-97.5 % of the resamples.
 """
@@ -28,11 +28,14 @@ THRESHOLDS = (0.3, 0.5, 0.7)
 
 
 def build_models(models) -> dict:
-    """{label: detector} from shipped names or NAME=weights.pt (AttFuse network)."""
+    """{label: detector} from shipped names, NAME=weights.pt (AttFuse network) or
+    NAME=FUSION:weights.pt (that shipped network)."""
     out = {}
     for m in models:
         name, _, path = m.partition("=")
-        out[name] = build_detector("attfuse", weights_file=path) if path else build_detector(name)
+        fusion, _, rest = path.partition(":")
+        fusion, path = (fusion, rest) if rest and fusion in MODELS else ("attfuse", path)
+        out[name] = build_detector(fusion, weights_file=path) if path else build_detector(name)
     return out
 
 
