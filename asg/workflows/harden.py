@@ -314,7 +314,8 @@ def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detec
     """The paper's protocol on normal-val against ``weights``: {"frames", "normal", "challenging"}
     AP by threshold. None: the original, whose own attack is challenging-F-val; its AP is taken from
     the round's ``evaluation`` (scored by today's code), not from the AP the set's index recorded
-    when it was built (older meshes or detectors give another figure for the same scenes)."""
+    when it was built (older meshes or detectors give another figure for the same scenes); its
+    "normal" from the evaluation's normal-val when the round has one, else from the index."""
     from .challenging import build_challenging, set_name
     from ..datasets import data_root
 
