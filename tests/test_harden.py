@@ -227,3 +227,17 @@ def test_round_zeros_reattack_is_scored_by_todays_code(data_root):
     assert got == {"frames": 1, "normal": {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7},
                    "challenging": {"0.3": 0.6, "0.5": 0.5, "0.7": 0.4}}
     assert not (data_root / "unused").exists()  # nothing attacked
+
+
+def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_root):
+    """From other ``--weights`` (a card's last round), round 0's re-attack attacks those weights;
+    from the shipped ones it is the shipped model's own challenging set (nothing attacked)."""
+    first = harden("attfuse", 1, tmp_path / "first", config=replace(TINY, reattack=True), detector_factory=ORACLE,
+                   log=_quiet)
+    assert not (tmp_path / "first" / "round-0" / "reattack").exists()
+    assert first["rounds"][0]["reattack"]["challenging"] == {
+        t: first["rounds"][0]["evaluation"]["challenging-attfuse-val"][t] for t in ("0.3", "0.5", "0.7")}
+    card = harden("attfuse", 1, tmp_path / "next", weights=tmp_path / "first" / "card.json",
+                  config=replace(TINY, reattack=True, pool=("normal",)), detector_factory=ORACLE, log=_quiet)
+    assert (tmp_path / "next" / "round-0" / "reattack" / "index.json").is_file()
+    assert card["rounds"][0]["reattack"]["frames"] == 1

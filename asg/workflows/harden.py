@@ -125,6 +125,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
         "rounds": []}
     current = start
+    shipped_start = settings["start_sha256"] == file_digest(WEIGHTS_DIR / f"{name}.pt")
     for k in range(rounds + 1):
         done = {row["round"]: row for row in card["rounds"]}
         round_dir = out / f"round-{k}"
@@ -150,7 +151,8 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         log(f"round {k}: evaluating {current} ...")
         row["evaluation"] = evaluate_round(fusion, current, cfg, _eval_cache(out, k, current), executor, log)
         if cfg.reattack:
-            row["reattack"] = reattack_round(fusion, current if k else None, round_dir / "reattack", executor,
+            own_set = None if k == 0 and shipped_start else current  # the shipped weights' attack exists
+            row["reattack"] = reattack_round(fusion, own_set, round_dir / "reattack", executor,
                                              detector_factory, log, row["evaluation"])
         card["rounds"].append(row)
         write_text_atomic(card_path, json.dumps(card, indent=1))
@@ -312,7 +314,8 @@ def noisy_val_set() -> Path:
 def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detector_factory: str | None,
                    log: Callable[[str], None], evaluation: dict) -> dict:
     """The paper's protocol on normal-val against ``weights``: {"frames", "normal", "challenging"}
-    AP by threshold. None: the original, whose own attack is challenging-F-val; its AP is taken from
+    AP by threshold (round 0 from other than the shipped weights: those weights attacked).
+    None: the shipped weights, whose own attack is challenging-F-val; its AP is taken from
     the round's ``evaluation`` (scored by today's code), not from the AP the set's index recorded
     when it was built (older meshes or detectors give another figure for the same scenes); its
     "normal" from the evaluation's normal-val when the round has one, else from the index."""
