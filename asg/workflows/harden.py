@@ -125,7 +125,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
         "rounds": []}
     current = start
-    shipped_start = settings["start_sha256"] == file_digest(WEIGHTS_DIR / f"{name}.pt")
+    shipped_start = settings["start_sha256"] == file_digest(_start_weights(None, fusion, name))
     for k in range(rounds + 1):
         done = {row["round"]: row for row in card["rounds"]}
         round_dir = out / f"round-{k}"

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from asg.generate import file_digest
+from asg.objective.ap import AP_KEYS
 from asg.perception.weights_io import WEIGHTS_DIR
 
 
@@ -34,8 +35,8 @@ def main(card_path: str, k: str, command: str) -> None:
         where = str(noisy_val_set()) if set_name == "normal-val-noisy" else set_name
         before = evaluate("attfuse", where)["ap"]
         print(f"{set_name}: attfuse AP@0.7 {before['0.7']:.4f} -> {after['0.7']:.4f}")
-        evaluation[set_name] = {"before": {t: before[t] for t in ("0.3", "0.5", "0.7")},
-                                "after": {t: after[t] for t in ("0.3", "0.5", "0.7")}, "frames": after["frames"]}
+        evaluation[set_name] = {"before": {t: before[t] for t in AP_KEYS},
+                                "after": {t: after[t] for t in AP_KEYS}, "frames": after["frames"]}
     shipped = {
         "weights": "attfuse-ft.pt", "fusion": "attfuse",
         "start": {"weights": "attfuse.pt", "sha256": file_digest(WEIGHTS_DIR / "attfuse.pt")},
