@@ -3,6 +3,9 @@ asg/perception/weights/attfuse-ft.pt and write its card, attfuse-ft.json, from t
 (what the round trained on, each evaluation set after, the re-attack of the round's weights) and
 the shipped attfuse measured again here on every set ("before"; the original's own attack is
 challenging-attfuse-val): the card's round 0 may be a cached evaluation made by older code.
+A run started from the shipped attfuse-ft (a further round: ``asg harden --weights`` its run's
+card) keeps the chain: the new card's start is still attfuse.pt, and ``earlier`` lists what the
+rounds before trained on and the commands that ran them.
 
     .venv/bin/python docs/experiments/ship_hardened.py runs/harden/NAME/card.json K "COMMAND"
 
@@ -25,8 +28,13 @@ def main(card_path: str, k: str, command: str) -> None:
     rounds = {r["round"]: r for r in card["rounds"]}
     done = rounds[int(k)]
     weights = Path(card_path).parent / done["weights"]
-    if file_digest(Path(card["start"]["weights"])) != file_digest(WEIGHTS_DIR / "attfuse.pt"):
-        raise SystemExit("the run did not start from the shipped attfuse weights")
+    start = file_digest(Path(card["start"]["weights"]))
+    earlier = []
+    if start == file_digest(WEIGHTS_DIR / "attfuse-ft.pt"):
+        previous = json.loads((WEIGHTS_DIR / "attfuse-ft.json").read_text())
+        earlier = previous.get("earlier", []) + [{"trained": previous["trained"], "command": previous["command"]}]
+    elif start != file_digest(WEIGHTS_DIR / "attfuse.pt"):
+        raise SystemExit("the run did not start from the shipped attfuse or attfuse-ft weights")
     from asg.workflows.evaluate import evaluate
     from asg.workflows.harden import noisy_val_set
 
@@ -40,8 +48,10 @@ def main(card_path: str, k: str, command: str) -> None:
     shipped = {
         "weights": "attfuse-ft.pt", "fusion": "attfuse",
         "start": {"weights": "attfuse.pt", "sha256": file_digest(WEIGHTS_DIR / "attfuse.pt")},
-        "trained": {"on": f"asg harden round {k}: {done['data']['scenes']} training scenes, {done['data']['kind']}",
+        "trained": {"on": (f"asg harden round {k}" + (f" from attfuse-ft ({len(earlier)} earlier rounds)" if earlier else "")
+                           + f": {done['data']['scenes']} training scenes, {done['data']['kind']}"),
                     "data": done["data"], **done["trained"]},
+        **({"earlier": earlier} if earlier else {}),
         "evaluation": evaluation,
         "reattack": {"frames": done["reattack"]["frames"],
                      "finetuned": {"normal": done["reattack"]["normal"], "challenging": done["reattack"]["challenging"]},
