@@ -21,13 +21,11 @@ import sys
 import numpy as np
 
 import asg.perception.model as model_module
-from asg.datasets import data_root, scenes_of
-from asg.objective.ap import greedy_match
+from asg.datasets import data_root
 from asg.objective.iou import bev_iou_matrix
-from asg.perception.data import Sample, in_range
 from asg.perception.nms import rotated_nms
-from asg.sensors import load_lidar_spec, simulate_frame
 from ap_bootstrap import build_models  # this folder's
+from moved_vehicles import found_at, frames_of  # this folder's
 
 MIN_POINTS = 10
 IOU = 0.7
@@ -72,7 +70,6 @@ def errors_of(cand: np.ndarray, gt: np.ndarray) -> tuple[float, ...]:
 def rows_of(set_name: str, detector, cfg) -> np.ndarray:
     """(V, 7) per visible vehicle: moved (0/1), stage (index into STAGES), and errors_of its best
     candidate (nan without one)."""
-    spec = load_lidar_spec()
     summary_path = data_root() / set_name / "run" / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {"scenes": []}
     moved = {e["scene_id"]: set(map(str, e.get("moved") or [])) for e in summary["scenes"]}
@@ -80,18 +77,11 @@ def rows_of(set_name: str, detector, cfg) -> np.ndarray:
     model_module.select_boxes = tap
     rows = []
     try:
-        for scene in scenes_of(set_name):
-            sample = Sample(scene.scene_id, simulate_frame(scene, spec))
-            gt = sample.gt_eval()
-            keep = in_range(sample.frame.ego_boxes)
-            points = sample.frame.points_in_boxes()["fused"][keep]
-            ids = np.asarray(sample.frame.gt_ids)[keep]
+        for scene_id, frame, gt, points, ids in frames_of(set_name):
             tap.calls.clear()
-            boxes, scores = detector.detect(sample.frame)
+            boxes, scores = detector.detect(frame)
             cand, cand_scores = tap.calls[0] if tap.calls else (np.zeros((0, 7)), np.zeros(0))  # none passed
-            match = greedy_match(boxes, scores, gt, IOU)
-            found = np.zeros(len(gt), bool)
-            found[match[match >= 0]] = True
+            found = found_at(boxes, scores, gt, IOU)
             cand_iou = bev_iou_matrix(cand, gt) if len(cand) and len(gt) else np.zeros((len(cand), len(gt)))
             kept = np.zeros(len(cand), bool)
             if len(cand):
@@ -99,7 +89,7 @@ def rows_of(set_name: str, detector, cfg) -> np.ndarray:
             for i, vid in enumerate(ids):
                 if points[i] >= MIN_POINTS:
                     err = errors_of(cand[cand_iou[:, i].argmax()], gt[i]) if len(cand) else (np.nan,) * 5
-                    rows.append((str(vid) in moved.get(scene.scene_id, set()), stage_of(i, found, cand_iou, kept), *err))
+                    rows.append((str(vid) in moved.get(scene_id, set()), stage_of(i, found, cand_iou, kept), *err))
     finally:
         model_module.select_boxes = tap._inner
     return np.array(rows, float).reshape(-1, 7)

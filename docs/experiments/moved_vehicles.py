@@ -29,28 +29,39 @@ def wrap_deg(a: np.ndarray) -> np.ndarray:
     return (np.degrees(a) + 90.0) % 180.0 - 90.0
 
 
+def frames_of(set_name: str):
+    """Per scene of the set: (scene id, frame, ground truth in range (M, 7) in the ego frame, fused
+    LiDAR points in each of those boxes (M,), their vehicle ids (M,))."""
+    spec = load_lidar_spec()
+    for scene in scenes_of(set_name):
+        sample = Sample(scene.scene_id, simulate_frame(scene, spec))
+        keep = in_range(sample.frame.ego_boxes)
+        yield (scene.scene_id, sample.frame, sample.gt_eval(), sample.frame.points_in_boxes()["fused"][keep],
+               np.asarray(sample.frame.gt_ids)[keep])
+
+
+def found_at(boxes: np.ndarray, scores: np.ndarray, gt: np.ndarray, iou: float) -> np.ndarray:
+    """(M,) bool: the ground-truth boxes the detections (K, 7) with ``scores`` (K,) find at ``iou``."""
+    match = greedy_match(boxes, scores, gt, iou)
+    found = np.zeros(len(gt), bool)
+    found[match[match >= 0]] = True
+    return found
+
+
 def rows_of(set_name: str, detector) -> np.ndarray:
     """One row per visible vehicle: moved, found@0.7, nearest-vehicle distance (m), length (m),
     |delta yaw| of the attack (deg, 0 if unmoved), |det - true yaw|, |det - lane yaw| (deg) of the
     nearest detection (nan without one)."""
-    spec = load_lidar_spec()
     summary = json.loads((data_root() / set_name / "run" / "summary.json").read_text())
     moved = {e["scene_id"]: dict(zip(e.get("moved") or [], e.get("delta") or [])) for e in summary["scenes"]}
     rows = []
-    for scene in scenes_of(set_name):
-        sample = Sample(scene.scene_id, simulate_frame(scene, spec))
-        gt = sample.gt_eval()
-        keep = in_range(sample.frame.ego_boxes)
-        points = sample.frame.points_in_boxes()["fused"][keep]
-        ids = np.asarray(sample.frame.gt_ids)[keep]
-        boxes, scores = detector.detect(sample.frame)
+    for scene_id, frame, gt, points, ids in frames_of(set_name):
+        boxes, scores = detector.detect(frame)
         boxes = np.asarray(boxes).reshape(-1, 7)
-        match = greedy_match(boxes, scores, gt, 0.7)
-        found = np.zeros(len(gt), bool)
-        found[match[match >= 0]] = True
+        found = found_at(boxes, scores, gt, 0.7)
         gap = np.linalg.norm(gt[:, None, :2] - gt[None, :, :2], axis=2) + np.eye(len(gt)) * 1e9
         nearest = gap.min(1) if len(gt) > 1 else np.full(len(gt), np.inf)
-        deltas = moved.get(scene.scene_id, {})
+        deltas = moved.get(scene_id, {})
         for i, vid in enumerate(ids):
             if points[i] < MIN_POINTS:
                 continue
