@@ -4,7 +4,8 @@ near the vehicle passes the score threshold, or none fits it at IoU 0.7) or in t
 voting moves the kept box below 0.7)? For the visible vehicles (10+ fused LiDAR points) of a set,
 moved by the attack and unmoved, the share at each stage, and for the vehicles whose best
 candidate fits at IoU 0.5-0.7 how that candidate is off (centre along and across the vehicle,
-yaw folded to [0, 90) deg, length and width).
+yaw folded to [0, 90) deg, length and width) and how much of the vehicle's length its points
+cover (their span along the vehicle over its length), beside the vehicles found.
 
     .venv/bin/python docs/experiments/miss_stages.py [SET] [MODEL ...]
 
@@ -67,9 +68,20 @@ def errors_of(cand: np.ndarray, gt: np.ndarray) -> tuple[float, ...]:
     return abs(c * dx + s * dy), abs(-s * dx + c * dy), abs(dyaw), cand[3] - gt[3], cand[4] - gt[4]
 
 
+def along_cover(points: np.ndarray, box: np.ndarray, margin_m: float = 0.02) -> float:
+    """The span of the ``points`` (N, >=3; the box's frame) inside ``box`` (7,) along its length,
+    over its length: 1 when both ends are seen, 0 with fewer than two points."""
+    x, y, z, length, width, height, yaw = box
+    q = points[:, :3] - (x, y, z)
+    c, s = np.cos(yaw), np.sin(yaw)
+    lx, ly = c * q[:, 0] + s * q[:, 1], -s * q[:, 0] + c * q[:, 1]
+    inside = (np.abs(lx) <= length / 2 + margin_m) & (np.abs(ly) <= width / 2 + margin_m) & (np.abs(q[:, 2]) <= height / 2 + margin_m)
+    return float(np.ptp(lx[inside]) / length) if inside.sum() >= 2 else 0.0
+
+
 def rows_of(set_name: str, detector, cfg) -> np.ndarray:
-    """(V, 7) per visible vehicle: moved (0/1), stage (index into STAGES), and errors_of its best
-    candidate (nan without one)."""
+    """(V, 8) per visible vehicle: moved (0/1), stage (index into STAGES), errors_of its best
+    candidate (nan without one), along_cover of the fused points."""
     summary_path = data_root() / set_name / "run" / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {"scenes": []}
     moved = {e["scene_id"]: set(map(str, e.get("moved") or [])) for e in summary["scenes"]}
@@ -82,6 +94,7 @@ def rows_of(set_name: str, detector, cfg) -> np.ndarray:
             boxes, scores = detector.detect(frame)
             cand, cand_scores = tap.calls[0] if tap.calls else (np.zeros((0, 7)), np.zeros(0))  # none passed
             found = found_at(boxes, scores, gt, IOU)
+            fused = np.concatenate(frame.clouds_in_frame_of(frame.ego_id))
             cand_iou = bev_iou_matrix(cand, gt) if len(cand) and len(gt) else np.zeros((len(cand), len(gt)))
             kept = np.zeros(len(cand), bool)
             if len(cand):
@@ -89,10 +102,11 @@ def rows_of(set_name: str, detector, cfg) -> np.ndarray:
             for i, vid in enumerate(ids):
                 if points[i] >= MIN_POINTS:
                     err = errors_of(cand[cand_iou[:, i].argmax()], gt[i]) if len(cand) else (np.nan,) * 5
-                    rows.append((str(vid) in moved.get(scene_id, set()), stage_of(i, found, cand_iou, kept), *err))
+                    rows.append((str(vid) in moved.get(scene_id, set()), stage_of(i, found, cand_iou, kept), *err,
+                                 along_cover(fused, gt[i])))
     finally:
         model_module.select_boxes = tap._inner
-    return np.array(rows, float).reshape(-1, 7)
+    return np.array(rows, float).reshape(-1, 8)
 
 
 def main(set_name: str = "challenging-attfuse-val", *models: str) -> None:
@@ -108,7 +122,13 @@ def main(set_name: str = "challenging-attfuse-val", *models: str) -> None:
         for m, label in ((0, "unmoved"), (1, "moved")):
             s = r[(r[:, 0] == m) & (r[:, 1] == 2)]
             if len(s):
-                print(f"  {label} (n={len(s)}): " + ", ".join(f"{v:.2f}" for v in np.median(s[:, 2:], axis=0)))
+                print(f"  {label} (n={len(s)}): " + ", ".join(f"{v:.2f}" for v in np.median(s[:, 2:7], axis=0)))
+        print("share of the length the points cover, median (share of vehicles under half):")
+        for m, label in ((0, "unmoved"), (1, "moved")):
+            cells = [f"{STAGES[k]} {np.median(c):.2f} ({100 * (c < 0.5).mean():.0f} %)"
+                     for k in range(len(STAGES)) if len(c := r[(r[:, 0] == m) & (r[:, 1] == k), 7])]
+            if cells:
+                print(f"  {label}: " + "; ".join(cells))
 
 
 if __name__ == "__main__":
