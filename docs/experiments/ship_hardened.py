@@ -48,7 +48,7 @@ def main(card_path: str, k: str, command: str) -> None:
     shipped = {
         "weights": "attfuse-ft.pt", "fusion": "attfuse",
         "start": {"weights": "attfuse.pt", "sha256": file_digest(WEIGHTS_DIR / "attfuse.pt")},
-        "trained": {"on": (f"asg harden round {k}" + (f" from attfuse-ft ({len(earlier)} earlier rounds)" if earlier else "")
+        "trained": {"on": (f"asg harden round {k}" + (f" from attfuse-ft ({len(earlier)} earlier round{'s' * (len(earlier) > 1)})" if earlier else "")
                            + f": {done['data']['scenes']} training scenes, {done['data']['kind']}"),
                     "data": done["data"], **done["trained"]},
         **({"earlier": earlier} if earlier else {}),
