@@ -268,11 +268,24 @@ def _refuse_duplicates(scenes: Sequence[Scene]) -> None:
 # ---- the run folder ----------------------------------------------------------------------------
 def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> dict:
     """What run.json records: every setting that changes the run's scenes or numbers (with the
-    digest of the target's weights file, so that other weights at the same path are noticed)."""
+    digest of the target's weights file, so that other weights at the same path are noticed, and
+    of the shipped weights the run loads, so that a run resumed after they changed is noticed)."""
     settings = {"config": asdict(cfg), "seed": seed, "count": count, "source": source}
     if cfg.weights:
         settings["weights_sha256"] = file_digest(Path(cfg.weights))
+    shipped = shipped_digests(cfg.fusion, cfg.weights, cfg.acs)
+    if shipped:
+        settings["shipped_weights_sha256"] = shipped
     return settings
+
+
+def shipped_digests(fusion: str, weights: str | None, acs: str) -> dict[str, str]:
+    """{weights name: sha256} of the shipped weights files a run of these settings loads (the
+    target's when no ``weights`` file is given; the shipped AttFuse's for attention-based ACS)."""
+    from .perception.fusion import shipped_weights_of
+
+    files = shipped_weights_of(fusion, target=not weights, acs_attention=acs == "attention")
+    return {name: file_digest(path) for name, path in sorted(files.items())}
 
 
 def file_digest(path: Path) -> str:
@@ -312,14 +325,34 @@ def prepare_run(out: Path, settings: dict, force: bool = False) -> None:
 def with_new_defaults(record: dict) -> dict:
     """``record`` with every setting it lacks filled in with today's default: a setting added to
     the generator after the record was written has a default that reproduces the earlier
-    behaviour, so a folder written before it resumes instead of being refused."""
+    behaviour, so a folder written before it resumes instead of being refused. A record from before
+    the shipped weights' digests were recorded is taken as made with today's."""
     def fill(old, default):
         if isinstance(old, dict) and isinstance(default, dict):
             return {**{k: v for k, v in default.items() if k not in old},
                     **{k: fill(v, default.get(k)) for k, v in old.items()}}
         return old
 
-    return fill(record, {"config": json.loads(json.dumps(asdict(GenerateConfig())))})
+    filled = fill(record, {"config": json.loads(json.dumps(asdict(GenerateConfig())))})
+    cfg = filled.get("config")
+    if "shipped_weights_sha256" not in filled and isinstance(cfg, dict):
+        shipped = shipped_digests(str(cfg.get("fusion")), cfg.get("weights"), str(cfg.get("acs")))
+        if shipped:
+            filled["shipped_weights_sha256"] = shipped
+    return filled
+
+
+def made_with_other_shipped_weights(out: Path, cfg: GenerateConfig) -> str | None:
+    """The first shipped weights file whose digest differs between the run recorded in folder
+    ``out`` and today's install (None if the same, or nothing recorded)."""
+    try:
+        recorded = json.loads((Path(out) / RUN_RECORD).read_text())["shipped_weights_sha256"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not isinstance(recorded, dict):
+        return None  # a damaged record: claiming the folder refuses it
+    today = shipped_digests(cfg.fusion, cfg.weights, cfg.acs)
+    return next((name for name in sorted(set(recorded) | set(today)) if recorded.get(name) != today.get(name)), None)
 
 
 def _has_finished_scenes(out: Path) -> bool:

@@ -38,6 +38,27 @@ def test_build_resume_and_evaluate(capsys, data_root):
     assert json.loads(capsys.readouterr().out)["frames"] == 3
 
 
+def test_a_set_attacked_against_other_shipped_weights_is_generated_again(capsys, data_root):
+    """challenging-F-SPLIT is the split attacked against the shipped F: after those weights change
+    (a new install), building it again attacks anew instead of resuming the old attack."""
+    out = build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
+    record_path = out / "run" / "run.json"
+    today = json.loads(record_path.read_text())["shipped_weights_sha256"]
+    stale = dict(today, single="0" * 64)
+    record_path.write_text(json.dumps(json.loads(record_path.read_text()) | {"shipped_weights_sha256": stale}))
+    marker = out / "run" / "scenes" / "n0" / "result.json"
+    marker.write_text(marker.read_text().replace('"scene_id"', '"old": 1, "scene_id"', 1))  # the old attack's
+    capsys.readouterr()
+    out = build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
+    assert "generating it again" in capsys.readouterr().out
+    assert json.loads(record_path.read_text())["shipped_weights_sha256"] == today
+    assert '"old"' not in marker.read_text() and json.loads((out / "index.json").read_text())["frames"] == 2
+    # the same weights: resumed, nothing generated again
+    marker.write_text(marker.read_text().replace('"scene_id"', '"kept": 1, "scene_id"', 1))
+    build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
+    assert '"kept"' in marker.read_text()
+
+
 def test_bad_challenging_requests_are_one_line(capsys, data_root):
     for argv, needle in ((["dataset", "build", "challenging", "--fusion", "attfuse"], "--split"),
                          (["dataset", "build", "challenging", "--fusion", "attfuse", "--split", "test"], "--split"),

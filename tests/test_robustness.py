@@ -152,6 +152,23 @@ def test_a_rerun_with_other_settings_is_refused_and_force_starts_over(capsys, tm
     assert summary["config"]["seed"] == 2 and len(summary["scenes"]) == 1
 
 
+def test_a_run_resumed_after_the_shipped_weights_changed_is_refused(capsys, tmp_path):
+    """run.json records the digest of the shipped weights the run loads: a folder made with other
+    shipped weights (an earlier install) is refused, not finished with today's."""
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict())
+    out = tmp_path / "out"
+    assert _generate(capsys, scenes, out)[0] == 0
+    first = (out / "summary.json").read_text()
+    record = json.loads((out / "run.json").read_text())
+    record["shipped_weights_sha256"]["single"] = "0" * 64  # made with other shipped weights
+    (out / "run.json").write_text(json.dumps(record))
+    code, err = _generate(capsys, scenes, out)
+    assert code == 2
+    assert_one_line_error(err, "other settings", "shipped_weights_sha256.single", "--force")
+    assert (out / "summary.json").read_text() == first
+
+
 def test_a_folder_written_before_a_setting_existed_resumes(capsys, tmp_path):
     """A run.json without a setting added since (its default reproduces the old behaviour) is the
     same settings; the same key with another value is not."""
@@ -160,7 +177,8 @@ def test_a_folder_written_before_a_setting_existed_resumes(capsys, tmp_path):
     out = tmp_path / "out"
     assert _generate(capsys, scenes, out)[0] == 0
     record = json.loads((out / "run.json").read_text())
-    del record["config"]["weights"], record["config"]["space"]["plausibility"]
+    assert set(record["shipped_weights_sha256"]) == {"single"}  # the target's (ACS random: no AttFuse)
+    del record["config"]["weights"], record["config"]["space"]["plausibility"], record["shipped_weights_sha256"]
     (out / "run.json").write_text(json.dumps(record))
     assert _generate(capsys, scenes, out)[0] == 0
     code, err = _generate(capsys, scenes, out, "--plausibility", "traffic")

@@ -34,12 +34,13 @@ def set_name(fusion: str, split: str) -> str:
 
 def build_challenging(fusion: str, split: str, executor=None, count: int | None = None,
                       detector_factory: str | None = None, on_scene=None, weights_file: str | None = None,
-                      out: Path | None = None) -> Path:
+                      out: Path | None = None, log=print) -> Path:
     """Generate (or resume) the challenging set of ``fusion`` on the ``split`` of ``normal``;
     ``count``: only the first scenes (a quick build); ``weights_file``: attack these weights of
     ``fusion`` instead of the shipped ones (then give ``out``: the set is not the shipped model's).
-    Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT)."""
-    from ..generate import SceneSource, open_run
+    Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT). A set attacked
+    against shipped weights that have changed since is generated again."""
+    from ..generate import SceneSource, made_with_other_shipped_weights, open_run
     from ..io.run import load_done
     from ..generator_config import load_generate_config
     from ..perception import detector_names
@@ -60,8 +61,13 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
         ids = {s.scene_id for s in (every[:count] if count else every)} | set(load_done(run_dir))
         return [s for s in every if s.scene_id in ids]
 
+    changed = made_with_other_shipped_weights(run_dir, cfg)
+    if changed:
+        log(f"{out.name}: attacked against shipped weights '{changed}' that have changed since; generating it again")
+        (out / "index.json").unlink(missing_ok=True)  # not a built set until the new attack is done
     # the split's size, not --count, is the setting: a later build with a larger --count resumes
-    run = open_run(cfg, run_dir, source=source, pick=wanted, record={"detector": detector_factory}, seed=SEED).generate(
+    run = open_run(cfg, run_dir, source=source, pick=wanted, record={"detector": detector_factory}, seed=SEED,
+                   force=changed is not None).generate(
         detector_factory=detector_factory, executor=executor, on_scene=on_scene, artifacts=False)
     ids = [e["scene_id"] for e in run.summary["scenes"]]
     with atomic_path(out / "frames.jsonl.gz") as tmp:

@@ -1,12 +1,14 @@
 """Fusion methods, registered by name: none, late, early, attfuse, attfuse-ft; and any detector
 plugin of the ``asg.detectors`` entry point group (see asg.perception.plugins)."""
+from pathlib import Path
+
 from sumo_scenarios.errors import InputError
 
 from . import attfuse, early, single  # noqa: F401  (fill the registry)
 from .base import Detections, V2XDetector
 
 __all__ = ["Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
-           "fusions_of", "network_of", "shipped_model", "weights_names"]
+           "fusions_of", "network_of", "shipped_model", "shipped_weights_of", "weights_names"]
 
 
 def detector_names() -> list[str]:
@@ -47,6 +49,22 @@ def shipped_model(fusion: str) -> type[V2XDetector]:
         raise InputError(f"'{fusion}' is a detector plugin: it brings its own weights, and asg trains, fine-tunes and "
                          f"hardens the shipped models only ({shipped})")
     raise InputError(f"unknown fusion '{fusion}'; choose one of {shipped}")
+
+
+def shipped_weights_of(fusion: str, target: bool = True, acs_attention: bool = False) -> dict[str, Path]:
+    """{weights name: file} of the shipped weights a generator run of ``fusion`` loads: the target's
+    own (a shipped model's, when ``target``: it is given no weights file) and, with attention-based
+    ACS and a target without attention of its own, the shipped AttFuse's. Files not on disk (a
+    plugin's) are left out."""
+    from ...registry import lookup, names
+    from ..weights_io import weights_path
+    from .attfuse import AttFuseDetector
+
+    cls = lookup("fusion", fusion) if fusion in names("fusion") else None
+    wanted = [cls.weights] if cls is not None and target else []
+    if acs_attention and not (cls is not None and (issubclass(cls, AttFuseDetector) or getattr(cls, "has_attention", False))):
+        wanted.append(AttFuseDetector.weights)
+    return {name: weights_path(name) for name in wanted if weights_path(name).is_file()}
 
 
 def _entries() -> list[type[V2XDetector]]:
