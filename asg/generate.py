@@ -247,13 +247,12 @@ def factory_models(spec: str, cfg: GenerateConfig):
 
 def _shipped_models(cfg: GenerateConfig):
     from .perception import build_detector
-    from .perception.fusion.attfuse import AttFuseDetector
+    from .perception.fusion import has_own_attention
 
     target = build_detector(cfg.fusion, weights_file=cfg.weights)
     acs_model = None
     if cfg.acs == "attention":  # the target's own attention when it has one, else the shipped AttFuse's
-        own = isinstance(target, AttFuseDetector) or getattr(target, "has_attention", False)
-        acs_model = target if own else build_detector("attfuse")
+        acs_model = target if has_own_attention(target) else build_detector("attfuse")
     return target, acs_model
 
 

@@ -91,20 +91,21 @@ def finetune_table(run: TableRun) -> tuple[list[dict], int]:
     Every row is scored by today's detector code: the own-attack row evaluates the model on the
     scenes its attack found, not the detections the attack stored when it built them (which an
     older build of the set would leave behind)."""
-    from ..workflows.challenging import build_challenging, set_name
+    from ..workflows.challenging import build_challenging
 
-    _challenging("attfuse", "val", run)
+    def own_set(model: str) -> str:
+        return build_challenging(model, "val", run.executor, count=run.scenes, detector_factory=run.detector_factory).name
+
+    challenging = own_set("attfuse")
+    scored: dict[tuple[str, str], dict] = {}  # AttFuse's own attack is challenging-val: scored once
     rows = []
     for model in ("attfuse", "attfuse-ft"):
-        for set_, key in (("normal-val", "normal-val"), ("heuristic", "heuristic"),
-                          (set_name("attfuse", "val"), "challenging-val")):
-            res = _evaluate(model, set_, run)
+        own = challenging if model == "attfuse" else own_set(model)
+        for set_, key in (("normal-val", "normal-val"), ("heuristic", "heuristic"), (challenging, "challenging-val"),
+                          (own, "own-attack-val")):
+            res = scored.get((model, set_)) or scored.setdefault((model, set_), _evaluate(model, set_, run))
             rows.append({"model": model, "set": key, "scenes_from": set_, "ap": res["ap"], "frames": res["frames"],
                          "paper": paper.FINETUNE.get((model, key))})
-        own = build_challenging(model, "val", run.executor, count=run.scenes, detector_factory=run.detector_factory)
-        res = _evaluate(model, own.name, run)
-        rows.append({"model": model, "set": "own-attack-val", "scenes_from": own.name,
-                     "ap": res["ap"], "frames": res["frames"], "paper": None})
     counted = min(r["frames"] for r in rows if r["set"] != "heuristic")
     return rows + harden_rows(run), counted
 

@@ -8,7 +8,7 @@ from . import attfuse, early, single  # noqa: F401  (fill the registry)
 from .base import Detections, V2XDetector
 
 __all__ = ["Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
-           "fusions_of", "network_of", "shipped_model", "shipped_weights_of", "weights_names"]
+           "fusions_of", "has_own_attention", "network_of", "shipped_model", "shipped_weights_of", "weights_names"]
 
 
 def detector_names() -> list[str]:
@@ -51,6 +51,15 @@ def shipped_model(fusion: str) -> type[V2XDetector]:
     raise InputError(f"unknown fusion '{fusion}'; choose one of {shipped}")
 
 
+def has_own_attention(model) -> bool:
+    """Does a detector (an instance or its class) bring the attention ACS-A reads (AttFuse, or a
+    plugin saying ``has_attention``)? Without it, ACS-A borrows the shipped AttFuse's."""
+    from .attfuse import AttFuseDetector
+
+    cls = model if isinstance(model, type) else type(model)
+    return issubclass(cls, AttFuseDetector) or bool(getattr(model, "has_attention", False))
+
+
 def shipped_weights_of(fusion: str, target: bool = True, acs_attention: bool = False) -> dict[str, Path]:
     """{weights name: file} of the shipped weights a generator run of ``fusion`` loads: the target's
     own (a shipped model's, when ``target``: it is given no weights file) and, with attention-based
@@ -62,7 +71,7 @@ def shipped_weights_of(fusion: str, target: bool = True, acs_attention: bool = F
 
     cls = lookup("fusion", fusion) if fusion in names("fusion") else None
     wanted = [cls.weights] if cls is not None and target else []
-    if acs_attention and not (cls is not None and (issubclass(cls, AttFuseDetector) or getattr(cls, "has_attention", False))):
+    if acs_attention and not (cls is not None and has_own_attention(cls)):
         wanted.append(AttFuseDetector.weights)
     return {name: weights_path(name) for name in wanted if weights_path(name).is_file()}
 
