@@ -26,7 +26,7 @@ from asg.datasets import data_root
 from asg.objective.iou import bev_iou_matrix
 from asg.perception.nms import rotated_nms
 from ap_bootstrap import build_models  # this folder's
-from moved_vehicles import found_at, frames_of  # this folder's
+from moved_vehicles import found_at, frames_of, wrap_deg  # this folder's
 
 MIN_POINTS = 10
 IOU = 0.7
@@ -35,7 +35,8 @@ STAGES = ("found", "no candidate >= 0.5", "best candidate 0.5-0.7", "0.7 candida
 
 
 class CandidateTap:
-    """Wraps the detector's ``select_boxes`` to keep what it was handed: (boxes (N, 7), scores (N,))."""
+    """Inside ``with CandidateTap() as tap``, the detector's ``select_boxes`` keeps what it was
+    handed; ``tap.last()``: (boxes (N, 7), scores (N,)) of the last frame (empty if none passed)."""
 
     def __init__(self):
         self.calls: list[tuple[np.ndarray, np.ndarray]] = []
@@ -44,6 +45,21 @@ class CandidateTap:
     def __call__(self, boxes, scores, cfg):
         self.calls.append((np.asarray(boxes, float).reshape(-1, 7), np.asarray(scores, float)))
         return self._inner(boxes, scores, cfg)
+
+    def __enter__(self) -> "CandidateTap":
+        model_module.select_boxes = self
+        return self
+
+    def __exit__(self, *exc) -> None:
+        model_module.select_boxes = self._inner
+
+    def detect(self, detector, frame):
+        """``detector.detect(frame)``, keeping only this frame's candidates."""
+        self.calls.clear()
+        return detector.detect(frame)
+
+    def last(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.calls[0] if self.calls else (np.zeros((0, 7)), np.zeros(0))
 
 
 def stage_of(i: int, found: np.ndarray, cand_iou: np.ndarray, kept: np.ndarray) -> int:
@@ -64,8 +80,8 @@ def errors_of(cand: np.ndarray, gt: np.ndarray) -> tuple[float, ...]:
     frame), |yaw| (deg, a box and its reverse the same), length and width (m, candidate - truth)."""
     c, s = np.cos(gt[6]), np.sin(gt[6])
     dx, dy = cand[0] - gt[0], cand[1] - gt[1]
-    dyaw = (np.degrees(cand[6] - gt[6]) + 90.0) % 180.0 - 90.0
-    return abs(c * dx + s * dy), abs(-s * dx + c * dy), abs(dyaw), cand[3] - gt[3], cand[4] - gt[4]
+    return (abs(c * dx + s * dy), abs(-s * dx + c * dy), abs(wrap_deg(cand[6] - gt[6])), cand[3] - gt[3],
+            cand[4] - gt[4])
 
 
 def along_cover(points: np.ndarray, box: np.ndarray, margin_m: float = 0.02) -> float:
@@ -85,14 +101,11 @@ def rows_of(set_name: str, detector, cfg) -> np.ndarray:
     summary_path = data_root() / set_name / "run" / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {"scenes": []}
     moved = {e["scene_id"]: set(map(str, e.get("moved") or [])) for e in summary["scenes"]}
-    tap = CandidateTap()
-    model_module.select_boxes = tap
     rows = []
-    try:
+    with CandidateTap() as tap:
         for scene_id, frame, gt, points, ids in frames_of(set_name):
-            tap.calls.clear()
-            boxes, scores = detector.detect(frame)
-            cand, cand_scores = tap.calls[0] if tap.calls else (np.zeros((0, 7)), np.zeros(0))  # none passed
+            boxes, scores = tap.detect(detector, frame)
+            cand, cand_scores = tap.last()
             found = found_at(boxes, scores, gt, IOU)
             fused = np.concatenate(frame.clouds_in_frame_of(frame.ego_id))
             cand_iou = bev_iou_matrix(cand, gt) if len(cand) and len(gt) else np.zeros((len(cand), len(gt)))
@@ -104,8 +117,6 @@ def rows_of(set_name: str, detector, cfg) -> np.ndarray:
                     err = errors_of(cand[cand_iou[:, i].argmax()], gt[i]) if len(cand) else (np.nan,) * 5
                     rows.append((str(vid) in moved.get(scene_id, set()), stage_of(i, found, cand_iou, kept), *err,
                                  along_cover(fused, gt[i])))
-    finally:
-        model_module.select_boxes = tap._inner
     return np.array(rows, float).reshape(-1, 8)
 
 

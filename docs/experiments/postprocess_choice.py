@@ -22,7 +22,6 @@ from pathlib import Path
 
 import numpy as np
 
-import asg.perception.model as model_module
 from asg.datasets import scenes_of
 from asg.objective.ap import ap_at
 from asg.perception.data import Sample
@@ -38,18 +37,12 @@ VOTE_IOU = (0.0, 0.3, 0.5, 0.7)
 def candidates_of(detector, scenes) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per scene: (candidate boxes (N, 7), their scores (N,), ground truth (M, 7)), ego frame."""
     spec = load_lidar_spec()
-    tap = CandidateTap()
-    model_module.select_boxes = tap
     out = []
-    try:
+    with CandidateTap() as tap:
         for scene in scenes:
             sample = Sample(scene.scene_id, simulate_frame(scene, spec))
-            tap.calls.clear()
-            detector.detect(sample.frame)
-            cand, scores = tap.calls[0] if tap.calls else (np.zeros((0, 7)), np.zeros(0))
-            out.append((cand, scores, sample.gt_eval()))
-    finally:
-        model_module.select_boxes = tap._inner
+            tap.detect(detector, sample.frame)
+            out.append((*tap.last(), sample.gt_eval()))
     return out
 
 
