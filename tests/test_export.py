@@ -239,3 +239,15 @@ def test_opencood_takes_our_ego_wherever_its_rule_allows(cross_map):
             rsus_sensing = sum(a.startswith("r") for a in sensing)
             allowed = rsus_sensing <= 1 if ego == "v0" else rsus_sensing >= 2
             assert (picked == str(ids[ego])) == allowed, (ego, sensing, ids)
+
+
+@pytest.mark.parametrize("fmt", ["opv2v", "kitti", "openscenario", "sumo"])
+def test_export_of_an_rsu_ego_run_exits_zero(capsys, scenes_dir, tmp_path, fmt):
+    """A folder holding an RSU-ego scene (the default ``asg generate`` makes them) exports in every format
+    with exit code 0; for OPV2V the note about OpenCOOD's ego is printed and is not an error."""
+    folder, scenes = scenes_dir
+    assert any(s.ego.kind == "rsu" for s in scenes)
+    code, err = run(capsys, "export", str(folder), "--format", fmt, "--out", str(tmp_path / "o"))
+    assert code == 0, err
+    assert "error" not in err
+    assert len([p for p in (tmp_path / "o").iterdir() if not p.name.startswith(".")]) >= 1

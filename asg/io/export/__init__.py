@@ -51,12 +51,13 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
         if progress:
             progress(n)
     writer.close()
+    if n == 0:
+        raise InputError(f"{source}: no scenes to export")
     other = getattr(writer, "other_ego", [])
     if other and note:
         note(f"{len(other)} of {n} scenes (e.g. {other[0]}): OpenCOOD's loader will take another agent as the ego "
              f"(a vehicle ego with 2+ sensing RSUs, or an RSU ego that is the only sensing RSU); each ids.yaml names "
              f"ours ('ego') and OpenCOOD's ('opencood_ego'), see docs/export.md")
-        raise InputError(f"{source}: no scenes to export")
     return n
 
 
