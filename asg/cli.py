@@ -18,6 +18,7 @@ from sumo_scenarios.errors import InputError
 from . import __version__, commands
 from .cli_args import COUNT, SEED, executor_args, real, weights_arg, whole
 from .executors.base import WorkerLost
+from .objective.ap import AP_METHODS, DEFAULT_AP_METHOD
 from .registry import names
 from .workflows import MAX_ROUNDS
 
@@ -192,6 +193,9 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p.add_argument("--harden-rounds", type=whole(1, MAX_ROUNDS, "--harden-rounds"), default=None,
                    help="finetune table: also this many rounds of 'asg harden --fusion attfuse' with adversarial, "
                         "random and normal scenes (the controls), a row a round (OUT/harden/DATA, resumable)")
+    p.add_argument("--ap-method", default=DEFAULT_AP_METHOD, choices=[*AP_METHODS, "both"],
+                   help="how AP ranks the detections of many frames: global (default, ours: one sort across frames), "
+                        "per-frame (the paper's yardstick: no sort across frames; tables as NAME.per-frame.*) or both")
     p.add_argument("--out", type=Path, default=Path("runs/bench-paper"))
     executor_args(p)
     p.add_argument("--jobs", type=whole(1, 64, "--jobs"), default=None, dest="workers", help=argparse.SUPPRESS)

@@ -16,6 +16,7 @@ from sumo_scenarios.paths import nets_dir
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
 from .objective import ap_text
+from .objective.ap import AP_METHODS
 from .progress import console, print_result, progress_bar, stdout
 from .scene.from_log import ExtractParams, extract_scenes
 from .scene.scene import save_scene
@@ -246,16 +247,18 @@ def _bench_tables(args: argparse.Namespace) -> int:
 
         load_factory(args.detector)
     command = "asg " + " ".join(shlex.quote(a) for a in args.argv)
+    methods = AP_METHODS if args.ap_method == "both" else (args.ap_method,)
     with executor_from_args(args, args.scenes or 10**6) as executor:
         results = run_tables(names, TableRun(out=Path(args.out), scenes=args.scenes, executor=executor,
                                              detector_factory=args.detector, command=command,
-                                             harden_rounds=args.harden_rounds or 0), log=console.print)
-    for name, result in results.items():
+                                             harden_rounds=args.harden_rounds or 0), log=console.print,
+                             ap_methods=methods)
+    for stem, result in results.items():
         if args.json:
             print(json.dumps(result))
         else:
-            stdout.print(f"[bold]{name}[/bold] ({Path(args.out) / (name + '.md')})")
-            stdout.print((Path(args.out) / f"{name}.md").read_text(), markup=False, highlight=False)
+            stdout.print(f"[bold]{stem}[/bold] ({Path(args.out) / (stem + '.md')})")
+            stdout.print((Path(args.out) / f"{stem}.md").read_text(), markup=False, highlight=False)
     return 0
 
 
@@ -303,15 +306,17 @@ def bench_paper(args: argparse.Namespace) -> int:
         raise InputError("--detector applies to --table runs; the targets table attacks the shipped --fusion")
     from .generator_config import GenerateConfig
 
+    if args.ap_method == "both":
+        raise InputError("--ap-method both applies to --table runs; the targets table takes global or per-frame")
     scenes = args.scenes or 30
     defaults = GenerateConfig()
     with executor_from_args(args, scenes) as executor:
         result = run(Path(args.out), scenes=scenes, budget=args.budget or defaults.budget,
-                     fusion=args.fusion or defaults.fusion, executor=executor)
+                     fusion=args.fusion or defaults.fusion, executor=executor, ap_method=args.ap_method)
     if args.json:
         print(json.dumps(result))
     else:
-        table = Table(title=f"AP of {result['fusion']} (pooled over scenes)")
+        table = Table(title=f"AP of {result['fusion']} (pooled over scenes, {result['ap_method']} ranking)")
         for col in ("ACS-search", "normal 0.3/0.5/0.7", "after ACS", "challenging 0.3/0.5/0.7", "scenes"):
             table.add_column(col)
         for k, v in result["table"].items():

@@ -133,6 +133,7 @@ def test_evaluate_on_workers_gives_the_same_ap(capsys, tmp_path):
         assert main(["evaluate", "--fusion", "none", "--set", str(scenes), "--workers", workers, "--json"]) == 0
         results.append(json.loads(capsys.readouterr().out))
     assert results[0] == results[1] and results[0]["frames"] == 3
+    assert set(results[0]["ap_per_frame"]) == set(results[0]["ap"])  # the paper's yardstick beside ours
 
 
 def test_progress_reaches_the_caller_in_process_and_a_pool_runs_without_it(tmp_path):

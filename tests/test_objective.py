@@ -82,3 +82,58 @@ def test_weighted_loss():
     assert adversarial_loss({"0.3": 1.0, "0.5": 1.0, "0.7": 1.0}) == pytest.approx(2.3)
     cfg = ObjectiveConfig(weights={"0.5": 2.0})
     assert adversarial_loss({"0.3": 0.1, "0.5": 0.25, "0.7": 0.0}, cfg) == pytest.approx(0.5)
+
+
+def test_per_frame_ap_keeps_each_frames_order_hand_computed():
+    """The paper's yardstick (OpenCOOD's evaluation without the global sort) on a case computed by hand."""
+    from asg.objective.ap import ap_at, ap_by_method
+
+    gt = box()[None]
+    # frame 1: a true positive at 0.9 and a false positive at 0.1; frame 2: a true positive at 0.8
+    f1 = (np.stack([box(), box(20.0)]), np.array([0.9, 0.1]), gt)
+    f2 = (box()[None], np.array([0.8]), gt)
+    # global: TP .9, TP .8, FP .1 -> precision 1 up to recall 1: AP 1
+    assert average_precision([f1, f2], 0.5, "global") == pytest.approx(1.0)
+    # per frame: TP, FP (frame 1), then TP (frame 2) -> precision 1 at recall 1/2, 2/3 at recall 1
+    assert average_precision([f1, f2], 0.5, "per-frame") == pytest.approx(0.5 + 0.5 * 2 / 3)
+    # per frame depends on the frames' order: frame 2 first gives TP, TP, FP -> AP 1
+    assert average_precision([f2, f1], 0.5, "per-frame") == pytest.approx(1.0)
+    # within a frame the detections are still ranked by score, whatever order they are given in
+    f1_reversed = (f1[0][::-1].copy(), f1[1][::-1].copy(), gt)
+    assert average_precision([f1_reversed, f2], 0.5, "per-frame") == pytest.approx(0.5 + 0.5 * 2 / 3)
+    both = ap_by_method([f1, f2])
+    assert both["global"] == ap_at([f1, f2]) and both["per-frame"] == ap_at([f1, f2], method="per-frame")
+
+
+def test_per_frame_ap_equals_opencoods_unsorted_evaluation():
+    """Random frames scored as OpenCOOD's eval_utils did without --global_sort_detections (rewritten
+    here: tp/fp lists per frame in score order, concatenated, cumulative sums, VOC envelope)."""
+    from asg.objective.ap import match_frame, voc_ap
+
+    rng = np.random.default_rng(3)
+    frames = []
+    for _ in range(12):
+        m, n = rng.integers(0, 5), rng.integers(0, 7)
+        gt = np.array([box(float(x)) for x in rng.uniform(-30, 30, m)]).reshape(-1, 7)
+        pred = np.array([box(float(x)) for x in rng.uniform(-30, 30, n)]).reshape(-1, 7)
+        if m and n:
+            pred[: min(m, n)] = gt[: min(m, n)] + rng.normal(0, 0.3, (min(m, n), 7)) * [1, 1, 0, 0, 0, 0, 0.2]
+        frames.append((pred, rng.uniform(0.2, 1.0, n), gt))
+    for t in (0.3, 0.5, 0.7):
+        tp_list, fp_list, n_gt = [], [], 0
+        for pred, scores, gt in frames:
+            order = np.argsort(-scores)
+            tp = match_frame(pred, scores, gt, t)[order]
+            tp_list += tp.astype(int).tolist()
+            fp_list += (~tp).astype(int).tolist()
+            n_gt += len(gt)
+        ctp, cfp = np.cumsum(tp_list), np.cumsum(fp_list)
+        want = voc_ap(ctp / n_gt, ctp / (ctp + cfp))
+        assert average_precision(frames, t, "per-frame") == pytest.approx(want)
+
+
+def test_an_unknown_ap_method_is_one_line():
+    from sumo_scenarios.errors import InputError
+
+    with pytest.raises(InputError, match="per-frame"):
+        average_precision([], 0.5, "sorted")

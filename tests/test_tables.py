@@ -129,3 +129,39 @@ def test_bad_table_requests_are_one_line(capsys, tmp_path, data_root):
         code, err = run(capsys, *argv, "--out", str(tmp_path / "o"))
         assert code == 2, argv
         assert_one_line_error(err, needle)
+
+
+def test_tables_both_ways_from_one_measurement(capsys, tmp_path, data_root, monkeypatch):
+    """--ap-method both writes every table as ours (NAME.*) and as the paper's yardstick
+    (NAME.per-frame.*), each labelled; a set is detected once for both; the per-frame rows are what
+    asg.objective scores per frame over the same detections."""
+    from asg.workflows import evaluate as evaluate_mod
+
+    calls = []
+    real = evaluate_mod.evaluate
+    monkeypatch.setattr(evaluate_mod, "evaluate", lambda *a, **k: calls.append(a[:2]) or real(*a, **k))
+    out = tmp_path / "tables"
+    argv = ["bench", "paper", "--table", "main,finetune", "--scenes", "2", "--detector", "fakes:oracle_factory",
+            "--workers", "1", "--out", str(out), "--ap-method", "both"]
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert calls and len(calls) == len(set(calls))  # each (model, set) detected once for both yardsticks
+    for name in ("main", "finetune"):
+        ours, paper_way = (json.loads((out / f"{stem}.json").read_text()) for stem in (name, f"{name}.per-frame"))
+        assert (ours["ap_method"], paper_way["ap_method"]) == ("global", "per-frame")
+        assert "ranked globally" in (out / f"{name}.md").read_text()
+        assert "no sort across frames" in (out / f"{name}.per-frame.md").read_text()
+        assert len(ours["rows"]) == len(paper_way["rows"])
+    from asg.io.run import load_detections, pooled_ap
+
+    index = json.loads((data_root / "challenging-attfuse-train" / "index.json").read_text())
+    per_scene = [load_detections(data_root / "challenging-attfuse-train" / "run", i) for i in index["splits"]["train"]]
+    row = json.loads((out / "main.per-frame.json").read_text())["rows"][3]
+    assert row["challenging"] == pooled_ap(per_scene, "final", "per-frame")
+
+
+def test_per_frame_with_harden_rounds_is_refused(capsys, tmp_path, data_root):
+    code, err = run(capsys, "bench", "paper", "--table", "finetune", "--harden-rounds", "1", "--ap-method", "per-frame",
+                    "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "--harden-rounds")

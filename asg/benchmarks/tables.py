@@ -17,7 +17,7 @@ import os
 import platform
 import subprocess
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -25,6 +25,7 @@ from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ..objective import AP_KEYS
+from ..objective.ap import DEFAULT_AP_METHOD, check_ap_method
 from . import paper_figures as paper
 
 #: the four shipped models of the paper, in its order
@@ -49,26 +50,45 @@ class TableRun:
     harden_rounds: int = 0
     #: their train.yaml ``harden`` block (None: configs/detectors/train.yaml's; ``data`` is set per run)
     harden_config: object | None = None
+    #: how AP ranks the detections of several frames (asg.objective.ap.AP_METHODS): global (ours)
+    #: or per-frame (the paper's yardstick)
+    ap_method: str = DEFAULT_AP_METHOD
+    #: detector evaluations already scored in this measurement, {(model, set): result}: a table
+    #: written with a second AP method rescores them instead of detecting again
+    scored: dict = field(default_factory=dict, compare=False, repr=False)
 
 
-def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None] = print) -> dict[str, dict]:
-    """Measure and write each table of ``names``; returns {name: its JSON}."""
+def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None] = print,
+               ap_methods: tuple[str, ...] | None = None) -> dict[str, dict]:
+    """Measure and write each table of ``names`` with each AP method of ``ap_methods`` (default:
+    ``run.ap_method``); returns {file stem: its JSON} (TABLE, or TABLE.per-frame for that method)."""
     unknown = [n for n in names if n not in TABLES]
     if unknown:
         raise InputError(f"unknown table '{unknown[0]}'; choose {', '.join(TABLES)} or all")
+    methods = tuple(check_ap_method(m) for m in (ap_methods or (run.ap_method,)))
+    if run.harden_rounds and methods != (DEFAULT_AP_METHOD,):
+        raise InputError("--harden-rounds rows are scored with the global AP only (asg harden's cards); "
+                         "leave out --ap-method or --harden-rounds")
     run.out.mkdir(parents=True, exist_ok=True)
-    return {name: run_table(name, run, log) for name in names}
+    return {table_stem(name, m): run_table(name, replace(run, ap_method=m), log) for name in names for m in methods}
+
+
+def table_stem(name: str, ap_method: str) -> str:
+    """The file stem of a table written with ``ap_method``: NAME (global) or NAME.per-frame."""
+    return name if ap_method == DEFAULT_AP_METHOD else f"{name}.{ap_method}"
 
 
 def run_table(name: str, run: TableRun, log: Callable[[str], None] = print) -> dict:
-    log(f"table {name} ...")
+    log(f"table {name} (AP {run.ap_method}) ...")
     started = time.perf_counter()
     rows, scenes = _REGISTRY[name].build(run)
     result = {"table": name, "command": run.command, "scenes": scenes, "seconds": round(time.perf_counter() - started, 1),
-              "commit": _commit(), "machine": _machine(), "detector": run.detector_factory or "shipped", "rows": rows}
-    write_text_atomic(run.out / f"{name}.json", json.dumps(result, indent=1))
-    write_text_atomic(run.out / f"{name}.csv", to_csv(rows))
-    write_text_atomic(run.out / f"{name}.md", to_markdown(result))
+              "commit": _commit(), "machine": _machine(), "detector": run.detector_factory or "shipped",
+              "ap_method": run.ap_method, "rows": rows}
+    stem = table_stem(name, run.ap_method)
+    write_text_atomic(run.out / f"{stem}.json", json.dumps(result, indent=1))
+    write_text_atomic(run.out / f"{stem}.csv", to_csv(rows))
+    write_text_atomic(run.out / f"{stem}.md", to_markdown(result))
     return result
 
 
@@ -252,14 +272,21 @@ def _challenging(model: str, split: str, run: TableRun) -> dict:
     from ..workflows.challenging import build_challenging, first_scenes_ap
 
     out = build_challenging(model, split, run.executor, count=run.scenes, detector_factory=run.detector_factory)
-    return first_scenes_ap(out, run.scenes)
+    return first_scenes_ap(out, run.scenes, run.ap_method)
 
 
 def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
+    """{"ap": AP by threshold ranked by ``run.ap_method``, "frames"} of ``model`` on ``set_name``
+    (detected once per measurement: see TableRun.scored)."""
     from ..workflows.evaluate import evaluate
 
-    res = evaluate(model, set_name, limit=run.scenes, executor=run.executor, detector_factory=run.detector_factory)
-    return {"ap": {k: round(v, 6) for k, v in res["ap"].items()}, "frames": res["frames"]}
+    key = (model, set_name)
+    if key not in run.scored:
+        run.scored[key] = evaluate(model, set_name, limit=run.scenes, executor=run.executor,
+                                   detector_factory=run.detector_factory)
+    res = run.scored[key]
+    ap = res["ap"] if run.ap_method == DEFAULT_AP_METHOD else res["ap_per_frame"]
+    return {"ap": {k: round(v, 6) for k, v in ap.items()}, "frames": res["frames"]}
 
 
 def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: bool, kinds: str | None = None,
@@ -273,6 +300,7 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
 
     from ..generate import SceneSource, open_run
     from ..generator_config import load_generate_config, with_space_flags
+    from ..io.run import aggregate_ap
 
     cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
                            plausibility, kinds)
@@ -289,7 +317,8 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
                        seed=run.seed).generate(detector_factory=run.detector_factory, executor=run.executor,
                                                artifacts=False).summary
     agg, entries = summary["aggregate"], summary["scenes"]
-    return {"scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"],
+    return {"scenes": agg["scenes"], "normal": aggregate_ap(agg, "ap_normal", run.ap_method),
+            "challenging": aggregate_ap(agg, "ap_challenging", run.ap_method),
             "mean_loss": round(statistics.fmean(e["loss_final"] for e in entries), 6),
             "seconds_per_scene": round(statistics.median(e["seconds"] for e in entries), 3),
             "plausibility": cfg.space.plausibility, "movers": cfg.perturbed,
@@ -346,8 +375,11 @@ def _triple(ap: dict | None) -> str:
 
 def to_markdown(result: dict) -> str:
     """The table as markdown (AP in %, ours beside the paper's) under the command that made it."""
+    method = result.get("ap_method", DEFAULT_AP_METHOD)
+    yardstick = ("ranked per frame with no sort across frames (the paper's yardstick)" if method == "per-frame" else
+                 "ranked globally across frames (ours)")
     head = (f"`{result['command']}`: {result['scenes']} scenes, {result['seconds']:.0f} s, commit {result['commit']}, "
-            f"{result['machine']}; detector {result['detector']}. AP@0.3 / 0.5 / 0.7 in %.\n\n")
+            f"{result['machine']}; detector {result['detector']}. AP@0.3 / 0.5 / 0.7 in %, {yardstick}.\n\n")
     return head + _REGISTRY[result["table"]].markdown(result["rows"]) + "\n"
 
 

@@ -28,7 +28,8 @@ import numpy as np
 from sumo_scenarios.atomic import atomic_dir, atomic_path, write_text_atomic
 from sumo_scenarios.checks import inside
 
-from ..objective import AP_KEYS, ap_at, ap_text
+from ..objective import AP_KEYS, ap_text
+from ..objective.ap import AP_METHODS, DEFAULT_AP_METHOD, ap_by_method, check_ap_method
 from ..pipeline import SceneResult
 from ..scene import save_scene
 from .figures import bev_figure
@@ -126,14 +127,36 @@ def previous_wall_s(out_dir: Path) -> float:
         return 0.0
 
 
-def pooled_ap(per_scene: list[dict[str, tuple]], key: str) -> dict[str, float] | None:
-    """AP over one stage's detections of all scenes together (one global ranking), as the paper's
-    tables; ``per_scene`` as load_detections gives them. None if a scene lacks that stage (a folder
+def pooled_ap(per_scene: list[dict[str, tuple]], key: str, method: str = DEFAULT_AP_METHOD) -> dict[str, float] | None:
+    """AP over one stage's detections of all scenes together, as the paper's tables, ranked by
+    ``method`` (asg.objective.ap.AP_METHODS; per-frame takes the scenes in the given order);
+    ``per_scene`` as load_detections gives them. None if a scene lacks that stage (a folder
     written before it was stored)."""
+    both = pooled_ap_by_method(per_scene, key)
+    return None if both is None else both[check_ap_method(method)]
+
+
+def pooled_ap_by_method(per_scene: list[dict[str, tuple]], key: str) -> dict[str, dict[str, float]] | None:
+    """{method: pooled AP} of :func:`pooled_ap` for every AP method, each frame matched once."""
     if any(key not in d for d in per_scene):
         return None
     frames = [d[key] for d in per_scene]
-    return {k: round(v, 6) for k, v in ap_at(frames).items()} if frames else dict.fromkeys(AP_KEYS, 0.0)
+    if not frames:
+        return {m: dict.fromkeys(AP_KEYS, 0.0) for m in AP_METHODS}
+    return {m: {k: round(v, 6) for k, v in ap.items()} for m, ap in ap_by_method(frames).items()}
+
+
+#: the pooled AP of a summary's aggregate by stage; the global ranking at the top level (as ever),
+#: every AP method under "by_method" ({method: {stage key: AP}})
+POOLED_STAGES = {"ap_normal": "initial", "ap_after_acs": "after_acs", "ap_challenging": "final"}
+
+
+def aggregate_ap(aggregate: dict, stage_key: str, method: str = DEFAULT_AP_METHOD) -> dict[str, float] | None:
+    """A summary aggregate's pooled AP of ``stage_key`` (a POOLED_STAGES key) ranked by ``method``;
+    None where the folder's summary holds none (the after-ACS stage of old folders)."""
+    if check_ap_method(method) == DEFAULT_AP_METHOD:
+        return aggregate.get(stage_key)
+    return aggregate.get("by_method", {}).get(method, {}).get(stage_key)
 
 
 def mean_ap(entries: list[dict], key: str) -> dict[str, float]:
@@ -151,14 +174,15 @@ def after_acs_ap(pooled: dict[str, float] | None, mean: dict[str, float]) -> tup
 def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: float) -> dict:
     seconds = [e["seconds"] for e in entries]
     detections = [load_detections(out_dir, e["scene_id"]) for e in entries]
+    pooled = {stage_key: pooled_ap_by_method(detections, stage) for stage_key, stage in POOLED_STAGES.items()}
+    by_method = {m: {k: (None if v is None else v[m]) for k, v in pooled.items()} for m in AP_METHODS}
     summary = {
         "config": config,
         "scenes": entries,
         "aggregate": {
             "scenes": len(entries),
-            "ap_normal": pooled_ap(detections, "initial"),
-            "ap_after_acs": pooled_ap(detections, "after_acs"),
-            "ap_challenging": pooled_ap(detections, "final"),
+            **by_method[DEFAULT_AP_METHOD],
+            "by_method": by_method,
             "mean_scene_ap_normal": mean_ap(entries, "ap_normal"),
             "mean_scene_ap_after_acs": mean_ap(entries, "ap_after_acs"),
             "mean_scene_ap_challenging": mean_ap(entries, "ap_final"),
@@ -187,6 +211,9 @@ def print_table(summary: dict, out) -> None:
     after_ap, pooled = after_acs_ap(agg.get("ap_after_acs"), agg["mean_scene_ap_after_acs"])
     table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(after_ap) + ("" if pooled else "*"),
                   fmt(agg["ap_challenging"]), "", f"{agg['seconds_per_scene_median']:.1f}")
+    if aggregate_ap(agg, "ap_normal", "per-frame") is not None:
+        table.add_row("pooled per frame (paper)", *(fmt(aggregate_ap(agg, k, "per-frame")) for k in POOLED_STAGES),
+                      "", "")
     out.print(table)
     if not pooled:
         out.print("* mean over scenes (this folder has scenes written before after-ACS detections were stored)")

@@ -1,9 +1,17 @@
-"""Average precision as the cooperative-perception framework computes it, with its defect fixed.
+"""Average precision as the cooperative-perception framework computes it, two ways.
 
 Per frame, detections are matched greedily in score order to the unmatched ground-truth box of
-highest rotated BEV IoU (a true positive if IoU >= threshold). Then detections of *all* frames are
-sorted by score together (the framework forgot this global sort), and AP is the VOC all-point
-interpolated area under the precision envelope.
+highest rotated BEV IoU (a true positive if IoU >= threshold). Then the detections of all frames
+are ranked, and AP is the VOC all-point interpolated area under the precision envelope. The ranking
+is the AP method (``AP_METHODS``):
+
+- ``global`` (ours, the default): detections of *all* frames sorted by score together, as AP is
+  defined (OpenCOOD's later ``--global_sort_detections``);
+- ``per-frame`` (the paper's yardstick): each frame's detections in its own score order, the frames'
+  lists concatenated in frame order with no sort across frames, as OpenCOOD's evaluation ran when
+  the V2XP-ASG paper was scored ("OPV2V paper does not perform the global sort"). It depends on the
+  frame order and usually reads lower: a confident false positive of a late frame is counted after
+  every detection of the frames before it.
 """
 from __future__ import annotations
 
@@ -52,12 +60,22 @@ def voc_ap(recall: np.ndarray, precision: np.ndarray) -> float:
     return float(np.sum((mrec[idx + 1] - mrec[idx]) * mpre[idx + 1]))
 
 
-def average_precision(frames: Iterable[Frame], iou_threshold: float) -> float:
-    """AP in [0, 1] over frames of ``(pred_boxes (N, 7), pred_scores (N,), gt_boxes (M, 7))``.
+#: how detections of several frames are ranked (see the module docstring); the first is the default
+AP_METHODS = ("global", "per-frame")
+DEFAULT_AP_METHOD = AP_METHODS[0]
 
-    Boxes are x, y, z, l, w, h, yaw in metres and radians, in one frame per scene. With no ground
-    truth at all, AP is 0.0 (there is nothing to recall).
-    """
+
+def check_ap_method(method: str) -> str:
+    """``method`` if it is one of AP_METHODS, else one line of InputError."""
+    if method not in AP_METHODS:
+        from sumo_scenarios.errors import InputError
+
+        raise InputError(f"unknown AP method '{method}'; choose {' or '.join(AP_METHODS)}")
+    return method
+
+
+def _matched(frames: Iterable[Frame], iou_threshold: float) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+    """Per frame the detections' scores (N_i,) and true-positive flags (N_i,), and the ground-truth count."""
     scores, tps = [], []
     n_gt = 0
     for pred_boxes, pred_scores, gt_boxes in frames:
@@ -66,21 +84,35 @@ def average_precision(frames: Iterable[Frame], iou_threshold: float) -> float:
         s = np.asarray(pred_scores, dtype=float).reshape(-1)
         scores.append(s)
         tps.append(match_frame(pred_boxes, s, gt, iou_threshold))
-    return ap_from_matches(scores, tps, n_gt)
+    return scores, tps, n_gt
 
 
-def ap_from_matches(scores: Sequence[np.ndarray], tps: Sequence[np.ndarray], n_gt: int) -> float:
+def average_precision(frames: Iterable[Frame], iou_threshold: float, method: str = DEFAULT_AP_METHOD) -> float:
+    """AP in [0, 1] over frames of ``(pred_boxes (N, 7), pred_scores (N,), gt_boxes (M, 7))``,
+    ranked by ``method`` (AP_METHODS; per-frame keeps the frames' order).
+
+    Boxes are x, y, z, l, w, h, yaw in metres and radians, in one frame per scene. With no ground
+    truth at all, AP is 0.0 (there is nothing to recall).
+    """
+    return ap_from_matches(*_matched(frames, iou_threshold), method=method)
+
+
+def ap_from_matches(scores: Sequence[np.ndarray], tps: Sequence[np.ndarray], n_gt: int,
+                    method: str = DEFAULT_AP_METHOD) -> float:
     """AP in [0, 1] from frames already matched: per frame the detections' scores (N_i,) and
     true-positive flags (N_i,) bool from `match_frame`, and the ground-truth count over all frames.
-    Detections are sorted globally across frames, then VOC all-point interpolation."""
+    Detections are ranked by ``method`` (global: one sort across frames; per-frame: each frame's
+    own score order, frames in the given order), then VOC all-point interpolation."""
+    check_ap_method(method)
     if n_gt == 0:
         return 0.0
     if not scores or not sum(len(s) for s in scores):
         return 0.0
-    s = np.concatenate(scores)
-    tp = np.concatenate(tps)
-    order = np.argsort(-s, kind="stable")  # global sort across frames
-    tp = tp[order]
+    if method == "global":
+        s = np.concatenate(scores)
+        tp = np.concatenate(tps)[np.argsort(-s, kind="stable")]
+    else:
+        tp = np.concatenate([np.asarray(t)[np.argsort(-np.asarray(s), kind="stable")] for s, t in zip(scores, tps)])
     ctp = np.cumsum(tp)
     cfp = np.cumsum(~tp)
     recall = ctp / n_gt
@@ -101,7 +133,20 @@ def ap_text(ap, scale: float = 100.0, digits: int = 1, missing: str = "-", keys:
     return " / ".join(f"{scale * ap[k]:.{digits}f}" for k in keys)
 
 
-def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS) -> dict[str, float]:
-    """{"0.3": AP, "0.5": AP, "0.7": AP} over the same frames."""
+def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS,
+          method: str = DEFAULT_AP_METHOD) -> dict[str, float]:
+    """{"0.3": AP, "0.5": AP, "0.7": AP} over the same frames, ranked by ``method``."""
     frames = list(frames)
-    return {f"{t:g}": average_precision(frames, t) for t in thresholds}
+    return {f"{t:g}": average_precision(frames, t, method) for t in thresholds}
+
+
+def ap_by_method(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS) -> dict[str, dict[str, float]]:
+    """{method: {"0.3": AP, ...}} for every method of AP_METHODS over the same frames (each frame
+    matched once per threshold)."""
+    frames = list(frames)
+    out: dict[str, dict[str, float]] = {m: {} for m in AP_METHODS}
+    for t in thresholds:
+        matched = _matched(frames, t)
+        for m in AP_METHODS:
+            out[m][f"{t:g}"] = ap_from_matches(*matched, method=m)
+    return out

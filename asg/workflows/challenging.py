@@ -94,12 +94,14 @@ def own_val_set(fusion: str, executor=None, log=print) -> str:
     return own_val
 
 
-def first_scenes_ap(out: Path, count: int | None) -> dict[str, dict[str, float]]:
+def first_scenes_ap(out: Path, count: int | None, ap_method: str = "global") -> dict[str, dict[str, float]]:
     """Pooled AP (normal and challenging) over the first ``count`` scenes of a built challenging
-    set (all when None), from the detections its run folder stored."""
+    set (all when None), from the detections its run folder stored, ranked by ``ap_method``
+    (asg.objective.ap.AP_METHODS; per-frame in the set's scene order)."""
     from ..io.run import load_detections, pooled_ap
 
     index = json.loads((out / "index.json").read_text())
     ids = [i for ids in index["splits"].values() for i in ids][:count]
     per_scene = [load_detections(out / "run", i) for i in ids]
-    return {"scenes": len(ids), "normal": pooled_ap(per_scene, "initial"), "challenging": pooled_ap(per_scene, "final")}
+    return {"scenes": len(ids), "normal": pooled_ap(per_scene, "initial", ap_method),
+            "challenging": pooled_ap(per_scene, "final", ap_method)}
