@@ -18,6 +18,7 @@ from sumo_scenarios.errors import InputError
 from . import __version__, commands
 from .cli_args import COUNT, SEED, executor_args, real, weights_arg, whole
 from .executors.base import WorkerLost
+from .generator_config import protocols
 from .objective.ap import AP_METHODS, DEFAULT_AP_METHOD
 from .registry import names
 from .workflows import MAX_ROUNDS
@@ -225,6 +226,9 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p.add_argument("--budget", type=COUNT, default=None, help="evaluations per scene (default 50; demo 15)")
     p.add_argument("--seed", type=SEED, default=1)
     p.add_argument("--config", type=Path, default=None, help="generate yaml (default configs/generate.yaml)")
+    p.add_argument("--protocol", default=None, choices=protocols(),
+                   help="a named protocol over the config: paper (the paper's search as its code ran it: "
+                        "turns in 15 deg steps, GA 8 x 15; configs/protocols/)")
     p.add_argument("--out", type=Path, default=Path("runs/generate"), help="run folder (default runs/generate)")
     p.add_argument("--force", action="store_true",
                    help="start the run folder over when it holds a run made with other settings")

@@ -30,7 +30,7 @@ def run_generate(args: argparse.Namespace) -> int:
     fusion = args.fusion or (DEMO["fusion"] if demo else None)
     if args.weights is not None and args.detector:
         raise InputError("--weights picks the weights of a shipped --fusion; your --detector factory loads its own")
-    cfg = load_generate_config(args.config, fusion=fusion, search=args.search, acs=args.acs,
+    cfg = load_generate_config(args.config, protocol=args.protocol, fusion=fusion, search=args.search, acs=args.acs,
                                aps=None if args.aps is None else args.aps == "on", budget=budget, perturbed=args.movers,
                                weights=None if args.weights is None else str(args.weights))
     cfg = with_space_flags(cfg, args.plausibility, args.space)

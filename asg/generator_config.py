@@ -60,16 +60,48 @@ class GenerateConfig:
         return self
 
 
-def load_generate_config(path: Path | None = None, **overrides) -> GenerateConfig:
-    """The generator's settings: ``path`` (default configs/generate.yaml), then the non-None
-    ``overrides`` (CLI flags); an error names the file it came from."""
-    path = Path(path) if path is not None else configs_dir() / "generate.yaml"
+def protocols() -> tuple[str, ...]:
+    """The named protocols (configs/protocols/NAME.yaml): settings that replace the config's."""
+    return tuple(sorted(p.stem for p in (configs_dir() / "protocols").glob("*.yaml")))
+
+
+def _read_mapping(path: Path) -> dict:
     data = read_yaml(path)
     if data is None:
-        data = {}
+        return {}
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of settings (key: value), got a {type(data).__name__}")
+    return data
+
+
+def _merge(base: dict, overlay: dict) -> dict:
+    """``base`` with ``overlay``'s keys, mappings merged key by key (a protocol's ``space`` block
+    keeps the config's other space settings)."""
+    out = dict(base)
+    for k, v in overlay.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def load_generate_config(path: Path | None = None, protocol: str | None = None, **overrides) -> GenerateConfig:
+    """The generator's settings: ``path`` (default configs/generate.yaml), then the named
+    ``protocol``'s (configs/protocols/NAME.yaml, e.g. "paper"), then the non-None ``overrides``
+    (CLI flags); an error names the file it came from."""
+    path = Path(path) if path is not None else configs_dir() / "generate.yaml"
+    data = _read_mapping(path)
+    budget_by_search: dict = {}
+    if protocol is not None:
+        if protocol not in protocols():
+            raise InputError(f"unknown protocol '{protocol}'; known: {', '.join(protocols())}")
+        path = configs_dir() / "protocols" / f"{protocol}.yaml"
+        overlay = _read_mapping(path)
+        budget_by_search = overlay.pop("budget_by_search", None) or {}
+        if not isinstance(budget_by_search, dict):
+            raise InputError(f"{path}: budget_by_search must map a search to its budget")
+        data = _merge(data, overlay)
     data.update({k: v for k, v in overrides.items() if v is not None})
+    if overrides.get("budget") is None and data.get("search") in budget_by_search:
+        data["budget"] = budget_by_search[data["search"]]
     try:
         return from_mapping(GenerateConfig, data, str(path)).validate()
     except InputError as exc:  # a range check inside a component's config: say which file it came from

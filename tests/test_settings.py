@@ -35,3 +35,41 @@ def _optimizer_defaults(name: str) -> dict:
 @pytest.mark.parametrize("name", names("search"))
 def test_search_yaml_mirrors_the_optimiser_defaults(name):
     assert search_params(name) == _optimizer_defaults(name)
+
+
+def test_the_paper_protocol_is_one_flag(capsys, tmp_path):
+    """--protocol paper resolves to the paper's search: BO at 50, turns in 15 deg steps within
+    +-45 deg, 3 movers, 2 collaborators, its objective; the GA at 8 x 15 evaluations; flags still win;
+    the config's other settings are kept."""
+    import numpy as np
+
+    from asg.generator_config import load_generate_config, protocols
+
+    assert "paper" in protocols()
+    cfg = load_generate_config(protocol="paper")
+    assert (cfg.search, cfg.budget, cfg.acs, cfg.perturbed, cfg.sensing_agents, cfg.lidar) == ("bo", 50, "attention", 3, 3, "v2xp")
+    assert cfg.objective.weights == {"0.3": 1.0, "0.5": 0.8, "0.7": 0.5}
+    assert (cfg.space.dxy_m, cfg.space.dyaw_deg, cfg.space.dyaw_step_deg) == (2.5, 45.0, 15.0)
+    assert np.allclose(np.degrees(cfg.space.yaw_levels() * np.radians(45.0)), [-45, -30, -15, 0, 15, 30, 45])
+    assert cfg.space.max_draw_factor == load_generate_config().space.max_draw_factor  # kept from generate.yaml
+    assert load_generate_config(protocol="paper", search="ga").budget == 120
+    assert load_generate_config(protocol="paper", search="ga", budget=7).budget == 7
+    assert load_generate_config().space.yaw_levels() is None  # ours: any turn
+    from test_cli import assert_one_line_error, run
+
+    code, err = run(capsys, "generate", "--protocol", "nope", "--out", str(tmp_path / "o"))
+    assert code == 2 and "--protocol" in err and not (tmp_path / "o").exists()
+
+
+def test_turn_steps_hold_in_every_draw():
+    """With the turn levels of dyaw_step_deg, every drawn turn is one of them, each level drawn."""
+    import numpy as np
+
+    from asg.search.spaces.poses import MoveSlot
+    from conftest import car
+
+    slot = MoveSlot(car("v0", 0, 0), np.array([2.5, 2.5, np.radians(45.0)]), np.array([-1.0, -2 / 3, -1 / 3, 0.0, 1 / 3, 2 / 3, 1.0]))
+    x = slot.draw(np.random.default_rng(0), 4000)
+    turns = np.degrees(x[:, 2] * np.radians(45.0))
+    assert np.allclose(turns / 15.0, np.round(turns / 15.0)) and set(np.round(turns).astype(int)) == {-45, -30, -15, 0, 15, 30, 45}
+    assert np.abs(x[:, :2]).max() <= 1.0 and len(np.unique(x[:, 0])) > 3000

@@ -38,6 +38,9 @@ class SpaceConfig:
     #: poses: one vehicle's move bounds
     dxy_m: float = 2.5
     dyaw_deg: float = 45.0
+    #: poses: the turns in steps of this many degrees (0: any turn within +-dyaw_deg); the paper's
+    #: code turned vehicles in 15 deg steps (configs/protocols/paper.yaml)
+    dyaw_step_deg: float = 0.0
     n_q: int = 1000
     #: at most this many draws (x n_q) while filling Q
     max_draw_factor: int = 20
@@ -68,6 +71,7 @@ class SpaceConfig:
             raise InputError(f"space.kinds names a space twice: {', '.join(self.kinds)}")
         checks.number(self.dxy_m, "space.dxy_m", 0.0, MAX_DXY_M, lo_open=True)
         checks.number(self.dyaw_deg, "space.dyaw_deg", 0.0, 180.0, lo_open=True)
+        checks.number(self.dyaw_step_deg, "space.dyaw_step_deg", 0.0, self.dyaw_deg)
         checks.number(self.n_q, "space.n_q", 1, 1_000_000)
         checks.number(self.max_draw_factor, "space.max_draw_factor", 1, 10_000)
         if self.plausibility not in ("paper", "traffic"):
@@ -77,6 +81,14 @@ class SpaceConfig:
     def scale_per_vehicle(self) -> np.ndarray:
         """(3,) the bounds of one vehicle's move: dx_m, dy_m, dyaw_rad (x = 1 in normalised units)."""
         return np.array([self.dxy_m, self.dxy_m, math.radians(self.dyaw_deg)])
+
+    def yaw_levels(self) -> np.ndarray | None:
+        """(L,) the turns a moved vehicle may take, in normalised units (1 = dyaw_deg), ascending:
+        the multiples of dyaw_step_deg within +-dyaw_deg; None when any turn is allowed."""
+        if self.dyaw_step_deg <= 0.0:
+            return None
+        k = int(math.floor(self.dyaw_deg / self.dyaw_step_deg + 1e-9))
+        return np.arange(-k, k + 1) * (self.dyaw_step_deg / self.dyaw_deg)
 
 
 #: where an absent slot "stands" for the pair test (m): farther than any two vehicles can be apart

@@ -1,5 +1,6 @@
 """``poses``: the paper's space. Each of the m vehicles the occlusion heuristic picked moves by
-(dx, dy) within +-dxy_m (network frame) and turns by dyaw within +-dyaw_deg (space settings)."""
+(dx, dy) within +-dxy_m (network frame) and turns by dyaw within +-dyaw_deg, in steps of
+dyaw_step_deg if that is set (space settings)."""
 from __future__ import annotations
 
 import math
@@ -14,14 +15,19 @@ from .base import PerturbationSpace, Slot
 class MoveSlot(Slot):
     width = 3
 
-    def __init__(self, base: Agent, scale: np.ndarray):
+    def __init__(self, base: Agent, scale: np.ndarray, yaw_levels: np.ndarray | None = None):
         self.base = base
         self.agent_id = base.agent_id
         self.scale = scale  # (3,) dx_m, dy_m, dyaw_rad at x = 1
+        self.yaw_levels = yaw_levels  # (L,) the allowed turns in normalised units, or None: any
         self.radius_m = 0.5 * math.hypot(base.length_m, base.width_m)
 
     def draw(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        return rng.uniform(-1.0, 1.0, size=(n, 3))
+        """(n, 3) normalised dx, dy, dyaw: uniform in [-1, 1], the turn uniform over ``yaw_levels`` if set."""
+        x = rng.uniform(-1.0, 1.0, size=(n, 3))
+        if self.yaw_levels is not None:
+            x[:, 2] = self.yaw_levels[rng.integers(len(self.yaw_levels), size=n)]
+        return x
 
     def agent(self, x: np.ndarray) -> Agent:
         return self.base.moved(*(np.asarray(x) * self.scale))
@@ -41,8 +47,9 @@ class MoveSlot(Slot):
 class PosesSpace(PerturbationSpace):
     @property
     def slots(self) -> list[MoveSlot]:
-        scale = self.cfg.scale_per_vehicle()
-        return [MoveSlot(self.ctx.scene.agent(vid), scale) for vid in self.ctx.movers]
+        scale, levels = self.cfg.scale_per_vehicle(), self.cfg.yaw_levels()
+        return [MoveSlot(self.ctx.scene.agent(vid), scale, levels) for vid in self.ctx.movers]
 
     def bounds(self) -> dict:
-        return {"movers": len(self.ctx.movers), "dxy_m": self.cfg.dxy_m, "dyaw_deg": self.cfg.dyaw_deg}
+        return {"movers": len(self.ctx.movers), "dxy_m": self.cfg.dxy_m, "dyaw_deg": self.cfg.dyaw_deg,
+                "dyaw_step_deg": self.cfg.dyaw_step_deg}
