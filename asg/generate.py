@@ -242,6 +242,10 @@ def factory_models(spec: str, cfg: GenerateConfig):
     target, acs_model = out
     if acs_model is not None and not callable(getattr(acs_model, "attention_weights", None)):
         raise InputError(f"{where}: its ACS model has no attention_weights(frame, cells) method")
+    if acs_model is None and cfg.acs == "attention":  # as for a shipped model without attention: AttFuse's
+        from .perception import build_detector
+
+        return CheckedDetector(where, target), build_detector("attfuse")
     return CheckedDetector(where, target), (None if acs_model is None else CheckedDetector(where, acs_model))
 
 

@@ -114,8 +114,7 @@ class Generator:
         if strategy.needs_attention:
             if self.acs_model is None:
                 raise InputError(f"ACS-{self.cfg.acs} needs an attention model (AttFuse); pass --acs random or off")
-            attention_of = lambda s: self.acs_model.attention_weights(render_frame(World(s, self.spec)),  # noqa: E731
-                                                                      self.cfg.attention_cells)
+            attention_of = self._attention_of
         combos, probs = strategy.propose(scene, cands, size, rng, attention_of)
         best: Scored | None = None
         combos = combos or [tuple()]
@@ -124,6 +123,14 @@ class Generator:
             if best is None or scored.loss < best.loss:
                 best = scored
         return AcsOutcome(best, probs, len(combos))
+
+    def _attention_of(self, scene: Scene) -> dict[str, float]:
+        """The ACS model's attention weight of each sensing agent of ``scene``; InputError if it gives none."""
+        weights = self.acs_model.attention_weights(render_frame(World(scene, self.spec)), self.cfg.attention_cells)
+        if weights is None:
+            raise InputError(f"ACS-{self.cfg.acs}: the ACS model gave no attention weights (its attention_weights "
+                             "returned None); return a model with attention from the factory, or pass --acs random or off")
+        return weights
 
     def pick_perturbed(self, scene: Scene, notes: list[str]) -> list[str]:
         sensing = set(scene.sensing_ids)

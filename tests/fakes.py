@@ -133,3 +133,21 @@ def hang_with_short_limit_factory(cfg):
 
     plugins.CALL_TIME_LIMIT_S = 1.0
     return hang_factory(cfg)
+
+
+class _NoAttention(OracleDetector):
+    """The oracle with the base class's attention: None (a model that gives none)."""
+
+    def attention_weights(self, frame, cells: str = "all"):
+        return None
+
+
+def no_acs_model_factory(cfg):
+    """A factory that returns no ACS model: ACS-A borrows the shipped AttFuse's attention."""
+    return OracleDetector(), None
+
+
+def none_attention_factory(cfg):
+    """A factory whose ACS model's attention_weights returns None."""
+    det = _NoAttention()
+    return det, det

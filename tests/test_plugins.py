@@ -77,3 +77,18 @@ def test_bad_plugins_are_one_line_naming_them(capsys, installed, scenes, tmp_pat
     code, err = run(capsys, "evaluate", "--fusion", "toy", "--set", str(scenes), "--weights", str(tmp_path / "w.pt"))
     assert code == 2
     assert_one_line_error(err, "--weights applies to the shipped models")
+
+
+def test_a_factory_without_attention_under_the_default_acs(capsys, tmp_path):
+    """The default --acs attention with a --detector that gives no ACS model borrows the shipped
+    AttFuse's attention (as a shipped model without attention does); one whose ACS model returns
+    no attention is one line, exit 2, and leaves no run behind."""
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("s0"))
+    common = ["generate", "--scenes", str(scenes), "--count", "1", "--budget", "2", "--search", "rs"]
+    code, err = run(capsys, *common, "--detector", "fakes:no_acs_model_factory", "--out", str(tmp_path / "borrow"))
+    assert code == 0, err
+    code, err = run(capsys, *common, "--detector", "fakes:none_attention_factory", "--out", str(tmp_path / "none"))
+    assert code == 2
+    assert_one_line_error(err, "no attention weights", "--acs random")
+    assert not list((tmp_path / "none").glob("scenes/*/result.json"))
