@@ -328,3 +328,15 @@ def test_bench_train_reports_a_step_and_its_phases(monkeypatch):
     shares = out["phase_share"]
     assert set(shares) == {"draw", "targets", "voxelise", "forward", "loss", "backward", "optimiser"}
     assert all(v >= 0 for v in shares.values()) and 0.8 < sum(shares.values()) < 1.2
+
+
+def test_bench_train_needs_no_data_set_built(tmp_path, monkeypatch):
+    """On a fresh machine (detector-train not built) the benchmark takes a minute of its first
+    town's traffic instead of refusing."""
+    from asg.benchmarks.train import bench_frames
+    from asg.dataset_spec import load_spec
+
+    monkeypatch.setenv("ASG_DATA", str(tmp_path / "empty"))
+    scenes, source = bench_frames(3)
+    assert len(scenes) == 3 and "not built" in source
+    assert all(s.town == load_spec("detector-train").towns[0] and s.collaborators for s in scenes)
