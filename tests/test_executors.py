@@ -40,13 +40,27 @@ def _run(out: Path, executor=None) -> dict:
     return _numbers(out)
 
 
+def _fatal_handlers() -> dict:
+    """{signal: the address of its C handler} of the fatal signals."""
+    from asg.executors.fatal_signals import handler_address, saved_fatal_handlers
+
+    return {sig: handler_address(buf) for sig, buf in saved_fatal_handlers().items()}
+
+
 def test_one_worker_two_workers_and_ray_give_the_same_summary(tmp_path):
+    """... and a Ray batch leaves this process's fatal-signal handlers (pytest's faulthandler) as
+    they were: ray.init puts its own on SIGSEGV and ray.shutdown left SIG_DFL, so that a later
+    crash of the test process went unreported."""
     pytest.importorskip("ray")
     one = _run(tmp_path / "one")
     with build_executor("local", 2) as two:
         assert _run(tmp_path / "two", two) == one
+    before = _fatal_handlers()
+    assert before and all(before.values()), before  # pytest's faulthandler, not SIG_DFL
     with build_executor("ray", 2) as ray_two:
         assert _run(tmp_path / "ray", ray_two) == one
+        assert _fatal_handlers() == before  # during the batch too
+    assert _fatal_handlers() == before
     assert [e["scene_id"] for e in one["scenes"]] == ["s0", "s1", "s2"]  # input order, not finishing order
 
 

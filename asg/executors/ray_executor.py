@@ -25,6 +25,7 @@ from sumo_scenarios.errors import InputError
 
 from ..registry import register
 from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, signals_deferred
+from .fatal_signals import fatal_handlers_kept, restore_fatal_handlers
 
 
 class _Worker:
@@ -96,6 +97,7 @@ class RayExecutor(Executor):
         super().__init__(workers, threads, address)
         self.ray = _import_ray()
         self._started = False
+        self._fatal_handlers: dict = {}
 
     def connect(self) -> None:
         """Join the cluster (or start the local instance) now; map_unordered does it when needed."""
@@ -106,7 +108,9 @@ class RayExecutor(Executor):
             _probe(self.address)
         env = {"env_vars": {"PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}}
         took_sigterm = False
-        with signals_deferred() as arrived, _ray_leaves_sigterm_alone(ray):  # Ray forks its node's processes here
+        # Ray puts Abseil's failure handler on SIGSEGV & co. and leaves SIG_DFL at shutdown: the
+        # process's own handlers (faulthandler's, for one) are put back now and after shutdown
+        with fatal_handlers_kept() as self._fatal_handlers, signals_deferred() as arrived, _ray_leaves_sigterm_alone(ray):  # Ray forks its node's processes here
             try:
                 if self.address:
                     ray.init(address=self.address, runtime_env=env, log_to_driver=False, logging_level="ERROR")
@@ -125,7 +129,7 @@ class RayExecutor(Executor):
                 where = f"the Ray cluster at {self.address}" if self.address else "a local Ray instance"
                 raise InputError(f"could not connect to {where} ({first[:160]}); check --address") from None
         if took_sigterm:  # handled as any SIGTERM is, by this process's own handler
-            ray.shutdown()
+            self._shutdown()
             signal.raise_signal(signal.SIGTERM)
 
     def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
@@ -163,7 +167,12 @@ class RayExecutor(Executor):
             if running:  # interrupted: until the killed actors are gone (no write of theirs comes later)
                 ray.wait(list(running), num_returns=len(running), timeout=KILL_WAIT_S)
 
+    def _shutdown(self) -> None:
+        """``ray.shutdown()``, then this process's fatal-signal handlers as they were before Ray."""
+        self.ray.shutdown()
+        restore_fatal_handlers(self._fatal_handlers)
+
     def close(self) -> None:
         if self._started and self.ray.is_initialized():
-            self.ray.shutdown()
+            self._shutdown()
             self._started = False
