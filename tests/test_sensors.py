@@ -302,3 +302,48 @@ def test_every_return_off_a_vehicle_passes_a_strict_in_box_test(cross_map):
     strict = count_points_in_boxes(above, frame.ego_boxes, margin_m=-1e-6)
     loose = count_points_in_boxes(above, frame.ego_boxes, margin_m=0.3)
     assert (loose > 10).all() and strict.tolist() == loose.tolist()
+
+
+def _hammer_embree(iterations: int) -> None:
+    """Build, cast and release Embree scenes ``iterations`` times, two casters at a time cast on two
+    threads (as World's static views are), some dropped in reference cycles that the collector
+    frees on whichever thread allocates; every cast checked against the first."""
+    import gc
+
+    from asg.sensors import world as world_mod
+
+    rng = np.random.default_rng(0)
+    box = unit_box_triangles()
+    dirs = rng.normal(size=(512, 3)).astype(np.float32)
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    origins = np.zeros((512, 3), dtype=np.float32)
+    far = np.full(512, 50.0, dtype=np.float32)
+    wall = np.array([[[10.0, -20, -2], [10, 20, -2], [10, 20, 6]], [[10.0, -20, -2], [10, 20, 6], [10, -20, 6]]])
+    kept = []
+    for i in range(iterations):
+        tris = np.concatenate([wall, *(box + rng.normal(0, 6, 3) for _ in range(int(rng.integers(1, 40))))])
+        casters = [EmbreeCaster(tris, robust=bool(i % 2)), EmbreeCaster(tris, robust=bool(i % 2))]
+        results = [None, None]
+
+        def cast(k):
+            results[k] = casters[k].first_prims(origins, dirs, far)
+            _ = [object() for _ in range(500)]  # allocations: the collector may run on this thread
+
+        world_mod._run_on_two_threads([lambda: cast(0), lambda: cast(1)])
+        assert np.array_equal(results[0], results[1])
+        cycle = {"caster": casters[0]}
+        cycle["self"] = cycle  # freed by the collector, not by reference counting
+        kept.append(casters[1])
+        del kept[:-8]
+        if i % 50 == 0:
+            gc.collect()
+
+
+def test_embree_scenes_built_cast_and_released_many_times():
+    """The lifetime pattern of a render (issue: a native crash of the suite), hammered."""
+    _hammer_embree(300)
+
+
+@pytest.mark.slow
+def test_embree_scenes_built_cast_and_released_thousands_of_times():
+    _hammer_embree(3000)
