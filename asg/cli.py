@@ -258,16 +258,24 @@ def _on_sigterm(signum, frame) -> None:
 _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.ENOTDIR, errno.EISDIR}
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset()) -> int:
+    """Run ``asg ARGV``; its exit code. ``held_signals``: signals the caller blocked while this
+    module imported (asg.entry), released once the handlers that end a command cleanly are in place."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    try:
+        parser = build_parser(argv)
+        args = parser.parse_args(argv)
+    except BaseException:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, held_signals)
+        raise
     args.argv = argv  # the command as typed, for result files
     if not getattr(args, "func", None):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, held_signals)
         parser.print_help()
         return 2
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, held_signals)  # a signal held since the start ends it here
         return int(args.func(args) or 0)
     except InputError as exc:
         sys.stderr.write(f"asg: error: {exc}\n")
@@ -291,5 +299,5 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, previous)
 
 
-if __name__ == "__main__":
+if __name__ == "__main__":  # prefer ``python -m asg``, which holds signals while this module imports
     raise SystemExit(main())

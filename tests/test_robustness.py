@@ -375,7 +375,7 @@ def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig, execut
     # Ray keeps its session (sockets, logs) under the system's temporary folder: a pytest path there
     # would pass the 107-byte limit of a socket's name
     env = dict(os.environ, TMPDIR=str(tmp)) if executor == "local" else dict(os.environ)
-    argv = [sys.executable, "-m", "asg.cli", "generate", "--scenes", str(scenes), "--out", str(out),
+    argv = [sys.executable, "-m", "asg", "generate", "--scenes", str(scenes), "--out", str(out),
             "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "150", "--workers", "2",
             "--executor", executor]
     # as a terminal's foreground job: Ctrl-C not ignored, even when these tests run in the background
@@ -405,6 +405,44 @@ def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig, execut
     assert sorted(p.name for p in (out / "scenes").iterdir()) == ["s0", "s1", "s2"]
 
 
+@pytest.mark.parametrize("delay_s", [0.3, 0.8, 1.5, "workers starting"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, delay_s, sig):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or SIGTERM at the start of
+    a two-worker ``asg generate``: while the command imports (trimesh swallowed a KeyboardInterrupt
+    there and the run went on to exit 0) or while its workers import: exit 130 / 143 within 5 s,
+    one line, no traceback from any process of the group, none left."""
+    psutil = pytest.importorskip("psutil")
+    scenes = tmp_path / "scenes"
+    for i in range(2):
+        _write(scenes, _scene_dict(f"s{i}"))
+    out = tmp_path / "out"
+    argv = [sys.executable, "-m", "asg", "generate", "--scenes", str(scenes), "--out", str(out),
+            "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "150", "--workers", "2"]
+
+    def foreground():  # its own group, Ctrl-C not ignored (see the test above)
+        os.setpgrp()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=ROOT,
+                            preexec_fn=foreground)
+    if delay_s == "workers starting":
+        _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= 2, "worker processes", proc)
+    else:
+        time.sleep(delay_s)  # somewhere in the start; every moment must end the same way
+    family = psutil.Process(proc.pid).children(recursive=True) if proc.poll() is None else []
+    os.killpg(proc.pid, sig)
+    sent = time.time()
+    _, err = proc.communicate(timeout=60)
+    code, word = (143, "terminated") if sig == signal.SIGTERM else (130, "interrupted")
+    assert proc.returncode == code, err
+    assert time.time() - sent < 5.0
+    assert word in err and "Traceback" not in err and len([l for l in err.splitlines() if l.strip()]) == 1, err
+    _, alive = psutil.wait_procs(family, timeout=10)
+    assert not alive, alive
+    assert not [p for p in out.rglob("*") if p.name.startswith(".")]
+
+
 def test_workers_end_when_their_parent_is_killed(tmp_path):
     """kill -9 of the parent: its workers end too (Linux's parent-death signal), none writes later."""
     psutil = pytest.importorskip("psutil")
@@ -414,7 +452,7 @@ def test_workers_end_when_their_parent_is_killed(tmp_path):
     for i in range(3):
         _write(scenes, _scene_dict(f"s{i}"))
     out = tmp_path / "out"
-    argv = [sys.executable, "-m", "asg.cli", "generate", "--scenes", str(scenes), "--out", str(out),
+    argv = [sys.executable, "-m", "asg", "generate", "--scenes", str(scenes), "--out", str(out),
             "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "300", "--workers", "2"]
     proc = subprocess.Popen(argv, stderr=subprocess.DEVNULL, stdout=subprocess.DEVNULL, cwd=ROOT)
     _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= 2, "worker processes", proc)

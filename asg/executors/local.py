@@ -10,6 +10,7 @@ if no item finishes between MAX_ATTEMPTS breaks in a row, the batch stops with W
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import multiprocessing
 import os
@@ -33,10 +34,17 @@ class _WorkerTerminated(BaseException):
     """SIGTERM inside an item: unwinds it (its context managers remove its temporary files)."""
 
 
+#: signals a worker is born with held (the parent holds them while it starts the pool, and a child
+#: inherits the mask): a Ctrl-C to the process group while a worker imports would otherwise end in a
+#: KeyboardInterrupt traceback from its imports; the worker releases them once its handlers are set
+_HELD_AT_BIRTH = frozenset({signal.SIGINT, signal.SIGTERM})
+
+
 def _worker_init(threads: int, job: Job, parent_pid: int) -> None:
     global _STATE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _HELD_AT_BIRTH)  # a held Ctrl-C is dropped, a SIGTERM ends it
     die_with_parent(parent_pid)
     apply_threads(threads)
     _STATE = job.setup(*job.setup_args)
@@ -120,7 +128,9 @@ class LocalExecutor(Executor):
         finished: list[int] = []
         broken = False
         try:
-            with signals_deferred():  # a worker half-spawned by an interrupted start would print a traceback
+            # a worker half-spawned by an interrupted start would print a traceback; the workers are
+            # born with the signals held (_HELD_AT_BIRTH) until their handlers are set
+            with signals_deferred(), _held(_HELD_AT_BIRTH):
                 pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
                                            mp_context=multiprocessing.get_context("spawn"),
                                            initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
@@ -142,6 +152,17 @@ class LocalExecutor(Executor):
             if pool is not None:
                 _stop(pool)
         return finished, broken
+
+
+@contextlib.contextmanager
+def _held(signals: frozenset):
+    """Inside, ``signals`` are blocked in this thread (and in processes it starts); on leaving they
+    are released as before (one that arrived is then delivered)."""
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def _stop(pool: ProcessPoolExecutor) -> None:
