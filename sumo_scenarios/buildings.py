@@ -139,7 +139,14 @@ def read_buildings(path: str | Path) -> list[Building]:
     for poly in root.iter("poly"):
         if poly.get("type") != "building":
             continue
-        xy = np.asarray([[float(v) for v in pt.split(",")[:2]] for pt in poly.get("shape", "").split()], dtype=float)
+        try:
+            xy = np.asarray([[float(v) for v in pt.split(",")[:2]] for pt in poly.get("shape", "").split()], dtype=float)
+        except ValueError:
+            raise InputError(f"{p}: polygon {poly.get('id')!r} has a shape that is not x,y numbers; "
+                             "rebuild it with 'asg towns build'") from None
+        if xy.ndim != 2 or xy.shape[1] != 2 or not np.isfinite(xy).all():
+            raise InputError(f"{p}: polygon {poly.get('id')!r} has a shape that is not finite x,y pairs; "
+                             "rebuild it with 'asg towns build'")
         if len(xy) >= 2 and np.allclose(xy[0], xy[-1]):
             xy = xy[:-1]
         if len(xy) < 3:
@@ -147,6 +154,17 @@ def read_buildings(path: str | Path) -> list[Building]:
         height = 10.0
         for prm in poly.iter("param"):
             if prm.get("key") == "height":
-                height = float(prm.get("value"))
+                height = parse_height_m(prm.get("value")) or height
         out.append(Building(poly.get("id"), xy, height))
     return out
+
+
+def parse_height_m(text: str | None, scale: float = 1.0) -> float | None:
+    """A height in metres written as OSM and SUMO files write it ("21.5", "21.5 m", "21.5m"),
+    times ``scale``; None for anything else ("tall", "", NaN, or not in (0, 1000) m)."""
+    text = (text or "").strip().removesuffix("m").strip()
+    try:
+        value = float(text) * scale
+    except ValueError:
+        return None
+    return value if math.isfinite(value) and 0.0 < value < 1000.0 else None

@@ -23,7 +23,7 @@ import xml.parsers.expat
 from pathlib import Path
 
 from . import checks, sumo_tools
-from .buildings import Building, generate_buildings, read_buildings, write_buildings
+from .buildings import Building, generate_buildings, parse_height_m, read_buildings, write_buildings
 from .errors import InputError
 from .lanes import LaneMap, parse_net_root
 from .paths import nets_dir, user_towns_dir
@@ -163,11 +163,7 @@ def _height_m(tags: dict) -> float:
     """An OSM building's height (m): ``height`` ("21.5", "21.5 m"), else ``building:levels`` x
     LEVEL_HEIGHT_M, else DEFAULT_HEIGHT_M; a value that is not a positive number below 1 km is ignored."""
     for key, scale in (("height", 1.0), ("building:levels", LEVEL_HEIGHT_M)):
-        text = (tags.get(key) or "").strip().removesuffix("m").strip()
-        try:
-            value = float(text) * scale
-        except ValueError:
-            continue
-        if math.isfinite(value) and 0.0 < value < 1000.0:
+        value = parse_height_m(tags.get(key), scale)
+        if value is not None:
             return value
     return DEFAULT_HEIGHT_M

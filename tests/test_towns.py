@@ -180,3 +180,25 @@ def test_an_opendrive_map_at_absurd_coordinates_is_refused(capsys, tmp_path, use
     assert code == 2
     assert_one_line_error(out.err, "absurd")
     assert not [p for p in user_home.rglob("*") if p.is_file()]
+
+
+@pytest.mark.parametrize("height, want", [("21.5 m", 21.5), ("21.5m", 21.5), ("tall", 12.0), ("-3", 12.0), ("nan", 12.0)])
+def test_osm_heights_in_any_written_form(capsys, tmp_path, user_home, height, want):
+    """A height tag with its unit, or not a height at all: the building keeps the height it can
+    have (the tag's, else its levels'), never a traceback."""
+    osm = tmp_path / "mini.osm"
+    osm.write_text(MINI_OSM.replace('<tag k="height" v="21.5"/>', f'<tag k="height" v="{height}"/><tag k="building:levels" v="4"/>'))
+    code, out = _cli(capsys, "towns", "import", str(osm), "--name", "mini")
+    assert code == 0, out.err
+    heights = sorted(round(b.height_m, 1) for b in towns.load_town("mini").buildings)
+    assert heights == sorted([12.0, want])
+
+
+def test_a_poly_file_with_a_broken_shape_is_one_line(tmp_path):
+    from sumo_scenarios.buildings import read_buildings
+    from sumo_scenarios.errors import InputError
+
+    poly = tmp_path / "x.poly.xml"
+    poly.write_text('<additional><poly id="b" type="building" shape="0,0 a,b 5,5"/></additional>')
+    with pytest.raises(InputError, match="not x,y numbers"):
+        read_buildings(poly)
