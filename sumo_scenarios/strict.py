@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -18,6 +19,47 @@ from .errors import InputError
 
 T = TypeVar("T")
 
+_BaseLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class StrictLoader(_BaseLoader):  # type: ignore[misc, valid-type]
+    """PyYAML's safe loader (its C parser where installed) that refuses what a hand-written file
+    should not hold: an alias (``*name``: a few lines of nested aliases expand to gigabytes once
+    the value is used) and a key written twice in one mapping (the later one silently won)."""
+
+    def construct_object(self, node, deep=False):
+        if node in self.constructed_objects or node in self.recursive_objects:
+            raise InputError(f"line {node.start_mark.line + 1}: YAML aliases (*name) are not accepted; "
+                             "write the value out")
+        return super().construct_object(node, deep)
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                key = (key_node.tag, key_node.value) if isinstance(key_node, yaml.ScalarNode) else None
+                if key is not None and key in seen:
+                    raise InputError(f"line {key_node.start_mark.line + 1}: key {key_node.value!r} is written twice; "
+                                     "keep one")
+                seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+class ConfigLoader(StrictLoader):
+    """:class:`StrictLoader` that also reads YAML 1.2's floats without a dot (``1e30``, ``-2E-3``),
+    which YAML 1.1 (PyYAML) takes for strings: a config's ``lr: 1e-3`` is a number."""
+
+
+ConfigLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
+def load_strict_yaml(text: str, loader: type = StrictLoader) -> Any:
+    """``text`` parsed by ``loader`` (StrictLoader or ConfigLoader); InputError for what it refuses."""
+    return yaml.load(text, Loader=loader)
+
 
 def read_yaml(path: str | Path) -> Any:
     """Parse a YAML file; a missing or malformed file is an InputError naming it."""
@@ -25,7 +67,9 @@ def read_yaml(path: str | Path) -> Any:
     if not p.is_file():
         raise InputError(f"{p}: file not found; check the path")
     try:
-        return yaml.safe_load(p.read_text(encoding="utf-8"))
+        return load_strict_yaml(p.read_text(encoding="utf-8"), ConfigLoader)
+    except InputError as exc:
+        raise InputError(f"{p}: {exc}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1})" if mark is not None else ""

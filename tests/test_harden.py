@@ -241,3 +241,25 @@ def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_roo
                   config=replace(TINY, reattack=True, pool=("normal",)), detector_factory=ORACLE, log=_quiet)
     assert (tmp_path / "next" / "round-0" / "reattack" / "index.json").is_file()
     assert card["rounds"][0]["reattack"]["frames"] == 1
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("harden: null\n", "must be a mapping"), ("harden: [1, 2]\n", "must be a mapping"),
+    ("harden: just text\n", "must be a mapping"), ("", "an empty file"), ("- a\n- b\n", "list"),
+    ("a: &a [1, 1]\nb: &b [*a, *a]\nharden: [*b, *b]\n", "aliases"),
+    ("harden: {lr: 1.0e-3}\nharden: {lr: 2.0e-3}\n", "written twice")])
+def test_a_hostile_training_config_is_one_line_and_writes_nothing(capsys, tmp_path, data_root, text, needle):
+    config = tmp_path / "train.yaml"
+    config.write_text(text)
+    code, err = run(capsys, "harden", "--fusion", "attfuse", "--rounds", "1", "--config", str(config),
+                    "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, needle)
+    assert not (tmp_path / "o").exists()
+
+
+def test_yaml_12_floats_are_numbers_in_a_training_config(tmp_path):
+    """lr: 1e-3 (no dot) is a number, as YAML 1.2 and every user read it, not the string YAML 1.1 made of it."""
+    config = tmp_path / "train.yaml"
+    config.write_text("harden: {pool: [normal], scenes_per_round: 4, lr: 1e-3}\n")
+    assert load_harden_config(config).lr == pytest.approx(1e-3)

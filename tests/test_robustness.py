@@ -674,3 +674,20 @@ def test_a_disk_that_fills_mid_write_is_one_line_naming_the_file(capsys, tmp_pat
     assert code == 2
     assert_one_line_error(err, "No space left on device", ".npy")
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
+
+
+@pytest.mark.parametrize("edit, needle", [
+    (lambda t: "bomb: &a [x, x]\nb2: &b [*a, *a]\n" + t.replace("\nlog: null", "\nlog: [*b, *b]"), "aliases"),
+    (lambda t: t.replace("\ntown: ", "\ntown: other\ntown: "), "written twice"),
+    (lambda t: t + "extra_key: 1\n", "unknown key 'extra_key'"),
+    (lambda t: t.replace("\nlog: null", "\nlog: [1, 2]"), "'log' must be text")])
+def test_a_hostile_scene_file_is_one_line(capsys, tmp_path, edit, needle):
+    """Aliases (a bomb expands to gigabytes once used), a key written twice, a key no scene has, a log
+    that is not text: refused in one line before anything runs."""
+    scenes = tmp_path / "scenes"
+    path = _write(scenes, _scene_dict("s0"))
+    path.write_text(edit(path.read_text()))
+    code, err = run(capsys, "generate", "--scenes", str(scenes), "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, needle)
+    assert not list((tmp_path / "o").glob("scenes/*"))

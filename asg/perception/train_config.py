@@ -114,7 +114,15 @@ def load_branch_config(path: Path | None = None) -> BranchFitConfig:
 
 
 def _block(name: str, path: Path | None) -> dict:
-    data = read_yaml(path or configs_dir() / "detectors" / "train.yaml")
+    """Block ``name`` of train.yaml (or of ``path``): a mapping, or one line of InputError."""
+    where = path or configs_dir() / "detectors" / "train.yaml"
+    data = read_yaml(where)
+    if not isinstance(data, dict):
+        raise InputError(f"{where}: expected a mapping of training blocks (name: settings), got "
+                         f"{type(data).__name__ if data is not None else 'an empty file'}")
     if name not in data:
-        raise InputError(f"no training block '{name}' in train.yaml")
+        raise InputError(f"{where}: no training block '{name}'")
+    if not isinstance(data[name], dict):
+        raise InputError(f"{where}: the '{name}' block must be a mapping of settings (key: value), "
+                         f"got {type(data[name]).__name__ if data[name] is not None else 'nothing'}")
     return data[name]

@@ -28,11 +28,14 @@ from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.buildings import Building
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.lanes import LaneMap
+from sumo_scenarios.strict import load_strict_yaml
 
 from .agent import Agent
 from .link import LinkState
 
 REQUIRED_KEYS = ("scene_id", "town", "source", "time_s", "ego", "agents", "buildings", "lanes")
+#: the keys a scene file may hold besides those (Scene.to_dict writes no other)
+OPTIONAL_KEYS = ("collaborators", "log", "link")
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,6 +106,13 @@ class Scene:
         missing = [k for k in REQUIRED_KEYS if k not in d]
         if missing:
             raise InputError(f"{where}: scene is missing key '{missing[0]}'; re-extract it with 'asg scenes extract'")
+        unknown = [str(k) for k in d if k not in REQUIRED_KEYS + OPTIONAL_KEYS]
+        if unknown:
+            raise InputError(f"{where}: unknown key '{unknown[0][:60]}' in a scene (known: "
+                             f"{', '.join(REQUIRED_KEYS + OPTIONAL_KEYS)}); fix or re-extract it")
+        for key in ("town", "log"):
+            if d.get(key) is not None and not isinstance(d[key], str):
+                raise InputError(f"{where}: '{key}' must be text, got a {type(d[key]).__name__}")
         try:
             agents = tuple(Agent.from_dict(a) for a in _items(d["agents"], "agents"))
             scene = Scene(
@@ -169,7 +179,9 @@ def load_scene(path: str | Path) -> Scene:
     if not p.is_file():
         raise InputError(f"{p}: scene file not found; check the path")
     try:
-        data = yaml.load(p.read_text(encoding="utf-8"), Loader=_loader())
+        data = load_strict_yaml(p.read_text(encoding="utf-8"))
+    except InputError as exc:
+        raise InputError(f"{p}: {exc}") from None
     except yaml.YAMLError:
         raise InputError(f"{p}: not valid YAML; re-extract the scene") from None
     except UnicodeDecodeError:
@@ -194,6 +206,3 @@ def _log_from(scene: Scene, folder: Path) -> Scene:
 def _dumper():
     return getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 
-
-def _loader():
-    return getattr(yaml, "CSafeLoader", yaml.SafeLoader)
