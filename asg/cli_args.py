@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from pathlib import Path
 from typing import Callable
 
@@ -15,10 +16,10 @@ def whole(lo: int, hi: int, what: str) -> Callable[[str], int]:
     """An argparse type: a whole number in [lo, hi]."""
 
     def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        # ASCII digits only: int() also reads other scripts' digits ("٣", "３") and "1_000"
+        if not re.fullmatch(r"\s*[+-]?[0-9]+\s*", text):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (digits 0-9)")
+        value = int(text)
         if not lo <= value <= hi:
             raise argparse.ArgumentTypeError(f"{value} is out of range: {what} must be between {lo} and {hi}")
         return value
@@ -31,6 +32,8 @@ def real(lo: float, hi: float, what: str, lo_open: bool = False) -> Callable[[st
     """An argparse type: a finite number in [lo, hi] (or (lo, hi] with ``lo_open``)."""
 
     def parse(text: str) -> float:
+        if not text.isascii():  # float() also reads other scripts' digits
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number (digits 0-9)")
         try:
             value = float(text)
         except ValueError:

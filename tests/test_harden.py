@@ -114,7 +114,8 @@ def test_the_controls_draw_the_scenes_they_claim(tmp_path, data_root, data):
 
 
 def test_bad_rounds_and_weights_are_one_line(capsys, tmp_path, data_root):
-    for argv, what in ((["--rounds", "0"], "--rounds"), (["--rounds", "x"], "--rounds"),
+    for argv, what in ((["--rounds", "0"], "--rounds"), (["--rounds", "x"], "--rounds"), (["--rounds", "\u0663"], "--rounds"),
+                       (["--rounds", "\uff13"], "--rounds"),
                        (["--rounds", "1", "--weights", str(tmp_path / "missing.pt")], "no such file")):
         code, err = run(capsys, "harden", "--fusion", "attfuse", *argv, "--out", str(tmp_path / "o"))
         assert code == 2
