@@ -134,3 +134,39 @@ def test_the_final_view_marks_inserted_vehicles(cross_map):
         squares.append(sum(line.get_marker() == "s" for line in ax.lines))
         plt.close(fig)
     assert squares == [0, 1]
+
+
+def test_links_huge_detections_and_bad_outputs_are_one_line(capsys, tmp_path):
+    """A symbolic link anywhere in the folder (a table's .md linked to /etc/passwd put its lines in
+    the page), a detections file of more boxes than asg writes (it ran for minutes), an --out under
+    /proc or under a file: one line, exit 2, nothing read from elsewhere and nothing written."""
+    import numpy as np
+
+    out = oracle_run(tmp_path / "linked", 1, "--budget", "2")
+    capsys.readouterr()
+    (out / "evil.md").symlink_to("/etc/passwd")
+    code, err = run(capsys, "report", str(out))
+    assert code == 2
+    assert_one_line_error(err, "symbolic link")
+    assert not (out / "report.html").exists()
+
+    out = oracle_run(tmp_path / "huge", 1, "--budget", "2")
+    capsys.readouterr()
+    npz = out / "scenes" / "s0" / "detections.npz"
+    with np.load(npz) as z:
+        arrays = dict(z)
+    arrays["final_boxes"] = np.zeros((200_000, 7), np.float32)
+    arrays["final_scores"] = np.full(200_000, 0.5, np.float32)
+    np.savez(npz, **arrays)
+    code, err = run(capsys, "report", str(out))
+    assert code == 2
+    assert_one_line_error(err, "boxes")
+
+    out = oracle_run(tmp_path / "fine", 1, "--budget", "2")
+    capsys.readouterr()
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    for where in ("/proc/asg-report.html", str(a_file / "report.html")):
+        code, err = run(capsys, "report", str(out), "--out", where)
+        assert code == 2, where
+        assert_one_line_error(err, "--out")

@@ -22,6 +22,7 @@ import html
 import io
 import itertools
 import json
+import os
 from pathlib import Path
 from typing import Iterator
 
@@ -57,8 +58,31 @@ def run_folders(root: Path) -> list[Path]:
     return sorted(p.parent for p in root.glob("*/summary.json"))
 
 
+def _refuse_links(root: Path) -> None:
+    """One InputError if anything under ``root`` is a symbolic link: asg writes none, and the report
+    must read only what the folder holds (a table linked to /etc/passwd put its lines in the page)."""
+    for folder, dirs, files in os.walk(root, followlinks=False):
+        for name in (*dirs, *files):
+            if os.path.islink(os.path.join(folder, name)):
+                raise InputError(f"{os.path.join(folder, name)}: a symbolic link inside the folder; the report reads "
+                                 "only files the folder holds: copy the file in or remove the link")
+
+
+def _output_file(out: Path) -> Path:
+    """``out`` if an HTML file can be written there, else one InputError (a folder or a file in the
+    way, /proc, no permission)."""
+    from sumo_scenarios.checks import output_dir
+
+    if out.is_dir():
+        raise InputError(f"--out {out} is a folder; give an HTML file name")
+    output_dir(out.parent)
+    return out
+
+
 def write_report(root: Path, out: Path | None = None, scenes_shown: int = 6) -> Path:
     root = Path(root)
+    _refuse_links(root)
+    out = _output_file(Path(out)) if out is not None else root / "report.html"
     runs = run_folders(root)
     tables = sorted(p for p in root.glob("*.json") if _is_table(p))
     trainings = training_folders(root)
@@ -73,8 +97,10 @@ def write_report(root: Path, out: Path | None = None, scenes_shown: int = 6) -> 
     parts += [_guarded(training_section, f, "the training card", _img, _html_table) for f in trainings]
     body = "\n".join(parts)
     head = plotly_script() if "class=view3d" in body else ""
-    out = Path(out) if out is not None else root / "report.html"
-    write_text_atomic(out, _PAGE.format(head=head, body=body))
+    try:
+        write_text_atomic(out, _PAGE.format(head=head, body=body))
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot be written ({exc.strerror}); give a writable place") from None
     return out
 
 
@@ -150,8 +176,13 @@ def _scene_views(run: Path, entry: dict, index: int) -> str:
     stage (a ``<div>`` with id ``view3d-INDEX``)."""
     from ..sensors import load_lidar_spec, simulate_frame
 
+    from ..perception.plugins import MAX_BOXES
+
     folder = run / "scenes" / entry["scene_id"]
     dets = load_detections(run, entry["scene_id"])
+    if any(len(a) > MAX_BOXES for d in dets.values() for a in d):  # asg writes at most that many a frame
+        raise InputError(f"{folder / 'detections.npz'}: more than {MAX_BOXES:,} boxes in a frame, which asg never "
+                         "writes; regenerate the scene")
     fig, axes = plt.subplots(1, 3, figsize=(13.5, 4.8), dpi=80)
     initial = load_scene(folder / "initial.yaml") if (folder / "initial.yaml").is_file() else None
     view3d = ""
