@@ -25,6 +25,7 @@ LAYERS = {
     "generate_cmd": 10,
     "commands": 11,
     "cli": 12,
+    "entry": 13, "__main__": 14,
 }
 
 
