@@ -216,8 +216,7 @@ def export(args: argparse.Namespace) -> int:
 
     with progress_bar() as bar:
         task = bar.add_task(f"exporting {args.format}", total=None)
-        n = run(args.source, args.format, args.out, net=args.net, progress=lambda i: bar.update(task, completed=i),
-                note=lambda text: console.print(f"[yellow]note: {text}"))
+        n = run(args.source, args.format, args.out, net=args.net, progress=lambda i: bar.update(task, completed=i))
     console.print(f"wrote {n} scenes as {args.format} to {args.out}")
     return 0
 

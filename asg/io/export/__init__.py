@@ -32,10 +32,8 @@ def source_scenes(source: Path | str) -> Iterator[Scene]:
 
 
 def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
-           progress: Callable[[int], None] | None = None, note: Callable[[str], None] | None = None) -> int:
-    """Write every scene of ``source`` in format ``fmt`` under ``out``; returns the scene count.
-    ``note``: told what a reader of the export must know (OPV2V scenes whose ego OpenCOOD's rule
-    cannot take)."""
+           progress: Callable[[int], None] | None = None) -> int:
+    """Write every scene of ``source`` in format ``fmt`` under ``out``; returns the scene count."""
     if fmt not in FORMATS:
         raise InputError(f"unknown format '{fmt}'; choose one of {', '.join(FORMATS)}")
     from sumo_scenarios.checks import output_dir
@@ -53,11 +51,6 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     writer.close()
     if n == 0:
         raise InputError(f"{source}: no scenes to export")
-    other = getattr(writer, "other_ego", [])
-    if other and note:
-        note(f"{len(other)} of {n} scenes (e.g. {other[0]}): OpenCOOD's loader will take another agent as the ego "
-             f"(a vehicle ego with 2+ sensing RSUs, or an RSU ego that is the only sensing RSU); each ids.yaml names "
-             f"ours ('ego') and OpenCOOD's ('opencood_ego'), see docs/export.md")
     return n
 
 

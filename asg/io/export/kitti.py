@@ -3,7 +3,10 @@ cloud fused: ``DIR/training/{velodyne,label_2,calib,image_2}/NNNNNN.*`` and
 ``DIR/ImageSets/{train,val,test}.txt``, what OpenPCDet's info builder (``create_kitti_infos``) reads.
 
 - ``velodyne/NNNNNN.bin``: float32 x, y, z, intensity of the fused cloud in the ego's sensor frame
-  (x forward, y left, z up: KITTI's velodyne frame), 360 degrees.
+  (x forward, y left, z up: KITTI's velodyne frame), 360 degrees; an ego sensor standing higher than
+  a car's (an RSU, a truck) is written in a frame at a car's sensor height below it (points and
+  labels raised by ``ego_frame.yaml``'s ``lowered_m``, asg.io.export.frames), so that OpenPCDet's
+  stock point-cloud range (z in [-3, 1] m) keeps every vehicle.
 - ``label_2/NNNNNN.txt``: every vehicle within the evaluation range (the ground truth the AP of
   asg counts), class ``Car`` (``Truck`` for truck and bus types), in the rectified camera frame of
   ``calib`` (x right, y down, z forward): dimensions h w l, location = the box's bottom centre,
@@ -31,6 +34,7 @@ from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from ...perception.data import in_range
 from ...scene import Scene
 from ...sensors import load_lidar_spec, simulate_frame
+from .frames import ego_frame_drop_m
 
 #: KITTI's left colour camera intrinsics (sequence 0000 of the object benchmark) and image size
 P2 = np.array([[721.5377, 0.0, 609.5593, 44.85728], [0.0, 721.5377, 172.854, 0.2163791], [0.0, 0.0, 1.0, 0.002745884]])
@@ -50,15 +54,21 @@ class KittiWriter:
         self.placeholder_png = placeholder_image()
         (out / "ImageSets").mkdir(exist_ok=True)
         self.ids: dict[str, str] = {}
+        #: per frame, how far below the ego's sensor its frame is (asg.io.export.frames)
+        self.lowered_m: dict[str, float] = {}
 
     def write(self, scene: Scene) -> None:
         name = f"{len(self.ids):06d}"
         frame = simulate_frame(scene, self.spec)
+        # the ego view in a frame at a car's sensor height (an RSU's or a truck's raised by this)
+        lowered_m = ego_frame_drop_m(frame.poses[frame.ego_id].z_m, scene.ego.z_m)
         fused = np.vstack(frame.clouds_in_frame_of(frame.ego_id)).astype(np.float32)
+        fused[:, 2] += lowered_m
         with atomic_path(self.out / "training" / "velodyne" / f"{name}.bin") as tmp:
             fused.tofile(tmp)
-        boxes = frame.ego_boxes
-        keep = in_range(boxes)
+        keep = in_range(frame.ego_boxes)
+        boxes = frame.ego_boxes.copy()
+        boxes[:, 2] += lowered_m
         points = frame.points_in_boxes()["fused"][keep] if len(boxes) else np.zeros(0, int)
         types = [scene.agent(i).type_id for i, k in zip(frame.gt_ids, keep) if k]
         lines = [label_line(b, t, int(n)) for b, t, n in zip(boxes[keep], types, points)]
@@ -67,12 +77,14 @@ class KittiWriter:
         with atomic_path(self.out / "training" / "image_2" / f"{name}.png") as tmp:
             Path(tmp).write_bytes(self.placeholder_png)
         self.ids[name] = scene.scene_id
+        self.lowered_m[name] = lowered_m
 
     def close(self) -> None:
         frames = "".join(f"{n}\n" for n in self.ids)
         for split, listed in (("train", frames), ("val", frames), ("test", "")):
             write_text_atomic(self.out / "ImageSets" / f"{split}.txt", listed)
         write_text_atomic(self.out / "ids.yaml", yaml.safe_dump(self.ids))
+        write_text_atomic(self.out / "ego_frame.yaml", yaml.safe_dump({"lowered_m": self.lowered_m}))
 
 
 def label_line(box: np.ndarray, type_id: str, points: int) -> str:

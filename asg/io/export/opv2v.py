@@ -1,10 +1,15 @@
 """OPV2V layout, as OpenCOOD's loaders read it: ``DIR/SCENE/AGENT/000000.pcd`` and ``000000.yaml``.
 
 One scenario folder per scene, one timestamp (``000000``), one agent folder per sensing agent (the
-ego and its collaborators). Agent ids are integers: vehicles ``1000 + i`` with the ego (if a vehicle)
-first, roadside units negative (the OPV2V/V2XSet convention), numbered so that OpenCOOD's rule takes
-our ego where it can (:func:`opencood_ego`). ``DIR/SCENE/ids.yaml`` maps our ids to these and names
-our ego and the one OpenCOOD will take (OpenCOOD lists only folders).
+ego and its collaborators). Agent ids are integers, numbered so that OpenCOOD's ego rule takes our
+ego (:func:`opv2v_ids`): the ego 0, other vehicles ``1000 + i``, a collaborating RSU -1 (further
+ones ``9001, ...``). ``DIR/SCENE/ids.yaml`` maps our ids to these and names our ego and the one
+OpenCOOD will take (the same).
+
+The ego's view is written in a frame at a car's sensor height (asg.io.export.frames): an RSU or a
+truck ego's cloud is raised and its ``lidar_pose`` lowered by ``ego_frame_lowered_m`` (ids.yaml),
+so that OpenCOOD's fixed ground-truth range (z in [-3, 1] m around the ego's LiDAR) keeps every
+vehicle.
 
 Frames: OPV2V's worlds are CARLA's, left-handed (x forward, y right); ours are right-handed (SUMO's
 x east, y north; sensors x forward, y left). The export mirrors y: world ``(x, y, z)`` is written as
@@ -27,36 +32,40 @@ from sumo_scenarios.checks import inside
 from ...scene import Scene
 from ...sensors import load_lidar_spec, simulate_frame
 from ..pcd import write_pcd_rgb_intensity
+from .frames import ego_frame_drop_m
 
 TIMESTAMP = "000000"
-#: first id of the vehicles (four digits, so that string order is numeric order)
+#: the ego's id (any kind): "0" sorts before every other folder name but a negative one
+EGO_ID = 0
+#: first id of the other vehicles (four digits, so that string order is numeric order)
 VEHICLE_ID_BASE = 1000
+#: ids of the second and later sensing RSUs besides the ego (positive: see opv2v_ids)
+EXTRA_RSU_ID_BASE = 9000
 KMH_PER_MPS = 3.6
 
 
 def opv2v_ids(scene: Scene, sensing_ids: tuple[str, ...] | None = None) -> dict[str, int]:
-    """Our agent id -> OPV2V integer id: vehicles 1000 + i, the ego vehicle first; RSUs negative,
-    the sensing ones (``sensing_ids``, default the ego and its collaborators) first, numbered so
-    that OpenCOOD's rule (:func:`opencood_ego`) takes our ego where the rule allows it: an RSU ego
-    with other sensing RSUs is -2 (the rule moves the first negative folder, -1, to the end)."""
-    sensing = set(sensing_ids if sensing_ids is not None else (scene.ego_id, *scene.collaborators))
-    vehicles = sorted((a for a in scene.agents if a.kind == "vehicle"), key=lambda a: a.agent_id != scene.ego_id)
-    ids = {a.agent_id: VEHICLE_ID_BASE + i for i, a in enumerate(vehicles)}
-    rsus = sorted((a for a in scene.agents if a.kind == "rsu"), key=lambda a: (a.agent_id not in sensing, a.agent_id))
-    numbers = list(range(1, len(rsus) + 1))
-    sensing_rsus = [a for a in rsus if a.agent_id in sensing]
-    if scene.ego.kind == "rsu" and 2 <= len(sensing_rsus) <= 9:  # one-digit ids: string order is numeric
-        others = [a for a in sensing_rsus if a.agent_id != scene.ego_id]
-        rsus = [others[0], scene.ego, *others[1:], *[a for a in rsus if a.agent_id not in sensing]]
-    ids.update({a.agent_id: -n for a, n in zip(rsus, numbers)})
+    """Our agent id -> OPV2V integer id, numbered so that OpenCOOD's rule (:func:`opencood_ego`)
+    takes our ego, whatever its kind: the ego EGO_ID (0, the smallest folder name but a negative
+    one); the other vehicles ``1000 + i``; the first other sensing RSU -1 (the OPV2V / V2XSet
+    convention: the rule moves one negative folder to the end), further sensing RSUs ``9001, ...``
+    (a second negative folder would be the rule's ego); RSUs that do not sense -2, -3, ... (no
+    folder). ``sensing_ids``: default the ego and its collaborators."""
+    sensing = sensing_ids if sensing_ids is not None else (scene.ego_id, *scene.collaborators)
+    ids = {scene.ego_id: EGO_ID}
+    vehicles = [a.agent_id for a in scene.agents if a.kind == "vehicle" and a.agent_id != scene.ego_id]
+    ids.update({a: VEHICLE_ID_BASE + i for i, a in enumerate(vehicles)})
+    sensing_rsus = [a for a in sensing if a != scene.ego_id and scene.agent(a).kind == "rsu"]
+    ids.update({a: (-1 if i == 0 else EXTRA_RSU_ID_BASE + i) for i, a in enumerate(sensing_rsus)})
+    quiet = [a.agent_id for a in scene.agents if a.kind == "rsu" and a.agent_id not in ids]
+    ids.update({a: -2 - i for i, a in enumerate(quiet)})
     return ids
 
 
 def opencood_ego(folders: list[str]) -> str:
     """The agent folder OpenCOOD's OPV2V / V2XSet loaders take as the ego: the folder names sorted
-    as strings, a leading negative (RSU) one moved to the end, then the first. With a vehicle ego
-    and two or more sensing RSUs, or an RSU ego that is the only sensing RSU, no numbering makes it
-    our ego (ids.yaml records both)."""
+    as strings, a leading negative (RSU) one moved to the end, then the first. :func:`opv2v_ids`
+    numbers the folders so that this is always our ego."""
     order = sorted(folders)
     if order and int(order[0]) < 0:
         order = order[1:] + order[:1]
@@ -72,23 +81,25 @@ class ScenarioWriter:
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out
         self.spec = load_lidar_spec()
-        #: scenes whose ego OpenCOOD's rule cannot pick (ids.yaml: ``ego`` and ``opencood_ego``)
-        self.other_ego: list[str] = []
 
     def write(self, scene: Scene) -> None:
         frame = simulate_frame(scene, self.spec)
         ids = opv2v_ids(scene, frame.sensing_ids)
         folder = inside(self.out, self.out / scene.scene_id)
         vehicles = {a.agent_id: _vehicle_entry(a) for a in scene.agents if a.kind == "vehicle"}
+        ego_pose = frame.poses[scene.ego_id]
+        lowered_m = ego_frame_drop_m(ego_pose.z_m, scene.ego.z_m)
         for agent_id in frame.sensing_ids:
             pose = frame.poses[agent_id]
+            drop_m = lowered_m if agent_id == scene.ego_id else 0.0  # the ego's frame at a car's sensor height
             agent_dir = folder / str(ids[agent_id])
             agent_dir.mkdir(parents=True, exist_ok=True)
             cloud = frame.clouds[agent_id].copy()
             cloud[:, 1] = -cloud[:, 1]
+            cloud[:, 2] += drop_m
             write_pcd_rgb_intensity(agent_dir / f"{TIMESTAMP}.pcd", cloud)
             agent = scene.agent(agent_id)
-            lidar_pose = mirrored_pose(pose.x_m, pose.y_m, pose.z_m, pose.yaw_rad)
+            lidar_pose = mirrored_pose(pose.x_m, pose.y_m, pose.z_m - drop_m, pose.yaw_rad)
             body = mirrored_pose(agent.x_m, agent.y_m, agent.z_m, agent.yaw_rad)
             meta = {"lidar_pose": lidar_pose, "true_ego_pos": body, "predicted_ego_pos": body,
                     "ego_speed": float(agent.speed_mps * KMH_PER_MPS),
@@ -98,10 +109,9 @@ class ScenarioWriter:
         write_text_atomic(folder / "ids.yaml", yaml.safe_dump(
             {"scene_id": scene.scene_id, "ego": ids[scene.ego_id], "opencood_ego": picked,
              "sensing": [ids[a] for a in frame.sensing_ids],
-             "ids": dict(ids), "frame": "CARLA left-handed: y and yaw mirrored from SUMO"},
+             "ids": dict(ids), "frame": "CARLA left-handed: y and yaw mirrored from SUMO",
+             "ego_frame_lowered_m": lowered_m},
             sort_keys=False))
-        if picked != ids[scene.ego_id]:
-            self.other_ego.append(scene.scene_id)
 
     def close(self) -> None:
         pass
