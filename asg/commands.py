@@ -199,6 +199,10 @@ def _build_challenging(args: argparse.Namespace) -> int:
     index = json.loads((out / "index.json").read_text())
     console.print(f"wrote {out}: {index['frames']} scenes; AP normal {ap_text(index['ap_normal'])} -> "
                   f"challenging {ap_text(index['ap_challenging'])}")
+    per_frame = index.get("per_frame")
+    if per_frame:
+        console.print(f"  by the paper's yardstick (per frame): {ap_text(per_frame['ap_normal'])} -> "
+                      f"{ap_text(per_frame['ap_challenging'])}")
     return 0
 
 

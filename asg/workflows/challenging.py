@@ -79,7 +79,8 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     index = {"name": out.name, "frames": len(ids), "splits": {split: ids},
              "source": {"set": "normal", "split": split, "fusion": fusion, "weights": cfg.weights, "seed": SEED,
                         "skipped": [sid for sid, _ in run.skipped]},
-             "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"]}
+             "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"],
+             "per_frame": {k: agg["by_method"]["per-frame"][k] for k in ("ap_normal", "ap_challenging")}}
     write_text_atomic(out / "index.json", json.dumps(index, indent=1))
     return out
 
