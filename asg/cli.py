@@ -222,8 +222,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p.add_argument("--space", default=None, metavar="NAME[,NAME...]",
                    help="perturbation spaces searched together: poses (default, the paper's), insert, pose-error, "
                         "latency, dropout (bounds: configs/generate.yaml, space)")
-    p.add_argument("--count", type=COUNT, default=None, help="scenes to generate (default 10; demo 2)")
-    p.add_argument("--budget", type=COUNT, default=None, help="evaluations per scene (default 50; demo 15)")
+    p.add_argument("--count", type=COUNT, default=None, help="scenes to generate (default 10; demo 3)")
+    p.add_argument("--budget", type=COUNT, default=None, help="evaluations per scene (default 50; demo 20)")
     p.add_argument("--seed", type=SEED, default=1)
     p.add_argument("--config", type=Path, default=None, help="generate yaml (default configs/generate.yaml)")
     p.add_argument("--protocol", default=None, choices=protocols(),
