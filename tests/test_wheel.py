@@ -40,5 +40,6 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_from_any_folder(tmp_path):
     assert {"fiveleg", "grid_small"} <= {t["name"] for t in towns}
     loaded = _run(python, "-c", "from asg.pipeline import load_generate_config; "
                   "from asg.perception import build_detector; "
-                  "print(load_generate_config().fusion, type(build_detector('attfuse')).__name__)", cwd=elsewhere)
-    assert loaded.split() == ["attfuse", "AttFuseDetector"]
+                  "print(load_generate_config().fusion, type(build_detector('attfuse')).__name__, "
+                  "load_generate_config(protocol='paper').space.dyaw_step_deg)", cwd=elsewhere)
+    assert loaded.split() == ["attfuse", "AttFuseDetector", "15.0"]  # the named protocols travel too
