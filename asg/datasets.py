@@ -185,6 +185,18 @@ SETS = {"normal": ("normal", "train"), "normal-val": ("normal", "val"), "normal-
         "heuristic": ("heuristic", None), "holdout": ("holdout", None)}
 
 
+def check_set_name(set_name: str) -> str:
+    """``set_name`` if :func:`scenes_of` can take it (a named set, ``challenging-NAME-SPLIT`` or a
+    folder), without building or reading it; else one InputError."""
+    from sumo_scenarios.checks import safe_id
+
+    if set_name in SETS or Path(set_name).is_dir():
+        return set_name
+    if set_name.startswith("challenging-"):
+        return safe_id(set_name, "challenging set")
+    raise InputError(f"unknown set '{set_name}'; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
+
+
 def scenes_of(set_name: str) -> Iterator[Scene]:
     """Scenes of a named set (building the normal set if needed) or of a folder of scene yaml."""
     if set_name in SETS:

@@ -264,3 +264,19 @@ def test_yaml_12_floats_are_numbers_in_a_training_config(tmp_path):
     config = tmp_path / "train.yaml"
     config.write_text("harden: {pool: [normal], scenes_per_round: 4, lr: 1e-3}\n")
     assert load_harden_config(config).lr == pytest.approx(1e-3)
+
+
+@pytest.mark.parametrize("extra, config_text, needle", [
+    (["--space", "evil,../x"], None, "unknown perturbation space"),
+    ([], "harden: {pool: [normal], scenes_per_round: 1, eval_sets: [nosuchset]}\n", "unknown set 'nosuchset'")])
+def test_a_bad_space_or_set_is_refused_before_the_run_starts(capsys, tmp_path, data_root, extra, config_text, needle):
+    """Refused up front: no round-0 evaluation, no run.json or card.json left behind (which made the
+    corrected rerun a 'rerun with other settings')."""
+    argv = ["harden", "--fusion", "attfuse", "--rounds", "1", "--out", str(tmp_path / "o"), *extra]
+    if config_text:
+        (tmp_path / "train.yaml").write_text(config_text)
+        argv += ["--config", str(tmp_path / "train.yaml")]
+    code, err = run(capsys, *argv)
+    assert code == 2
+    assert_one_line_error(err, needle)
+    assert not (tmp_path / "o").exists()

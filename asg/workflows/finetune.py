@@ -90,7 +90,11 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
     out = Path(out) if out is not None else default_out(fusion)
     start = Path(weights) if weights is not None else WEIGHTS_DIR / f"{name}.pt"
     challenging_scenes(on)  # one clear line if the set is not built
+    from ..datasets import check_set_name
     from ..generate import file_digest
+
+    for set_name in fcfg.eval_sets:  # refused now, not after the training
+        check_set_name(set_name)
 
     settings = {"fusion": fusion, "on": on, "start_weights": str(start), "start_sha256": file_digest(start),
                 "steps": total, "config": asdict(fcfg)}

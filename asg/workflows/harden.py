@@ -108,6 +108,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     if not isinstance(rounds, int) or not 1 <= rounds <= MAX_ROUNDS:
         raise InputError(f"--rounds must be a whole number from 1 to {MAX_ROUNDS}, got {rounds!r}")
     cfg = config or load_harden_config()
+    _check_before_starting(cfg, space)
     name = weights_for(fusion)
     start = _start_weights(weights, fusion, name)
     out = Path(out) if out is not None else default_out(fusion, cfg.data)
@@ -157,6 +158,18 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         card["rounds"].append(row)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
+
+
+def _check_before_starting(cfg: HardenConfig, space: tuple[str, ...] | None) -> None:
+    """What a round would refuse only after round 0's evaluation, refused now, before the run
+    folder is claimed: the spaces the attack searches and the evaluation sets."""
+    from ..datasets import check_set_name
+    from ..search import SpaceConfig
+
+    if space:
+        SpaceConfig(kinds=tuple(space))
+    for set_name in cfg.eval_sets:
+        check_set_name(set_name)
 
 
 def _eval_cache(out: Path, k: int, weights: Path) -> Path:
