@@ -36,13 +36,17 @@ def tool(relpath: str) -> str:
     return str(sumo_home() / "tools" / relpath)
 
 
-def run(args: list[str], what: str) -> str:
-    """Run a SUMO program; a failure raises InputError with its last error line."""
-    proc = subprocess.run(args, capture_output=True, text=True, env=sumo_env())
+def run(args: list[str], what: str, timeout_s: float | None = None) -> str:
+    """Run a SUMO program (at most ``timeout_s`` seconds); a failure raises InputError with its
+    first error line (SUMO's last one is only "Quitting (on error).")."""
+    try:
+        proc = subprocess.run(args, capture_output=True, text=True, env=sumo_env(), timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise InputError(f"{what} took over {timeout_s:g} s; give a smaller map or extract") from None
     if proc.returncode != 0:
-        lines = [l for l in (proc.stderr + proc.stdout).splitlines() if l.strip()]
-        errors = [l for l in lines if "rror" in l] or lines
-        raise InputError(f"{what} failed: {errors[-1] if errors else 'exit code ' + str(proc.returncode)}")
+        lines = [l.strip() for l in (proc.stderr + proc.stdout).splitlines() if l.strip()]
+        errors = [l for l in lines if "rror" in l and not l.startswith("Quitting")] or lines
+        raise InputError(f"{what} failed: {errors[0][:300] if errors else 'exit code ' + str(proc.returncode)}")
     return proc.stdout
 
 

@@ -15,14 +15,16 @@ drivable lane with finite coordinates within :data:`MAX_COORD_M`. Anything else 
 """
 from __future__ import annotations
 
+import contextlib
 import math
+import re
 import shutil
 import tempfile
 import xml.etree.ElementTree as ET
 import xml.parsers.expat
 from pathlib import Path
 
-from . import checks, sumo_tools
+from . import sumo_tools
 from .buildings import Building, generate_buildings, parse_height_m, read_buildings, write_buildings
 from .errors import InputError
 from .lanes import LaneMap, parse_net_root
@@ -41,6 +43,20 @@ MAX_COORD_M = 1.0e6
 MAX_OFFSET_M = 1.0e8
 #: a map file larger than this (bytes) is refused before parsing
 MAX_FILE_BYTES = 2 * 1024**3
+
+
+#: numbers a map may hold, by element and attribute (OpenDRIVE's roads and geometries in metres,
+#: OSM's nodes in degrees): anything else (1e12 m, 1e300, NaN) is refused before netconvert runs,
+#: which spent a minute on a road 1e12 m long and dropped one at 1e300 without a word
+_NUMBER_LIMITS = {
+    "road": {"length": (0.0, MAX_COORD_M)},
+    "geometry": {k: (-MAX_COORD_M, MAX_COORD_M) for k in ("s", "x", "y", "length")},
+    "node": {"lat": (-90.0, 90.0), "lon": (-180.0, 180.0)},
+}
+#: a town's name: letters, digits, _ and - (it becomes NAME.net.xml and is given as --town NAME)
+_TOWN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+#: seconds netconvert may take on one map (a city extract takes well under a minute)
+NETCONVERT_LIMIT_S = 600.0
 
 
 def map_kind(path: Path) -> str:
@@ -66,10 +82,23 @@ def check_map_file(path: Path) -> None:
         raise InputError(f"{path}: the map declares a document type (<!DOCTYPE ...>: entities or an external DTD); "
                          f"asg reads maps without one: remove it")
 
+    def check_numbers(tag: str, attrs: dict) -> None:
+        for key, (lo, hi) in _NUMBER_LIMITS.get(tag, {}).items():
+            if key not in attrs:
+                continue
+            try:
+                value = float(attrs[key])
+            except ValueError:
+                value = math.nan
+            if not (math.isfinite(value) and lo <= value <= hi):
+                raise InputError(f"{path}: <{tag} {key}=\"{attrs[key][:40]}\"> is not a number in [{lo:g}, {hi:g}] "
+                                 f"(line {parser.CurrentLineNumber}); fix or remove that element")
+
     parser = xml.parsers.expat.ParserCreate()
     parser.StartDoctypeDeclHandler = refuse_doctype
     parser.EntityDeclHandler = refuse_doctype
     parser.ExternalEntityRefHandler = refuse_doctype
+    parser.StartElementHandler = check_numbers
     try:
         with open(path, "rb") as fh:
             parser.ParseFile(fh)
@@ -82,7 +111,9 @@ def import_town(source: Path, name: str, force: bool = False, towns_dir: Path | 
     """Convert map ``source`` into town ``name`` in ``towns_dir`` (default the user's towns folder);
     returns its net path. ``force`` replaces an imported town of that name (never a bundled one)."""
     source = Path(source)
-    checks.safe_id(name, "--name")
+    if not _TOWN_NAME.fullmatch(name):
+        raise InputError(f"--name {name[:60]!r}: a town's name is letters, digits, _ and - (at most 64, no dots or "
+                         "colons), e.g. --name town01")
     if (nets_dir() / f"{name}.net.xml").is_file():
         raise InputError(f"--name {name}: a bundled town has that name; choose another")
     towns_dir = Path(towns_dir) if towns_dir is not None else user_towns_dir()
@@ -91,18 +122,36 @@ def import_town(source: Path, name: str, force: bool = False, towns_dir: Path | 
         raise InputError(f"--name {name}: an imported town of that name exists ({net_out}); --force replaces it")
     kind = map_kind(source)
     check_map_file(source)
-    towns_dir.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=towns_dir, prefix=f".import-{name}.") as tmp:
-        net = Path(tmp) / f"{name}.net.xml"
-        sumo_tools.run([sumo_tools.binary("netconvert"), *_netconvert_input(kind, source), "-o", str(net), "--no-warnings"],
-                       f"netconvert of {source.name}")
-        lane_map = _check_net(net, source)
-        buildings = _osm_buildings(source, net, Path(tmp)) if kind == "osm" else []
-        write_buildings(Path(tmp) / poly_out.name, buildings or generate_buildings(lane_map, 1))
-        # the net last: a town exists once its net does
-        shutil.move(str(Path(tmp) / poly_out.name), poly_out)
-        shutil.move(str(net), net_out)
+    made = _make_folder(towns_dir)
+    try:
+        with tempfile.TemporaryDirectory(dir=towns_dir, prefix=f".import-{name}.") as tmp:
+            net = Path(tmp) / f"{name}.net.xml"
+            sumo_tools.run([sumo_tools.binary("netconvert"), *_netconvert_input(kind, source), "-o", str(net),
+                            "--no-warnings"], f"netconvert of {source.name}", timeout_s=NETCONVERT_LIMIT_S)
+            lane_map = _check_net(net, source)
+            buildings = _osm_buildings(source, net, Path(tmp)) if kind == "osm" else []
+            write_buildings(Path(tmp) / poly_out.name, buildings or generate_buildings(lane_map, 1))
+            # the net last: a town exists once its net does
+            shutil.move(str(Path(tmp) / poly_out.name), poly_out)
+            shutil.move(str(net), net_out)
+    except BaseException:
+        for folder in made:  # a failed first import leaves no empty towns folder behind
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
     return net_out
+
+
+def _make_folder(folder: Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; the folders made, deepest first. One InputError
+    where it cannot be (ASG_HOME under /proc, on a file, without permission)."""
+    missing = [p for p in (folder, *folder.parents) if not p.exists()]
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{folder}: the towns folder cannot be created ({exc.strerror}); set ASG_HOME to a "
+                         "writable folder") from None
+    return missing
 
 
 def _netconvert_input(kind: str, source: Path) -> list[str]:

@@ -153,7 +153,7 @@ def test_an_osm_extract_brings_its_buildings_with_their_heights(capsys, tmp_path
     ("not-xml", "highway=primary\n", "not well-formed"),
     ("no-drivable-lane", MINI_OSM.replace('v="secondary"', 'v="footway"').replace('v="residential"', 'v="footway"'),
      "no lane a car may drive on"),
-    ("coordinates-1e300", MINI_OSM.replace('lat="48.1000" lon="11.5000"/>', 'lat="1e300" lon="11.5000"/>'), "netconvert"),
+    ("coordinates-1e300", MINI_OSM.replace('lat="48.1000" lon="11.5000"/>', 'lat="1e300" lon="11.5000"/>'), "is not a number"),
 ])
 def test_a_hostile_or_useless_map_is_one_line_and_writes_nothing(capsys, tmp_path, user_home, case, text, needle):
     from test_cli import assert_one_line_error
@@ -178,7 +178,7 @@ def test_an_opendrive_map_at_absurd_coordinates_is_refused(capsys, tmp_path, use
     xodr.write_text(re.sub(r' x="[-0-9.e+]*"', ' x="1e300"', xodr.read_text()))
     code, out = _cli(capsys, "towns", "import", str(xodr), "--name", "far")
     assert code == 2
-    assert_one_line_error(out.err, "absurd")
+    assert_one_line_error(out.err, "is not a number")  # refused before netconvert runs
     assert not [p for p in user_home.rglob("*") if p.is_file()]
 
 
@@ -202,3 +202,53 @@ def test_a_poly_file_with_a_broken_shape_is_one_line(tmp_path):
     poly.write_text('<additional><poly id="b" type="building" shape="0,0 a,b 5,5"/></additional>')
     with pytest.raises(InputError, match="not x,y numbers"):
         read_buildings(poly)
+
+
+@pytest.mark.parametrize("name", ["x.net.xml", "x:y", "a b", "_x", "x" * 65])
+def test_a_town_name_that_is_not_a_plain_name_is_refused(capsys, tmp_path, user_home, name):
+    """--name x.net.xml was listed and resolved as x (its OSM buildings ignored); x:y passed and
+    failed inside netconvert."""
+    osm = tmp_path / "mini.osm"
+    osm.write_text(MINI_OSM)
+    code, out = _cli(capsys, "towns", "import", str(osm), "--name", name)
+    assert code == 2 and "letters, digits" in out.err and "Traceback" not in out.err
+    assert not (user_home / "towns").exists()
+
+
+@pytest.mark.parametrize("edit, needle", [
+    (lambda t: t.replace(' lat="48.1040"', ' lat="1e300"', 1), "lat="),
+    (lambda t: t.replace(' lon="11.5060"', ' lon="nan"', 1), "lon="),
+])
+def test_absurd_numbers_in_a_map_are_refused_before_netconvert(capsys, tmp_path, user_home, edit, needle):
+    """A node at 1e300 was dropped without a word; an OpenDRIVE length of 1e12 kept netconvert busy
+    for a minute: refused in one line, and no empty towns folder is left."""
+    osm = tmp_path / "mini.osm"
+    osm.write_text(edit(MINI_OSM))
+    code, out = _cli(capsys, "towns", "import", str(osm), "--name", "mini")
+    assert code == 2 and needle in out.err and len(out.err.strip().splitlines()) == 1
+    assert not (user_home / "towns").exists()
+
+
+def test_an_opendrive_road_of_absurd_length_is_refused_at_once(capsys, tmp_path, user_home):
+    xodr = tmp_path / "long.xodr"
+    xodr.write_text('<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="4"/>'
+                    '<road id="1" length="1e12" junction="-1"><planView><geometry s="0" x="0" y="0" hdg="0" '
+                    'length="1e12"><line/></geometry></planView></road></OpenDRIVE>')
+    code, out = _cli(capsys, "towns", "import", str(xodr), "--name", "long")
+    assert code == 2 and "length=" in out.err
+
+
+def test_asg_home_where_no_folder_can_be_is_one_line(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("ASG_HOME", "/proc/asg-home")
+    osm = tmp_path / "mini.osm"
+    osm.write_text(MINI_OSM)
+    code, out = _cli(capsys, "towns", "import", str(osm), "--name", "mini")
+    assert code == 2 and "ASG_HOME" in out.err and "Traceback" not in out.err
+
+
+def test_netconverts_own_error_reaches_the_user(capsys, tmp_path, user_home):
+    """Not "Quitting (on error).": the line that says what is wrong."""
+    bad = tmp_path / "bad.net.xml"
+    bad.write_text('<net version="1.9"><edge id="e" from="a" to="b"><lane id="e_0" index="0" length="-5" shape="0,0 1,1"/></edge></net>')
+    code, out = _cli(capsys, "towns", "import", str(bad), "--name", "bad")
+    assert code == 2 and "Quitting" not in out.err
