@@ -111,6 +111,22 @@ def _forever(*_):
 hang_factory = _misbehaving(_forever)
 
 
+def _swallow_then_answer(boxes, scores):
+    """Swallows the time limit's TimeoutError (an ``except BaseException``), then answers late."""
+    import time
+
+    started = time.monotonic()
+    while time.monotonic() - started < 3.0:
+        try:
+            time.sleep(0.05)
+        except BaseException:  # noqa: B036  (the misbehaviour under test)
+            pass
+    return boxes, scores
+
+
+swallowing_hang_factory = _misbehaving(_swallow_then_answer)
+
+
 def raising_factory(cfg):
     raise RuntimeError("no GPU found")
 

@@ -611,6 +611,7 @@ def test_openmp_threads_wait_passively_unless_the_user_says_otherwise():
     ("fakes:million_factory", "1,000,000 boxes"),
     ("fakes:exit_in_detect_factory", "SystemExit"),
     ("fakes:hang_factory", "ran over"),
+    ("fakes:swallowing_hang_factory", "ran over"),
     ("fakes:raising_factory", "no GPU found"),
     ("fakes:exit_factory", "SystemExit"),
     ("fakes:wrong_return_factory", "must return (target"),
