@@ -65,8 +65,9 @@ def run_generate(args: argparse.Namespace) -> int:
         console.print(f"[yellow]skipped {scene_id}: {why}")
     print_table(run.summary, stdout)
     console.print(f"wrote {out}/summary.json and {len(run.summary['scenes'])} scene folders")
-    hardest = max(run.summary["scenes"], key=lambda e: e["ap_normal"]["0.7"] - e["ap_final"]["0.7"], default=None)
-    if hardest is not None:
+    lost = lambda e: e["ap_normal"]["0.7"] - e["ap_final"]["0.7"]  # noqa: E731
+    hardest = max(run.summary["scenes"], key=lost, default=None)
+    if hardest is not None and lost(hardest) > 0:
         console.print(f"the scene that lost most: {hardest['scene_id']} (AP@0.7 {hardest['ap_normal']['0.7']:.2f} -> "
                       f"{hardest['ap_final']['0.7']:.2f}; its pictures in {out / 'scenes' / hardest['scene_id']}); "
                       f"every scene on one page: asg report {out}")
