@@ -405,27 +405,34 @@ def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig, execut
     assert sorted(p.name for p in (out / "scenes").iterdir()) == ["s0", "s1", "s2"]
 
 
-@pytest.mark.parametrize("delay_s", [0.3, 0.8, 1.5, "workers starting"])
+@pytest.mark.parametrize("command, delay_s", [("generate", 0.3), ("generate", 0.8), ("generate", 1.5),
+                                              ("generate", "workers starting"), ("dataset build", 0.8),
+                                              ("dataset build", 3.0)])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, delay_s, sig):
+def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, delay_s, sig):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or SIGTERM at the start of
-    a two-worker ``asg generate``: while the command imports (trimesh swallowed a KeyboardInterrupt
-    there and the run went on to exit 0) or while its workers import: exit 130 / 143 within 5 s,
-    one line, no traceback from any process of the group, none left."""
+    a two-worker ``asg generate`` or ``asg dataset build``: while the command imports (trimesh
+    swallowed a KeyboardInterrupt there and the run went on to exit 0) or while its workers import:
+    exit 130 / 143 within 5 s, one line, no traceback from any process of the group, none left."""
     psutil = pytest.importorskip("psutil")
     scenes = tmp_path / "scenes"
     for i in range(2):
         _write(scenes, _scene_dict(f"s{i}"))
     out = tmp_path / "out"
-    argv = [sys.executable, "-m", "asg", "generate", "--scenes", str(scenes), "--out", str(out),
-            "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "150", "--workers", "2"]
+    if command == "generate":
+        argv = [sys.executable, "-m", "asg", "generate", "--scenes", str(scenes), "--out", str(out),
+                "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "150", "--workers", "2"]
+        env = dict(os.environ)
+    else:  # a data set built from scratch: SUMO runs, then frames are rendered on the workers
+        argv = [sys.executable, "-m", "asg", "dataset", "build", "heuristic", "--workers", "2"]
+        env = dict(os.environ, ASG_DATA=str(out))
 
     def foreground():  # its own group, Ctrl-C not ignored (see the test above)
         os.setpgrp()
         signal.signal(signal.SIGINT, signal.SIG_DFL)
 
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=ROOT,
-                            preexec_fn=foreground)
+                            preexec_fn=foreground, env=env)
     if delay_s == "workers starting":
         _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= 2, "worker processes", proc)
     else:
