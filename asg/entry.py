@@ -23,4 +23,7 @@ def main() -> int:
     except BaseException:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, HELD)
         raise
+    from .executors.base import quiet_third_party_warnings
+
+    quiet_third_party_warnings()  # the command's stderr: asg's words only (its workers do the same)
     return cli_main(sys.argv[1:], held_signals=HELD)

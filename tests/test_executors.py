@@ -193,3 +193,20 @@ def test_a_hanging_detector_is_stopped_inside_a_ray_actor_too(capsys, tmp_path):
                     "--budget", "3", "--workers", "1", "--executor", "ray", "--out", str(tmp_path / "run"))
     assert code == 2
     assert_one_line_error(err, "ran over 1 s on one frame")
+
+
+def test_third_party_notices_stay_off_a_runs_stderr():
+    """torch's, shapely's ... notices are ignored (in the command and in its workers); asg's own
+    warnings still show."""
+    import warnings
+
+    from asg.executors.base import quiet_third_party_warnings
+
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        quiet_third_party_warnings()
+        warnings.warn_explicit("a beta API", UserWarning, "torch/x.py", 1, module="torch.serialization")
+        warnings.warn_explicit("overflow", RuntimeWarning, "shapely/x.py", 1, module="shapely.geometry")
+        warnings.warn("index_reduce() is in beta (Triggered internally at TensorAdvancedIndexing.cpp:1523.)")
+        warnings.warn_explicit("ours", UserWarning, "asg/x.py", 1, module="asg.pipeline")
+    assert [str(w.message) for w in seen] == ["ours"]

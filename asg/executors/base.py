@@ -73,6 +73,21 @@ class Executor(ABC):
         self.close()
 
 
+#: libraries whose warnings are notes to their own developers, not to a user of asg (torch's beta
+#: and serialisation notices, numpy's casts, shapely's and matplotlib's overflow notes): kept off a
+#: successful run's stderr, in the command's process and in its workers
+THIRD_PARTY_WARNINGS = r"(torch|numpy|scipy|shapely|matplotlib|sklearn|skopt|trimesh|numba|nevergrad|pygame|gymnasium)(\.|$)"
+
+
+def quiet_third_party_warnings() -> None:
+    """Ignore warnings raised from the modules of THIRD_PARTY_WARNINGS (asg's own still show)."""
+    import warnings
+
+    warnings.filterwarnings("ignore", module=THIRD_PARTY_WARNINGS)
+    # torch's C++ notices name the Python line that called the op, not torch: known by their text
+    warnings.filterwarnings("ignore", message=r"(?s).*Triggered internally at")
+
+
 def apply_threads(threads: int) -> None:
     """Limit this process to ``threads`` threads: torch's, the LiDAR casts' and the OpenMP pools';
     BLAS (numpy, scipy, scikit-optimize's GP) to one thread (see :func:`blas_on_one_thread`)."""

@@ -21,7 +21,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Iterator, Sequence
 
 from ..registry import register
-from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, signals_deferred
+from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, quiet_third_party_warnings, signals_deferred
 
 _STATE: Any = None
 #: is this worker inside an item (which may hold temporary files) rather than starting or idle?
@@ -45,6 +45,7 @@ def _worker_init(threads: int, job: Job, parent_pid: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _HELD_AT_BIRTH)  # a held Ctrl-C is dropped, a SIGTERM ends it
+    quiet_third_party_warnings()
     die_with_parent(parent_pid)
     apply_threads(threads)
     _STATE = job.setup(*job.setup_args)
