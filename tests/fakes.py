@@ -101,6 +101,15 @@ def _exit(*_):
 exit_in_detect_factory = _misbehaving(_exit)
 
 
+def _hard_exit(*_):
+    import os
+
+    os._exit(0)
+
+
+hard_exit_in_detect_factory = _misbehaving(_hard_exit)
+
+
 def _forever(*_):
     import time
 

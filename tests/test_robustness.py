@@ -617,6 +617,7 @@ def test_openmp_threads_wait_passively_unless_the_user_says_otherwise():
     ("fakes:score_factory", "within [0, 1]"),
     ("fakes:million_factory", "1,000,000 boxes"),
     ("fakes:exit_in_detect_factory", "SystemExit"),
+    ("fakes:hard_exit_in_detect_factory", "os._exit(0)"),
     ("fakes:hang_factory", "ran over"),
     ("fakes:swallowing_hang_factory", "ran over"),
     ("fakes:raising_factory", "no GPU found"),

@@ -30,6 +30,11 @@ _BUSY = False
 STOP_GRACE_S = 3.0
 
 
+#: the process's own os._exit, taken at import: a detector call runs with os._exit refused
+#: (asg.perception.plugins.guarded_call), the worker's own exits must still end it
+_exit_now = os._exit
+
+
 class _WorkerTerminated(BaseException):
     """SIGTERM inside an item: unwinds it (its context managers remove its temporary files)."""
 
@@ -61,13 +66,13 @@ def die_with_parent(parent_pid: int) -> None:
         except (OSError, AttributeError):
             pass
     if os.getppid() != parent_pid:
-        os._exit(143)
+        _exit_now(143)
 
 
 def _exit_on_sigterm(signum, frame) -> None:
     if _BUSY:
         raise _WorkerTerminated()
-    os._exit(143)  # starting or idle: nothing to clean up, and no traceback from the pool's machinery
+    _exit_now(143)  # starting or idle: nothing to clean up, and no traceback from the pool's machinery
 
 
 def _worker_run(job: Job, item: Any) -> Any:
@@ -76,7 +81,7 @@ def _worker_run(job: Job, item: Any) -> Any:
     try:
         return job.run(_STATE, item)
     except _WorkerTerminated:
-        os._exit(143)  # unwound: the item's temporary files are gone; the pool must not catch this exit
+        _exit_now(143)  # unwound: the item's temporary files are gone; the pool must not catch this exit
     finally:
         _BUSY = False
 

@@ -21,6 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib import metadata
 
+import os
+
 import numpy as np
 
 from sumo_scenarios.errors import InputError
@@ -136,6 +138,10 @@ class CheckedDetector:
         return None if weights is None else check_attention(self.where, weights, frame.sensing_ids)
 
 
+class _DetectorExit(BaseException):
+    """os._exit called by a detector from outside (see guarded_call)."""
+
+
 def guarded_call(where: str, what: str, fn, *args):
     """``fn(*args)`` of a detector from outside: an exception, ``sys.exit()`` or a call running
     past CALL_TIME_LIMIT_S (measured where the process's main thread runs it) is one InputError."""
@@ -150,6 +156,12 @@ def guarded_call(where: str, what: str, fn, *args):
     import time
 
     overtime = InputError(f"{where}: {what} ran over {CALL_TIME_LIMIT_S:g} s on one frame; stopped")
+    real_exit = os._exit
+
+    def refuse_exit(code=0):  # os._exit inside the call would end the run with its code and no word
+        raise _DetectorExit(code)
+
+    os._exit = refuse_exit
     if timed:
         previous = signal.signal(signal.SIGALRM, too_long)
         # after the limit, again every second: a call that swallows one TimeoutError (an
@@ -160,9 +172,13 @@ def guarded_call(where: str, what: str, fn, *args):
         out = fn(*args)
     except TimeoutError:
         raise overtime from None
+    except _DetectorExit as exc:
+        raise InputError(f"{where}: {what} called os._exit({exc.args[0]}); a detector must return its "
+                         "detections, not end the process") from None
     except (Exception, SystemExit) as exc:  # outside code may fail in any way: name it, say how
         raise InputError(f"{where}: {what} failed: {type(exc).__name__}: {exc}".splitlines()[0]) from None
     finally:
+        os._exit = real_exit
         if timed:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
             signal.signal(signal.SIGALRM, previous)
