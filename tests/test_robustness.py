@@ -405,14 +405,26 @@ def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig, execut
     assert sorted(p.name for p in (out / "scenes").iterdir()) == ["s0", "s1", "s2"]
 
 
-@pytest.mark.parametrize("command, delay_s", [("generate", 0.3), ("generate", 0.8), ("generate", 1.5),
-                                              ("generate", "workers starting"), ("dataset build", 0.8),
-                                              ("dataset build", 3.0)])
+def _holds_int_and_term(pid: int) -> bool:
+    """Does process ``pid`` block SIGINT and SIGTERM now (/proc/PID/status SigBlk): inside asg's
+    start, past the interpreter's own (which no Python program can hold signals in)?"""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    blocked = int(next(l.split()[1] for l in status.splitlines() if l.startswith("SigBlk:")), 16)
+    return all(blocked >> (int(s) - 1) & 1 for s in (signal.SIGINT, signal.SIGTERM))
+
+
+@pytest.mark.parametrize("command, moment", [("generate", 0.0), ("generate", 0.3), ("generate", 1.0),
+                                             ("generate", "workers starting"), ("dataset build", 0.0),
+                                             ("dataset build", 2.0)])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, delay_s, sig):
+def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment, sig):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or SIGTERM at the start of
     a two-worker ``asg generate`` or ``asg dataset build``: while the command imports (trimesh
-    swallowed a KeyboardInterrupt there and the run went on to exit 0) or while its workers import:
+    swallowed a KeyboardInterrupt there and the run went on to exit 0; ``moment`` seconds after
+    asg's start holds the signals, or later when the imports are done) or while its workers import:
     exit 130 / 143 within 5 s, one line, no traceback from any process of the group, none left."""
     psutil = pytest.importorskip("psutil")
     scenes = tmp_path / "scenes"
@@ -433,10 +445,11 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, delay_
 
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=ROOT,
                             preexec_fn=foreground, env=env)
-    if delay_s == "workers starting":
+    if moment == "workers starting":
         _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= 2, "worker processes", proc)
-    else:
-        time.sleep(delay_s)  # somewhere in the start; every moment must end the same way
+    else:  # somewhere in asg's start (the interpreter's own start is before it); every moment must end the same way
+        _wait_for(lambda: _holds_int_and_term(proc.pid), "asg's start", proc)
+        time.sleep(moment)
     family = psutil.Process(proc.pid).children(recursive=True) if proc.poll() is None else []
     os.killpg(proc.pid, sig)
     sent = time.time()
