@@ -258,6 +258,18 @@ def _on_sigterm(signum, frame) -> None:
 _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.ENOTDIR, errno.EISDIR}
 
 
+#: commands that run the detectors: PyTorch is imported before a held signal is released, because
+#: a Ctrl-C inside torch's import (C++ calling back into Python) aborted the process (exit -6)
+#: instead of ending the command
+_TORCH_COMMANDS = {"generate", "evaluate", "train", "finetune", "harden", "dataset", "bench"}
+
+
+def _preload(argv: Sequence[str]) -> None:
+    """Import what the command will need and cannot be interrupted while importing."""
+    if argv and argv[0] in _TORCH_COMMANDS:
+        import torch  # noqa: F401
+
+
 def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset()) -> int:
     """Run ``asg ARGV``; its exit code. ``held_signals``: signals the caller blocked while this
     module imported (asg.entry), released once the handlers that end a command cleanly are in place."""
@@ -265,6 +277,8 @@ def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset(
     try:
         parser = build_parser(argv)
         args = parser.parse_args(argv)
+        if held_signals:
+            _preload(argv)
     except BaseException:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, held_signals)
         raise

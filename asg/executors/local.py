@@ -39,17 +39,10 @@ class _WorkerTerminated(BaseException):
     """SIGTERM inside an item: unwinds it (its context managers remove its temporary files)."""
 
 
-#: signals a worker is born with held (the parent holds them while it starts the pool, and a child
-#: inherits the mask): a Ctrl-C to the process group while a worker imports would otherwise end in a
-#: KeyboardInterrupt traceback from its imports; the worker releases them once its handlers are set
-_HELD_AT_BIRTH = frozenset({signal.SIGINT, signal.SIGTERM})
-
-
 def _worker_init(threads: int, job: Job, parent_pid: int) -> None:
     global _STATE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, _HELD_AT_BIRTH)  # a held Ctrl-C is dropped, a SIGTERM ends it
     quiet_third_party_warnings()
     die_with_parent(parent_pid)
     apply_threads(threads)
@@ -135,8 +128,8 @@ class LocalExecutor(Executor):
         broken = False
         try:
             # a worker half-spawned by an interrupted start would print a traceback; the workers are
-            # born with the signals held (_HELD_AT_BIRTH) until their handlers are set
-            with signals_deferred(), _held(_HELD_AT_BIRTH):
+            # born with Ctrl-C ignored (_born_ignoring_ctrl_c)
+            with signals_deferred(), _born_ignoring_ctrl_c():
                 pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
                                            mp_context=multiprocessing.get_context("spawn"),
                                            initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
@@ -161,13 +154,28 @@ class LocalExecutor(Executor):
 
 
 @contextlib.contextmanager
-def _held(signals: frozenset):
-    """Inside, ``signals`` are blocked in this thread (and in processes it starts); on leaving they
-    are released as before (one that arrived is then delivered)."""
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+def _born_ignoring_ctrl_c():
+    """Processes started inside begin life with SIGINT ignored (a disposition survives exec, and
+    Python then installs no KeyboardInterrupt handler): a Ctrl-C to the process group while a worker
+    imports no longer kills it with a traceback (or "Fatal Python error" in its interpreter's own
+    start); the parent decides. (A blocked signal mask does not reach them: multiprocessing's spawn
+    resets it.) This process holds SIGINT and SIGTERM meanwhile: on Linux a blocked signal is never
+    discarded as ignored, so one that arrives inside is delivered on leaving, to the handler in place
+    before; one already pending on entry is left to be delivered, not ignored. Main thread only."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    previous = None
     try:
+        if signal.SIGINT not in signal.sigpending():  # setting SIG_IGN would discard a pending one
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
         yield
     finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
         signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
