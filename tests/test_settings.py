@@ -55,7 +55,7 @@ def test_the_paper_protocol_is_one_flag(capsys, tmp_path):
     assert load_generate_config(protocol="paper", search="ga").budget == 120
     assert load_generate_config(protocol="paper", search="ga", budget=7).budget == 7
     assert load_generate_config().space.yaw_levels() is None  # ours: any turn
-    from test_cli import assert_one_line_error, run
+    from test_cli import run
 
     code, err = run(capsys, "generate", "--protocol", "nope", "--out", str(tmp_path / "o"))
     assert code == 2 and "--protocol" in err and not (tmp_path / "o").exists()
