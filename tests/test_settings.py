@@ -73,3 +73,19 @@ def test_turn_steps_hold_in_every_draw():
     turns = np.degrees(x[:, 2] * np.radians(45.0))
     assert np.allclose(turns / 15.0, np.round(turns / 15.0)) and set(np.round(turns).astype(int)) == {-45, -30, -15, 0, 15, 30, 45}
     assert np.abs(x[:, :2]).max() <= 1.0 and len(np.unique(x[:, 0])) > 3000
+
+
+def test_one_evaluation_range_everywhere():
+    """The 48 m evaluation range: the scenes' near radius (sumo_scenarios.log), the ground truth the
+    AP counts (asg.perception.data.in_range), the plausibility re-check, and the detectors' BEV grid
+    (DetectorConfig and its yaml, pointpillars.yaml) must be one number."""
+    import numpy as np
+
+    from asg.perception.config import DetectorConfig, load_detector_config
+    from asg.perception.data import in_range
+    from asg.scene.feasibility import EVAL_RANGE_M
+    from sumo_scenarios.log import NEAR_RADIUS_M
+
+    assert NEAR_RADIUS_M == EVAL_RANGE_M == DetectorConfig().range_m == load_detector_config().range_m
+    edge = np.array([[EVAL_RANGE_M, 0, 0, 4, 2, 1.5, 0], [EVAL_RANGE_M + 0.01, 0, 0, 4, 2, 1.5, 0]])
+    assert in_range(edge).tolist() == [True, False]
