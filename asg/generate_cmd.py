@@ -35,6 +35,10 @@ def run_generate(args: argparse.Namespace) -> int:
                                aps=None if args.aps is None else args.aps == "on", budget=budget, perturbed=args.movers,
                                weights=None if args.weights is None else str(args.weights))
     cfg = with_space_flags(cfg, args.plausibility, args.space)
+    if not args.detector:  # refused here, before a town is simulated or a worker starts
+        from .perception import check_fusion
+
+        check_fusion(cfg.fusion)
     if cfg.weights and not args.detector:
         from .perception import check_weights_file
 

@@ -274,3 +274,14 @@ def test_help_and_other_commands_do_not_import_the_workflows():
              "build_parser(['harden', '--help']); print('asg.workflows.harden' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split("\n")
     assert out[:2] == ["[]", "True"]
+
+
+def test_an_unknown_fusion_is_refused_before_anything_runs(capsys, tmp_path, monkeypatch):
+    """generate refused an unknown --fusion only inside its worker, after simulating the town's traffic."""
+    import sumo_scenarios.simulate as simulate
+
+    monkeypatch.setattr(simulate, "simulate_sumo", lambda *a, **k: pytest.fail("traffic simulated before the refusal"))
+    code, err = run(capsys, "generate", "--town", "fiveleg", "--fusion", "nope", "--count", "1", "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "unknown fusion 'nope'")
+    assert not (tmp_path / "o").exists()

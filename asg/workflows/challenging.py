@@ -43,12 +43,12 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     from ..generate import SceneSource, made_with_other_shipped_weights, open_run
     from ..io.run import load_done
     from ..generator_config import load_generate_config
-    from ..perception import detector_names
+    from ..perception import check_fusion
 
     if split not in SPLITS:
         raise InputError(f"--split must be one of {', '.join(SPLITS)}, got {split!r}")
-    if detector_factory is None and fusion not in detector_names():
-        raise InputError(f"unknown fusion '{fusion}'; known: {', '.join(detector_names())}")
+    if detector_factory is None:
+        check_fusion(fusion)
     if weights_file and out is None:
         raise InputError("a challenging set of other weights needs its own folder (out)")
     cfg = load_generate_config(fusion=fusion, weights=None if weights_file is None else str(weights_file))

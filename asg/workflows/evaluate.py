@@ -104,11 +104,10 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from ..executors import build_executor
-    from ..perception import check_weights_file, detector_names
+    from ..perception import check_fusion, check_weights_file
     from ..progress import console, print_result, progress_bar
 
-    if args.fusion not in detector_names():
-        raise InputError(f"unknown fusion '{args.fusion}'; known: {', '.join(detector_names())}")
+    check_fusion(args.fusion)
     weights = None if args.weights is None else str(args.weights)
     if weights:
         check_weights_file(args.fusion, weights)

@@ -19,6 +19,15 @@ def detector_names() -> list[str]:
     return sorted(set(names("fusion")) | set(plugin_names()))
 
 
+def check_fusion(name: str) -> str:
+    """``name`` if ``--fusion`` accepts it (a shipped model or an installed plugin), else the one
+    line every command refuses an unknown fusion with."""
+    known = detector_names()
+    if name not in known:
+        raise InputError(f"unknown fusion '{name}'; known: {', '.join(known)}")
+    return name
+
+
 def build_detector(name: str, **kwargs):
     """The detector called ``name``: a shipped model with its weights (or ``weights_file``), or
     an installed plugin (see asg.perception.plugins); InputError if there is none."""
@@ -29,7 +38,7 @@ def build_detector(name: str, **kwargs):
         return lookup("fusion", name)(**kwargs)
     plugin = load_plugin(name)
     if plugin is None:
-        raise InputError(f"unknown fusion '{name}'; known: {', '.join(detector_names())}")
+        check_fusion(name)
     if kwargs.get("weights_file"):
         raise InputError(f"--weights applies to the shipped models; the plugin '{name}' loads its own")
     return plugin
