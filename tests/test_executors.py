@@ -211,22 +211,3 @@ def test_third_party_notices_stay_off_a_runs_stderr():
         warnings.warn_explicit("ours", UserWarning, "asg/x.py", 1, module="asg.pipeline")
     assert [str(w.message) for w in seen] == ["ours"]
 
-
-def test_workers_are_born_ignoring_ctrl_c_and_the_parent_loses_none():
-    """Processes started inside _born_ignoring_ctrl_c begin with SIGINT ignored (a Ctrl-C to the
-    group in their interpreter's start killed them with "Fatal Python error"); a SIGINT sent to
-    this process meanwhile is delivered on leaving, to the handler in place before."""
-    import os
-    import signal
-    import subprocess
-    import sys
-
-    from asg.executors.local import _born_ignoring_ctrl_c
-
-    probe = "import signal; print(signal.getsignal(signal.SIGINT) == signal.SIG_IGN)"
-    with pytest.raises(KeyboardInterrupt):
-        with _born_ignoring_ctrl_c():
-            child = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
-            os.kill(os.getpid(), signal.SIGINT)
-    assert child.stdout.strip() == "True"
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

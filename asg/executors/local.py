@@ -10,7 +10,6 @@ if no item finishes between MAX_ATTEMPTS breaks in a row, the batch stops with W
 """
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import multiprocessing
 import os
@@ -127,9 +126,7 @@ class LocalExecutor(Executor):
         finished: list[int] = []
         broken = False
         try:
-            # a worker half-spawned by an interrupted start would print a traceback; the workers are
-            # born with Ctrl-C ignored (_born_ignoring_ctrl_c)
-            with signals_deferred(), _born_ignoring_ctrl_c():
+            with signals_deferred():  # a worker half-spawned by an interrupted start would print a traceback
                 pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
                                            mp_context=multiprocessing.get_context("spawn"),
                                            initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
@@ -151,32 +148,6 @@ class LocalExecutor(Executor):
             if pool is not None:
                 _stop(pool)
         return finished, broken
-
-
-@contextlib.contextmanager
-def _born_ignoring_ctrl_c():
-    """Processes started inside begin life with SIGINT ignored (a disposition survives exec, and
-    Python then installs no KeyboardInterrupt handler): a Ctrl-C to the process group while a worker
-    imports no longer kills it with a traceback (or "Fatal Python error" in its interpreter's own
-    start); the parent decides. (A blocked signal mask does not reach them: multiprocessing's spawn
-    resets it.) This process holds SIGINT and SIGTERM meanwhile: on Linux a blocked signal is never
-    discarded as ignored, so one that arrives inside is delivered on leaving, to the handler in place
-    before; one already pending on entry is left to be delivered, not ignored. Main thread only."""
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    previous = None
-    try:
-        if signal.SIGINT not in signal.sigpending():  # setting SIG_IGN would discard a pending one
-            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-        yield
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def _stop(pool: ProcessPoolExecutor) -> None:
