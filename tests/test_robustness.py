@@ -418,11 +418,11 @@ def _holds_int_and_term(pid: int) -> bool:
 
 @pytest.mark.parametrize("command, moment", [("generate", 0.0), ("generate", 0.3), ("generate", 1.0),
                                              ("generate", "workers starting"), ("dataset build", 0.0),
-                                             ("dataset build", 2.0)])
+                                             ("dataset build", 2.0), ("harden", 0.0), ("harden", 2.0)])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment, sig):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or SIGTERM at the start of
-    a two-worker ``asg generate`` or ``asg dataset build``: while the command imports (trimesh
+    a two-worker ``asg generate``, ``asg dataset build`` or ``asg harden``: while the command imports (trimesh
     swallowed a KeyboardInterrupt there and the run went on to exit 0; ``moment`` seconds after
     asg's start holds the signals, or later when the imports are done) or while its workers import:
     exit 130 / 143 within 5 s, one line, no traceback from any process of the group, none left."""
@@ -435,9 +435,13 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment
         argv = [sys.executable, "-m", "asg", "generate", "--scenes", str(scenes), "--out", str(out),
                 "--fusion", "none", "--search", "rs", "--acs", "random", "--budget", "150", "--workers", "2"]
         env = dict(os.environ)
-    else:  # a data set built from scratch: SUMO runs, then frames are rendered on the workers
+    elif command == "dataset build":  # a data set built from scratch: SUMO runs, then frames are rendered on the workers
         argv = [sys.executable, "-m", "asg", "dataset", "build", "heuristic", "--workers", "2"]
         env = dict(os.environ, ASG_DATA=str(out))
+    else:  # a hardening run on an empty data root: it builds its pool and evaluation sets first
+        argv = [sys.executable, "-m", "asg", "harden", "--fusion", "attfuse", "--rounds", "1", "--workers", "2",
+                "--out", str(out / "harden")]
+        env = dict(os.environ, ASG_DATA=str(out / "data"))
 
     def foreground():  # its own group, Ctrl-C not ignored (see the test above)
         os.setpgrp()
