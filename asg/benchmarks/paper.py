@@ -18,19 +18,18 @@ from pathlib import Path
 from sumo_scenarios.errors import InputError
 
 from ..executors import Executor
+from ..objective.ap import DEFAULT_AP_METHOD, check_ap_method
 
 CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"),
            ("off", "bo"), ("off", "ga"), ("off", "rs"))
 
 
 def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1,
-                executor: Executor | None = None, ap_method: str = "global") -> dict:
+                executor: Executor | None = None, ap_method: str = DEFAULT_AP_METHOD) -> dict:
     """Run (or resume) the seven configurations and collect their pooled AP, ranked by
     ``ap_method`` (asg.objective.ap.AP_METHODS). Each configuration's scenes run on ``executor``
     (default: this process); a scene's result does not depend on which worker ran it."""
     from ..io.run import aggregate_ap
-    from ..objective.ap import check_ap_method
-
     check_ap_method(ap_method)
     scene_dir = out / f"scenes-{scenes}"
     todo = [(out / f"{acs}-{search}", acs, search) for acs, search in CONFIGS]

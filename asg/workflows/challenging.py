@@ -20,6 +20,7 @@ from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ..datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
+from ..objective.ap import DEFAULT_AP_METHOD
 from ..scene import load_scene
 
 #: the split of the normal set each challenging set is generated from
@@ -95,7 +96,7 @@ def own_val_set(fusion: str, executor=None, log=print) -> str:
     return own_val
 
 
-def first_scenes_ap(out: Path, count: int | None, ap_method: str = "global") -> dict[str, dict[str, float]]:
+def first_scenes_ap(out: Path, count: int | None, ap_method: str = DEFAULT_AP_METHOD) -> dict[str, dict[str, float]]:
     """Pooled AP (normal and challenging) over the first ``count`` scenes of a built challenging
     set (all when None), from the detections its run folder stored, ranked by ``ap_method``
     (asg.objective.ap.AP_METHODS; per-frame in the set's scene order)."""

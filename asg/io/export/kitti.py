@@ -66,8 +66,8 @@ class KittiWriter:
         fused[:, 2] += lowered_m
         with atomic_path(self.out / "training" / "velodyne" / f"{name}.bin") as tmp:
             fused.tofile(tmp)
-        keep = in_range(frame.ego_boxes)
-        boxes = frame.ego_boxes.copy()
+        boxes = frame.ego_boxes  # a new array each access: computed once, raised in place
+        keep = in_range(boxes)
         boxes[:, 2] += lowered_m
         points = frame.points_in_boxes()["fused"][keep] if len(boxes) else np.zeros(0, int)
         types = [scene.agent(i).type_id for i, k in zip(frame.gt_ids, keep) if k]
