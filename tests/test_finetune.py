@@ -113,7 +113,7 @@ def test_bad_weights_are_one_line(capsys, tmp_path, data_root):
 @pytest.mark.parametrize("bad", ["steps: 0", "batch_size: -1", "lr: -0.1", "lr: 1.0e+30", "weight_decay: -1",
                                  "pct_start: 5", "checkpoint_every: 0", "div_factor: 0", "seed: -3",
                                  "mix_with: ['../..']", "augment: {rotate_deg: 200}", "augment: {scale: 0.9}",
-                                 "augment: {spin: 1}"])
+                                 "augment: {spin: 1}", "corner_loss: -1", "corner_loss: .nan"])
 def test_bad_finetune_settings_are_refused_when_loaded(tmp_path, bad):
     from asg.perception.train_config import load_finetune_config
     from asg.workflows.harden import load_harden_config

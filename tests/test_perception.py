@@ -479,3 +479,51 @@ def test_augmentation_moves_points_and_boxes_together_and_can_be_turned_off():
     augment([cloud], box, r1)
     augment([cloud], box, r2, off)
     assert r1.random() == r2.random()
+
+
+def _residuals_of(boxes: np.ndarray, anchor: np.ndarray) -> torch.Tensor:
+    from asg.perception.boxes import encode
+
+    return torch.tensor(encode(boxes, np.repeat(anchor[None], len(boxes), 0)), dtype=torch.float32)
+
+
+def test_corner_loss_sees_the_outline_not_the_heading():
+    from asg.objective.iou import bev_iou_matrix
+    from asg.perception.head import corner_loss
+
+    anchor = np.array([0.0, 0.0, -1.0, 4.6, 1.9, 1.6, 0.0])
+    anchors = torch.tensor(np.repeat(anchor[None], 4, 0), dtype=torch.float32)
+    truth = np.array([[0.3, 0.1, -1.0, 4.4, 1.8, 1.5, 0.2]] * 4)
+    turned = truth.copy()
+    turned[:, 6] += math.pi  # the same outline
+    yawed, shifted = truth.copy(), truth.copy()
+    yawed[:, 6] += math.radians(8)
+    shifted[:, 0] += 0.5 * math.cos(0.2)  # 0.5 m along the vehicle
+    target = _residuals_of(truth, anchor)
+    at = {name: corner_loss(_residuals_of(b, anchor), target, anchors)[0].item()
+          for name, b in (("same", truth), ("turned", turned), ("yawed", yawed), ("shifted", shifted))}
+    assert at["same"] == pytest.approx(0.0, abs=1e-5) and at["turned"] == pytest.approx(0.0, abs=1e-4)
+    assert at["yawed"] > 0.1 and at["shifted"] > 0.1
+    # the worse outline (lower IoU) costs more
+    iou = {k: bev_iou_matrix(b[:1], truth[:1])[0, 0] for k, b in (("yawed", yawed), ("shifted", shifted))}
+    assert (at["yawed"] > at["shifted"]) == (iou["yawed"] < iou["shifted"])
+
+
+def test_the_corner_loss_counts_in_the_total_only_when_weighted():
+    from asg.perception.boxes import assign_targets, make_anchors
+
+    cfg = replace(TINY, range_m=8.0)
+    anchors = make_anchors(cfg)
+    gt = np.array([[1.0, 2.0, -1.0, 4.5, 1.9, 1.6, 0.3]])
+    labels, res, dirs = (torch.from_numpy(x[None]) for x in assign_targets(anchors, gt, cfg))
+    n = len(anchors)
+    torch.manual_seed(0)
+    cls, box, d = torch.randn(1, n), (0.1 * torch.randn(1, n, 7)).requires_grad_(), torch.randn(1, n, 2)
+    plain = detection_loss(cls, box, d, labels, res, dirs)
+    weighted = detection_loss(cls, box, d, labels, res, dirs, torch.from_numpy(anchors).float(), 0.5)
+    assert "corner" not in plain and weighted["corner"] > 0
+    assert weighted["total"].item() == pytest.approx(plain["total"].item() + 0.5 * weighted["corner"].item(), rel=1e-5)
+    weighted["corner"].backward()  # it reaches the positive anchors' boxes alone
+    assert box.grad[labels == 1].abs().sum() > 0 and box.grad[labels != 1].abs().sum() == 0
+    with pytest.raises(ValueError):
+        detection_loss(cls, box, d, labels, res, dirs, None, 0.5)

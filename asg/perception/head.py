@@ -121,9 +121,40 @@ def focal_loss(logits: torch.Tensor, labels: torch.Tensor, alpha: float = 0.25, 
     return (w * ce * valid).sum()
 
 
+def bev_corners(boxes: torch.Tensor) -> torch.Tensor:
+    """The four BEV corners (K, 4, 2) of boxes (K, 7) (x, y, z, l, w, h, yaw; metres, radians), in
+    the boxes' frame, counter-clockwise from the front left."""
+    half_l, half_w = boxes[:, 3] / 2, boxes[:, 4] / 2
+    local = torch.stack([torch.stack([half_l, half_w], -1), torch.stack([-half_l, half_w], -1),
+                         torch.stack([-half_l, -half_w], -1), torch.stack([half_l, -half_w], -1)], dim=1)
+    c, s = torch.cos(boxes[:, 6])[:, None], torch.sin(boxes[:, 6])[:, None]
+    return torch.stack([boxes[:, None, 0] + c * local[..., 0] - s * local[..., 1],
+                        boxes[:, None, 1] + s * local[..., 0] + c * local[..., 1]], dim=-1)
+
+
+def corner_loss(residuals: torch.Tensor, targets: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
+    """Orientation-aware box loss: the smooth-L1 distance (beta 0.1 m) between the BEV corners of
+    the decoded predictions and of the targets, summed over the four corners, per box (K,), taking
+    the nearer of the target and the target turned by pi (a box's IoU does not see its heading;
+    the direction classifier does). ``residuals``, ``targets``: (K, 7) SECOND residuals against
+    ``anchors`` (K, 7). Unlike the per-coordinate residual loss it weighs an error by what it does
+    to the box's outline: a yaw error costs more on a long box, a centre error the same anywhere."""
+    from .boxes import decode
+
+    pred = bev_corners(decode(residuals, anchors))
+    target = bev_corners(decode(targets, anchors))
+    turned = target.roll(2, dims=1)  # the same outline, corners named from the back
+    per_box = [F.smooth_l1_loss(pred, t, beta=0.1, reduction="none").sum(dim=(1, 2)) for t in (target, turned)]
+    return torch.minimum(*per_box)
+
+
 def detection_loss(cls: torch.Tensor, box: torch.Tensor, d: torch.Tensor, labels: torch.Tensor,
-                   targets: torch.Tensor, dirs: torch.Tensor) -> dict[str, torch.Tensor]:
-    """Losses normalised by the number of positives: cls x1.0, box x2.0, direction x0.2."""
+                   targets: torch.Tensor, dirs: torch.Tensor, anchors: torch.Tensor | None = None,
+                   corner_weight: float = 0.0) -> dict[str, torch.Tensor]:
+    """Losses normalised by the number of positives: cls x1.0, box x2.0, direction x0.2 and, with
+    ``corner_weight`` > 0 (and ``anchors`` (A, 7)), the corner loss (:func:`corner_loss`) x corner_weight."""
+    if corner_weight > 0 and anchors is None:
+        raise ValueError("the corner loss needs the anchors")
     pos = labels == 1
     n_pos = pos.sum().clamp(min=1).float()
     l_cls = focal_loss(cls, labels) / n_pos
@@ -134,8 +165,15 @@ def detection_loss(cls: torch.Tensor, box: torch.Tensor, d: torch.Tensor, labels
         t_enc = torch.cat([t[:, :6], (torch.cos(p[:, 6]) * torch.sin(t[:, 6]))[:, None]], dim=1)
         l_box = F.smooth_l1_loss(p_enc, t_enc, beta=1 / 9, reduction="sum") / n_pos
         l_dir = F.cross_entropy(d[pos], dirs[pos], reduction="sum") / n_pos
+        if corner_weight > 0:
+            l_corner = corner_loss(p, t, anchors.expand(box.shape[0], -1, -1)[pos]).sum() / n_pos
     else:
         l_box = box.sum() * 0.0
         l_dir = d.sum() * 0.0
+        l_corner = box.sum() * 0.0
     total = l_cls + 2.0 * l_box + 0.2 * l_dir
-    return {"total": total, "cls": l_cls, "box": l_box, "dir": l_dir}
+    out = {"cls": l_cls, "box": l_box, "dir": l_dir}
+    if corner_weight > 0:
+        total = total + corner_weight * l_corner
+        out["corner"] = l_corner
+    return {"total": total, **out}

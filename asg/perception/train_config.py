@@ -40,6 +40,8 @@ class TrainConfig:
     views: Literal["ego", "all"] = "ego"
     #: the random flip, rotation and scale of each training example (``augment`` in train.yaml)
     augment: Augmentation = Augmentation()
+    #: weight of the orientation-aware corner loss (asg.perception.head.corner_loss; 0: off)
+    corner_loss: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -80,7 +82,7 @@ def check_train_config(cfg: TrainConfig, where: str):
     """``cfg`` if every setting is in range (one InputError naming the first that is not): at
     least one step, example and checkpoint interval; a learning rate in (0, 1]; weight decay in
     [0, 1]; schedule fractions in (0, 1); a seed of 0 or more; a rotation of
-    at most 180 deg and a scale of at most 0.5 in the augmentation; for fine-tuning, a share in [0, 1]
+    at most 180 deg and a scale of at most 0.5 in the augmentation; a corner-loss weight in [0, 100]; for fine-tuning, a share in [0, 1]
     and data set names (safe names) to mix with. Checked when loaded, before any work."""
     from sumo_scenarios import checks
 
@@ -96,6 +98,7 @@ def check_train_config(cfg: TrainConfig, where: str):
         checks.number(f, f"{where}.decay_at", 0.0, 1.0, lo_open=True)
     checks.number(cfg.augment.rotate_deg, f"{where}.augment.rotate_deg", 0.0, 180.0)
     checks.number(cfg.augment.scale, f"{where}.augment.scale", 0.0, 0.5)
+    checks.number(cfg.corner_loss, f"{where}.corner_loss", 0.0, 100.0)
     if cfg.pct_start >= 1.0:
         raise InputError(f"{where}.pct_start: {cfg.pct_start:g} leaves no steps to anneal; give a fraction below 1")
     if isinstance(cfg, FinetuneConfig):

@@ -39,7 +39,7 @@ from ..sensors import load_lidar_spec
 from ..perception.checkpoint import load_checkpoint
 from ..perception.config import load_detector_config
 from ..perception.data import Augmentation, make_sample
-from .train import BRANCH_KEYS, Steps, _Batches, _augment_record, _scheduler, draw_examples, run_steps
+from .train import BRANCH_KEYS, Steps, _Batches, _augment_record, _corner_record, _scheduler, draw_examples, run_steps
 from ..perception.fusion import build_network, network_of
 from ..perception.train_config import FinetuneConfig, load_finetune_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, load_state
@@ -181,7 +181,7 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
         log(f"resumed fine-tuning at step {step}")
     batches = sources()
     curve = LossCurve(ckpt.with_name(LOSS_CURVE), resumed_at=step)
-    wall_s = run_steps(model, opt, sched, batches, rng, Steps(step, total, fcfg.batch_size, fcfg.checkpoint_every),
+    wall_s = run_steps(model, opt, sched, batches, rng, Steps(step, total, fcfg.batch_size, fcfg.checkpoint_every, fcfg.corner_loss),
                        cfg, ckpt, wall_s, {}, log, progress, curve.add)
     with atomic_path(weights_out) as tmp:
         torch.save(model.state_dict(), tmp)
@@ -191,7 +191,7 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
             "examples": {n: len(b.items) for n, b in zip(batches.labels, batches.sources)},
             "steps": total, "batch_size": fcfg.batch_size, "lr": fcfg.lr, "schedule": fcfg.schedule,
             "seed": fcfg.seed, "views": fcfg.views, "challenging_views": fcfg.challenging_views or fcfg.views,
-            **_augment_record(fcfg.augment),
+            **_augment_record(fcfg.augment), **_corner_record(fcfg),
             "threads": threads, "wall_s": round(wall_s, 1)}
 
 

@@ -113,9 +113,11 @@ class PhaseTimer:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t
 
 
-def train_step(model: torch.nn.Module, opt, sched, batch, timer: PhaseTimer | None = None) -> dict[str, torch.Tensor]:
+def train_step(model: torch.nn.Module, opt, sched, batch, timer: PhaseTimer | None = None,
+               corner_weight: float = 0.0) -> dict[str, torch.Tensor]:
     """One optimiser step of ``model`` on ``batch`` (what :func:`draw_examples` returns); the
-    losses by name ("total" includes the branches'). ``timer`` splits it into "forward" (the
+    losses by name ("total" includes the branches'). ``corner_weight``: the corner loss's
+    (TrainConfig.corner_loss). ``timer`` splits it into "forward" (the
     network, of which "voxelise" is the pillar encoder's part), "loss", "backward" and "optimiser"."""
     timer = timer or PhaseTimer(enabled=False)
     clouds, labels, targets, dirs, gt = batch
@@ -132,7 +134,7 @@ def train_step(model: torch.nn.Module, opt, sched, batch, timer: PhaseTimer | No
     finally:
         model.encoder.__dict__.pop("encode", None)
     with timer.phase("loss"):
-        loss = detection_loss(cls, box, d, labels, targets, dirs)
+        loss = detection_loss(cls, box, d, labels, targets, dirs, model.anchors, corner_weight)
         loss.update(_branch_losses(model, cls, box, features, labels, gt))
         loss["total"] = loss["total"] + loss["iou"] + loss["refine"]
     with timer.phase("backward"):
@@ -214,14 +216,14 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     samples = render_samples(tcfg.dataset, "train")
     batches = _Batches(network_of(name), samples, tcfg.views, tcfg.augment)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
-    wall = run_steps(model, opt, sched, batches, rng, Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every),
-                     cfg, ckpt, wall, previous, log, progress)
+    wall = run_steps(model, opt, sched, batches, rng,
+                     Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every, tcfg.corner_loss), cfg, ckpt, wall, previous, log, progress)
     weights = weights_dir / f"{name}.pt"
     with atomic_path(weights) as tmp:
         torch.save(model.state_dict(), tmp)
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
-                                            **_augment_record(tcfg.augment),
+                                            **_augment_record(tcfg.augment), **_corner_record(tcfg),
                                             "wall_s": round(wall, 1), "part": "all"}]
     write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
                 examples=len(batches.items), batch_size=tcfg.batch_size)
@@ -241,6 +243,8 @@ class Steps:
     total: int
     batch_size: int
     checkpoint_every: int
+    #: the corner loss's weight (TrainConfig.corner_loss)
+    corner_weight: float = 0.0
 
 
 def run_steps(model: torch.nn.Module, opt, sched, batches, rng: np.random.Generator, steps: Steps, cfg,
@@ -257,7 +261,8 @@ def run_steps(model: torch.nn.Module, opt, sched, batches, rng: np.random.Genera
     losses: list[float] = []
     step, total = steps.done, steps.total
     while step < total:
-        loss = train_step(model, opt, sched, batches.draw(rng, steps.batch_size, anchors, cfg))
+        loss = train_step(model, opt, sched, batches.draw(rng, steps.batch_size, anchors, cfg),
+                          corner_weight=steps.corner_weight)
         step += 1
         if not bool(torch.isfinite(loss["total"].detach())):  # diverged: stop before writing such weights
             raise InputError(f"training diverged at step {step} (the loss is not finite); lower the learning "
@@ -358,6 +363,11 @@ def _augment_record(aug: Augmentation) -> dict:
     """The chunk record's augmentation entry: none for the default (cards written before the
     setting existed read the same), else its settings."""
     return {} if aug == Augmentation() else {"augment": asdict(aug)}
+
+
+def _corner_record(tcfg: TrainConfig) -> dict:
+    """The chunk record's corner-loss entry: none when off (as in cards written before it existed)."""
+    return {"corner_loss": tcfg.corner_loss} if tcfg.corner_loss > 0 else {}
 
 
 #: the branches' parameters (IoU, refinement): weights trained before a branch existed load without it
