@@ -52,7 +52,8 @@ def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threa
     from ..perception.config import load_detector_config
     from ..perception.data import make_sample
     from ..perception.model import AttFuse
-    from ..workflows.train import BRANCH_KEYS, PhaseTimer, _Batches, train_step
+    from ..perception.feeds import AGENT_CLOUDS
+    from ..workflows.train import BRANCH_KEYS, Batches, PhaseTimer, train_step
     from ..perception.weights_io import WEIGHTS_DIR, load_state
     from ..sensors import load_lidar_spec
 
@@ -62,7 +63,7 @@ def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threa
     spec = load_lidar_spec()
     scenes, frames_from = bench_frames(frames, seed)
     samples = [make_sample(s, spec) for s in scenes]
-    batches = _Batches("attfuse", samples, "all")
+    batches = Batches(AGENT_CLOUDS, samples, "all")
     model = AttFuse(cfg)
     load_state(model, WEIGHTS_DIR / "attfuse.pt", allow_missing=BRANCH_KEYS)  # the shipped weights' real activations
     model.train()

@@ -38,6 +38,7 @@ from sumo_scenarios.errors import InputError
 from .boxes import decode_with_direction, top_candidates
 from .branch_boxes import REFINE_MIN_IOU, best_match, refine_boxes, refinement_residuals
 from .data import augment
+from .feeds import Feed
 from .head import iou_loss, patch_features, refine_loss
 from .inference import fold_batch_norms
 
@@ -126,10 +127,10 @@ def view_candidates(model: nn.Module, sample: list | torch.Tensor, min_score: fl
             decode_with_direction(box[0, keep], d[0, keep], model.anchors[keep]))
 
 
-def collect(model: nn.Module, fused: bool, items: list, fcfg: BranchFitConfig,
+def collect(model: nn.Module, feed: Feed, items: list, fcfg: BranchFitConfig,
             progress: Callable[[int, int], None] | None = None) -> Candidates:
-    """Run the frozen ``model`` over ``items`` (per view: (clouds, gt boxes (M, 7)); ``fused``: the
-    clouds go in as one AttFuse sample, else the first cloud alone) ``fcfg.passes`` times."""
+    """Run the frozen ``model`` over ``items`` (per view: (clouds, gt boxes (M, 7)), the clouds
+    given to the network as ``feed`` says) ``fcfg.passes`` times."""
     model = fold_batch_norms(copy.deepcopy(model).eval())  # the caller's model keeps its layers
     rng = np.random.default_rng([fcfg.seed, 1])
     parts: dict[str, list] = {"features": [], "slot": [], "boxes": [], "view": []}
@@ -140,7 +141,7 @@ def collect(model: nn.Module, fused: bool, items: list, fcfg: BranchFitConfig,
             if p:
                 clouds, gt = augment(clouds, gt, rng)
             tensors = [torch.from_numpy(c) for c in clouds]
-            features, slot, _, boxes = view_candidates(model, tensors if fused else tensors[0], fcfg.min_score, fcfg.top_k)
+            features, slot, _, boxes = view_candidates(model, feed.network_input([tensors])[0], fcfg.min_score, fcfg.top_k)
             parts["features"].append(features)
             parts["slot"].append(slot.astype(np.int16))
             parts["boxes"].append(boxes)
@@ -228,7 +229,7 @@ def fit_branches(head: nn.Module, cands: Candidates, fcfg: BranchFitConfig,
             "refine_loss": round(refine_final, 4), "iou_loss": round(iou_final, 4)}
 
 
-def collect_cached(model: nn.Module, fused: bool, items: list, fcfg: BranchFitConfig, run_dir: Path,
+def collect_cached(model: nn.Module, feed: Feed, items: list, fcfg: BranchFitConfig, run_dir: Path,
                    log: Callable[[str], None], progress: Callable[[int, int], None] | None = None) -> Candidates:
     """The candidates of ``collect``, from ``run_dir``'s cache when a run was interrupted after stage 1."""
     path = run_dir / CACHE_NAME
@@ -236,7 +237,7 @@ def collect_cached(model: nn.Module, fused: bool, items: list, fcfg: BranchFitCo
         log(f"candidates from {path}")
         return Candidates.load(path)
     t0 = time.perf_counter()
-    cands = collect(model, fused, items, fcfg, progress)
+    cands = collect(model, feed, items, fcfg, progress)
     cands.collect_s = round(time.perf_counter() - t0, 1)
     cands.save(path)
     log(f"{len(cands.slot)} candidates from {len(cands.gt_start) - 1} views in {time.perf_counter() - t0:.0f} s")

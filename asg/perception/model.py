@@ -24,6 +24,10 @@ from .pillars import PillarEncoder
 class PointPillars(nn.Module):
     """Pillars → backbone → anchor head, one cloud per sample."""
 
+    #: parameter name prefixes a network adds to PointPillars: what a start from PointPillars
+    #: weights (``asg train --init-from single``) may lack, and :meth:`start_from_base` sets
+    parts_beyond_base: tuple[str, ...] = ()
+
     def __init__(self, cfg: DetectorConfig):
         super().__init__()
         self.cfg = cfg
@@ -37,6 +41,9 @@ class PointPillars(nn.Module):
 
     def forward(self, clouds: list[torch.Tensor]):
         return self.head(self.features(clouds))
+
+    def start_from_base(self) -> None:
+        """After PointPillars weights were loaded: nothing more to set."""
 
 
 class ScaledDotAttention(nn.Module):
@@ -100,8 +107,20 @@ class AttFuse(nn.Module):
         self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
         self.last_attention: torch.Tensor | None = None
 
+    parts_beyond_base = ("fusion.",)
+
     def attentions(self) -> list[ScaledDotAttention]:
         return list(self.fusion) if isinstance(self.fusion, nn.ModuleList) else [self.fusion]
+
+    @torch.no_grad()
+    def start_from_base(self) -> None:
+        """After PointPillars weights were loaded: the attention starts as (nearly) a plain average
+        of the agents' features: v = identity, k scaled by 0.1 so the first attention is close to
+        uniform while q and k still get gradients."""
+        for att in self.attentions():
+            att.v.weight.copy_(torch.eye(att.v.weight.shape[0]))
+            att.v.bias.zero_()
+            att.k.weight.mul_(0.1)
 
     def forward(self, agent_clouds: list[list[torch.Tensor]]):
         """``agent_clouds[b]`` lists sample b's clouds, ego first (at most 5 agents)."""

@@ -10,7 +10,7 @@ from typing import Callable
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
-from ..perception.fusion import fusions_of, weights_names
+from ..perception.fusion import card_settings_of, fusions_of, weights_names
 from ..perception.weights_io import WEIGHTS_DIR
 from ..sensors.lidar_spec import DEFAULT_LIDAR
 
@@ -30,7 +30,7 @@ def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: 
             **({"branch_fit": branch_fit} if branch_fit else {}),
             **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
             "detector_config": "configs/detectors/pointpillars.yaml", "lidar": DEFAULT_LIDAR,
-            **({"attfuse_fusion": cfg.attfuse_fusion} if name == "attfuse" else {})}
+            **card_settings_of(name, cfg)}
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
 
 

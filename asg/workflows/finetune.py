@@ -39,8 +39,8 @@ from ..sensors import load_lidar_spec
 from ..perception.checkpoint import load_checkpoint
 from ..perception.config import load_detector_config
 from ..perception.data import Augmentation, make_sample
-from .train import BRANCH_KEYS, Steps, _Batches, _augment_record, _corner_record, _scheduler, draw_examples, run_steps
-from ..perception.fusion import build_network, network_of
+from .train import BRANCH_KEYS, Batches, Steps, _augment_record, _corner_record, _scheduler, draw_examples, run_steps
+from ..perception.fusion import build_network, feed_of
 from ..perception.train_config import FinetuneConfig, load_finetune_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, load_state
 
@@ -49,7 +49,7 @@ class MixedBatches:
     """Batches whose examples come from several sources: each example's source drawn with
     ``shares`` (summing to 1), then an example of that source uniformly."""
 
-    def __init__(self, sources: list[_Batches], shares: list[float], labels: tuple[str, ...] = (),
+    def __init__(self, sources: list[Batches], shares: list[float], labels: tuple[str, ...] = (),
                  augmentation: Augmentation = Augmentation()):
         if any(not s.items for s in sources):
             raise InputError("a fine-tuning source holds no training example")
@@ -62,7 +62,7 @@ class MixedBatches:
     def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg, timer=None):
         which = rng.choice(len(self.sources), size=batch, p=self.shares)
         examples = [self.sources[int(s)].items[int(rng.integers(len(self.sources[int(s)].items)))] for s in which]
-        return draw_examples(examples, rng, anchors, cfg, timer, self.augmentation)
+        return draw_examples(examples, rng, anchors, cfg, self.sources[0].feed, timer, self.augmentation)
 
 
 def finetuned_name(fusion: str) -> str:
@@ -131,16 +131,16 @@ def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: 
     from ..datasets import build_dataset, dataset_path
 
     spec = load_lidar_spec()
-    network = network_of(name)
+    feed = feed_of(name)
     t0 = time.perf_counter()
     labels = [k for k, v in first.items() if v]
     views = fcfg.challenging_views or fcfg.views
-    sources = [_Batches(network, [make_sample(s, spec) for s in first[k]], views) for k in labels]
+    sources = [Batches(feed, [make_sample(s, spec) for s in first[k]], views) for k in labels]
     for mix in fcfg.mix_with:
         if not (dataset_path(mix) / "index.json").is_file():
             log(f"building data set {mix} ...")
             build_dataset(mix)
-        sources.append(_Batches(network, [make_sample(s, spec) for s in iter_frames(mix, "train")], fcfg.views))
+        sources.append(Batches(feed, [make_sample(s, spec) for s in iter_frames(mix, "train")], fcfg.views))
     rest = (1.0 - fcfg.challenging_share) / max(len(fcfg.mix_with), 1)
     shares = [fcfg.challenging_share / max(len(labels), 1)] * len(labels) + [rest] * len(fcfg.mix_with)
     batches = MixedBatches(sources, shares, (*labels, *fcfg.mix_with), fcfg.augment)

@@ -36,8 +36,9 @@ from ..perception.branch_fit import CACHE_NAME, BranchFitConfig, collect_cached,
 from ..perception.config import load_detector_config
 from ..perception.data import Augmentation, Sample, augment, make_sample
 from ..perception.head import detection_loss, iou_loss, refine_loss
-from ..perception.fusion import build_network, network_of
-from ..perception.model import AttFuse, PointPillars
+from ..perception.feeds import Feed
+from ..perception.fusion import build_network, feed_of
+from ..perception.model import PointPillars
 from .cards import card_validation, init_record, previous_training, write_card
 from ..perception.checkpoint import load_checkpoint, save_checkpoint
 from ..perception.train_config import TrainConfig, load_branch_config, load_train_config, weights_for  # noqa: F401  (asg train's API)
@@ -53,30 +54,26 @@ def render_samples(dataset: str, split: str | None = "train", progress: Callable
     return out
 
 
-class _Batches:
-    """Training examples of one kind, drawn with a seeded generator."""
+class Batches:
+    """The training examples a feed makes of some frames, drawn with a seeded generator."""
 
-    def __init__(self, kind: str, samples: list[Sample], views: str = "ego", augmentation: Augmentation = Augmentation()):
-        self.kind = kind
+    def __init__(self, feed: Feed, samples: list[Sample], views: str = "ego", augmentation: Augmentation = Augmentation()):
+        self.feed = feed
         self.augmentation = augmentation
-        if kind == "single":
-            self.items = [([c], b) for s in samples for c, b in s.own_views()]
-        else:
-            self.items = [v for s in samples for v in s.fused_views(views)]
-            if kind == "early":
-                self.items = [([np.vstack(clouds)], b) for clouds, b in self.items]
+        self.items = [example for s in samples for example in feed.examples(s, views)]
 
     def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg, timer: "PhaseTimer | None" = None):
-        """A batch: clouds (per sample, a list of (N, 4) tensors), labels (B, A), residual targets
-        (B, A, 7), direction bins (B, A) and the augmented boxes (per sample, (M, 7))."""
+        """A batch: the network's input (the feed's ``network_input`` of each example's clouds),
+        labels (B, A), residual targets (B, A, 7), direction bins (B, A) and the augmented boxes
+        (per example, (M, 7))."""
         picks = rng.integers(len(self.items), size=batch)
-        return draw_examples([self.items[int(k)] for k in picks], rng, anchors, cfg, timer, self.augmentation)
+        return draw_examples([self.items[int(k)] for k in picks], rng, anchors, cfg, self.feed, timer, self.augmentation)
 
 
-def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray, cfg, timer: "PhaseTimer | None" = None,
-                  augmentation: Augmentation = Augmentation()):
+def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray, cfg, feed: Feed,
+                  timer: "PhaseTimer | None" = None, augmentation: Augmentation = Augmentation()):
     """A batch of (clouds, boxes) examples, each transformed by a draw of ``augmentation`` from
-    ``rng``: see :meth:`_Batches.draw`.
+    ``rng``, the clouds given to the network as ``feed`` says: see :meth:`Batches.draw`.
     ``timer``: where the augmentation ("draw") and the target assignment ("targets") are timed."""
     timer = timer or PhaseTimer(enabled=False)
     clouds, labels, targets, dirs, gt = [], [], [], [], []
@@ -90,7 +87,7 @@ def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray,
         targets.append(res)
         dirs.append(d)
         gt.append(boxes)
-    return (clouds, torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
+    return (feed.network_input(clouds), torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
             torch.from_numpy(np.stack(dirs)), gt)
 
 
@@ -120,8 +117,7 @@ def train_step(model: torch.nn.Module, opt, sched, batch, timer: PhaseTimer | No
     (TrainConfig.corner_loss). ``timer`` splits it into "forward" (the
     network, of which "voxelise" is the pillar encoder's part), "loss", "backward" and "optimiser"."""
     timer = timer or PhaseTimer(enabled=False)
-    clouds, labels, targets, dirs, gt = batch
-    attention = isinstance(model, AttFuse)
+    inputs, labels, targets, dirs, gt = batch
     encode = model.encoder.encode
     if timer.enabled:  # the encoder's share of the forward pass, timed apart
         def timed_encode(c):
@@ -130,7 +126,7 @@ def train_step(model: torch.nn.Module, opt, sched, batch, timer: PhaseTimer | No
         model.encoder.encode = timed_encode
     try:
         with timer.phase("forward"):
-            cls, box, d, features = model(clouds if attention else [c[0] for c in clouds])
+            cls, box, d, features = model(inputs)
     finally:
         model.encoder.__dict__.pop("encode", None)
     with timer.phase("loss"):
@@ -214,7 +210,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     t0 = time.perf_counter()
     log(f"rendering {tcfg.dataset} ...")
     samples = render_samples(tcfg.dataset, "train")
-    batches = _Batches(network_of(name), samples, tcfg.views, tcfg.augment)
+    batches = Batches(feed_of(name), samples, tcfg.views, tcfg.augment)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     wall = run_steps(model, opt, sched, batches, rng,
                      Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every, tcfg.corner_loss), cfg, ckpt, wall, previous, log, progress)
@@ -302,9 +298,10 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     load_state(model, weights_dir / f"{name}.pt", allow_missing=BRANCH_KEYS)
     started = time.perf_counter()
     log(f"rendering {fcfg.dataset} ...")
-    items = _Batches(network_of(name), render_samples(fcfg.dataset, "train"), fcfg.views).items
+    feed = feed_of(name)
+    items = Batches(feed, render_samples(fcfg.dataset, "train"), fcfg.views).items
     t_collect = time.perf_counter()
-    cands = collect_cached(model, name == "attfuse", items, fcfg, run_dir, log,
+    cands = collect_cached(model, feed, items, fcfg, run_dir, log,
                            (lambda i, n: progress(i, n, float("nan"))) if progress else None)
     collect_or_load_s = time.perf_counter() - t_collect
     figures = fit_branches(model.head, cands, fcfg, log)
@@ -330,23 +327,18 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
 def init_from_weights(model: torch.nn.Module, path: Path) -> None:
     """Load a PointPillars state_dict (e.g. the single-agent weights) into ``model``.
 
-    Every tensor must match; AttFuse's attention is the only part allowed to be missing, and it
-    starts as (nearly) a plain average of the agents' features: v = identity, k scaled by 0.1 so
-    the first attention is close to uniform while q and k still get gradients.
+    Every tensor must match; only the parts ``model`` adds to PointPillars (``parts_beyond_base``,
+    e.g. AttFuse's attention) may be missing, and ``model.start_from_base()`` initialises them.
     """
     from ..perception.weights_io import load_state
 
     base = PointPillars(model.cfg)
     load_state(base, path, allow_missing=BRANCH_KEYS)  # one clear error for a missing, corrupt or mismatched file
     missing = model.load_state_dict(base.state_dict(), strict=False).missing_keys
-    if any(not k.startswith("fusion.") for k in missing):
-        raise InputError(f"{path}: weights do not match this model (missing {missing[0]})")
-    if isinstance(model, AttFuse):
-        with torch.no_grad():
-            for att in model.attentions():
-                att.v.weight.copy_(torch.eye(att.v.weight.shape[0]))
-                att.v.bias.zero_()
-                att.k.weight.mul_(0.1)
+    beyond = tuple(getattr(model, "parts_beyond_base", ()))
+    if any(not k.startswith(beyond) for k in missing):
+        raise InputError(f"{path}: weights do not match this model (missing {next(k for k in missing if not k.startswith(beyond))})")
+    model.start_from_base()
 
 
 def _branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.Tensor, labels: torch.Tensor,

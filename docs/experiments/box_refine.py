@@ -31,7 +31,8 @@ from asg.perception.branch_boxes import refine_boxes, refinement_residuals  # no
 from asg.perception.nms import select_boxes  # noqa: E402
 from asg.perception.data import augment, in_range  # noqa: E402
 from asg.perception.head import REFINE_SCALE  # noqa: E402
-from asg.workflows.train import _Batches, render_samples  # noqa: E402
+from asg.perception.fusion import feed_of  # noqa: E402
+from asg.workflows.train import Batches, render_samples  # noqa: E402
 from asg.perception.weights_io import weights_path  # noqa: E402
 
 PATCH = 3
@@ -42,7 +43,7 @@ def cache_train(model, name: str) -> dict:
     path = OUT / f"{name}-refine-train.npz"
     if path.is_file():
         return dict(np.load(path))
-    items = _Batches("single" if name == "single" else "attfuse", render_samples("detector-train", "train"), "all").items
+    items = Batches(feed_of(name), render_samples("detector-train", "train"), "all").items
     rng = np.random.default_rng(7)
     parts = {"f": [], "a": [], "t": [], "r": []}
     for aug in (False, True):

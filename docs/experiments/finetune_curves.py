@@ -21,7 +21,8 @@ from asg.perception.config import load_detector_config
 from asg.perception.data import make_sample
 from asg.workflows.finetune import mixed_sources
 from asg.perception.model import AttFuse
-from asg.workflows.train import BRANCH_KEYS, _Batches, _scheduler, train_step
+from asg.perception.feeds import AGENT_CLOUDS
+from asg.workflows.train import BRANCH_KEYS, Batches, _scheduler, train_step
 from asg.perception.weights_io import WEIGHTS_DIR, load_state
 from asg.scene import load_scene
 from asg.sensors import load_lidar_spec
@@ -60,7 +61,7 @@ def main(round_dir: str, out: str, every: int = 50, held: int = 40) -> None:
     scenes = [load_scene(p) for p in sorted((Path(round_dir) / "scenes").glob("*.yaml"))]
     batches = mixed_sources("attfuse", {"round": scenes}, hcfg, print)
     anchors = model.anchors.numpy()
-    held_out = {name: _Batches("attfuse", [make_sample(s, spec) for s in itertools.islice(scenes_of(name), held)]).items
+    held_out = {name: Batches(AGENT_CLOUDS, [make_sample(s, spec) for s in itertools.islice(scenes_of(name), held)]).items
                 for name in ("normal-val", "challenging-attfuse-val")}
     curve = [{"step": 0, **{n: held_out_loss(model, it, anchors, cfg) for n, it in held_out.items()}}]
     train_losses = []

@@ -30,7 +30,8 @@ from asg.perception.config import load_detector_config
 from asg.perception.data import Sample, augment, in_range
 from asg.perception.inference import fold_batch_norms
 from asg.perception.model import AttFuse, PointPillars
-from asg.workflows.train import BRANCH_KEYS, _Batches, render_samples
+from asg.perception.fusion import feed_of
+from asg.workflows.train import BRANCH_KEYS, Batches, render_samples
 from asg.perception.weights_io import load_state, weights_path
 from asg.sensors import load_lidar_spec, simulate_frame
 
@@ -61,7 +62,7 @@ def cache_train(model, name: str, patch: int) -> dict:
     path = OUT / f"{name}-p{patch}-train.npz"
     if path.is_file():
         return dict(np.load(path))
-    items = _Batches("single" if name == "single" else "attfuse", render_samples("detector-train", "train"), "all").items
+    items = Batches(feed_of(name), render_samples("detector-train", "train"), "all").items
     rng = np.random.default_rng(7)
     parts = {"f": [], "a": [], "t": []}
     for aug in (False, True):

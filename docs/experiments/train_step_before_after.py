@@ -31,10 +31,20 @@ from asg.perception.config import load_detector_config
 from asg.perception.data import make_sample
 from asg.perception.head import detection_loss
 from asg.perception.model import AttFuse
-try:  # asg.perception.train before the workflows layer, asg.workflows.train since
-    from asg.workflows.train import BRANCH_KEYS, _Batches, _branch_losses
-except ImportError:
-    from asg.perception.train import BRANCH_KEYS, _Batches, _branch_losses
+try:  # the feeds since they exist
+    from asg.perception.feeds import AGENT_CLOUDS
+    from asg.workflows.train import BRANCH_KEYS, Batches, _branch_losses
+
+    def attfuse_batches(samples, views):
+        return Batches(AGENT_CLOUDS, samples, views)
+except ImportError:  # the network's name before; asg.perception.train before the workflows layer
+    try:
+        from asg.workflows.train import BRANCH_KEYS, _Batches, _branch_losses
+    except ImportError:
+        from asg.perception.train import BRANCH_KEYS, _Batches, _branch_losses
+
+    def attfuse_batches(samples, views):
+        return _Batches("attfuse", samples, views)
 from asg.perception.weights_io import WEIGHTS_DIR, load_state
 from asg.sensors import load_lidar_spec
 steps = int(sys.argv[1])
@@ -42,7 +52,7 @@ torch.set_num_threads(2)
 torch.manual_seed(0)
 cfg = load_detector_config()
 spec = load_lidar_spec("v2xp")
-batches = _Batches("attfuse", [make_sample(s, spec) for s in itertools.islice(iter_frames("detector-train", "train"), 24)], "all")
+batches = attfuse_batches([make_sample(s, spec) for s in itertools.islice(iter_frames("detector-train", "train"), 24)], "all")
 model = AttFuse(cfg)
 load_state(model, WEIGHTS_DIR / "attfuse.pt", allow_missing=BRANCH_KEYS)
 model.train()

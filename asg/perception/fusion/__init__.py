@@ -8,7 +8,7 @@ from . import attfuse, early, single  # noqa: F401  (fill the registry)
 from .base import Detections, V2XDetector
 
 __all__ = ["Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
-           "fusions_of", "has_own_attention", "network_of", "shipped_model", "shipped_weights_of", "weights_names"]
+           "card_settings_of", "feed_of", "fusions_of", "has_own_attention", "shipped_model", "shipped_weights_of", "weights_names"]
 
 
 def detector_names() -> list[str]:
@@ -46,7 +46,7 @@ def build_detector(name: str, **kwargs):
 
 def shipped_model(fusion: str) -> type[V2XDetector]:
     """The registry's entry of a shipped model: its detector class, which knows its weights file
-    (``weights``), its network (``network``) and how to build and load it. InputError for a plugin
+    (``weights``), how its network is built (``new_network``) and trained (``feed``). InputError for a plugin
     (it brings its own weights: nothing of asg trains it) or an unknown name."""
     from ...registry import lookup, names
     from ..plugins import plugin_names
@@ -108,9 +108,14 @@ def _entry_of(weights_name: str) -> type[V2XDetector]:
     raise InputError(f"unknown weights '{weights_name}'; choose one of {', '.join(weights_names())}")
 
 
-def network_of(weights_name: str) -> str:
-    """The network behind a weights file: single, early or attfuse."""
-    return _entry_of(weights_name).network
+def feed_of(weights_name: str):
+    """How the network behind a weights file is trained (an asg.perception.feeds.Feed)."""
+    return _entry_of(weights_name).feed
+
+
+def card_settings_of(weights_name: str, cfg) -> dict:
+    """The detector settings of ``cfg`` particular to the model of a weights file, for its card."""
+    return _entry_of(weights_name).card_settings(cfg)
 
 
 def build_network(weights_name: str, cfg):

@@ -7,6 +7,7 @@ import torch
 
 from ...registry import register
 from ...sensors.frame import CooperativeFrame
+from ..feeds import AGENT_CLOUDS
 from ..model import AttFuse, postprocess
 from .base import Detections, V2XDetector
 
@@ -14,7 +15,11 @@ from .base import Detections, V2XDetector
 @register("fusion", "attfuse")
 class AttFuseDetector(V2XDetector):
     weights = "attfuse"
-    network = "attfuse"
+    feed = AGENT_CLOUDS
+
+    @classmethod
+    def card_settings(cls, cfg) -> dict:
+        return {"attfuse_fusion": cfg.attfuse_fusion}
 
     @classmethod
     def new_network(cls, cfg) -> torch.nn.Module:

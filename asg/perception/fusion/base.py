@@ -9,6 +9,7 @@ import torch
 from ...sensors.frame import CooperativeFrame
 from ..config import DetectorConfig, load_detector_config
 from ..data import in_range
+from ..feeds import Feed
 from ..inference import fold_batch_norms
 
 Detections = tuple[np.ndarray, np.ndarray]  # boxes (K, 7) in the ego sensor frame, scores (K,)
@@ -20,8 +21,9 @@ class V2XDetector(ABC):
     registry_name: str = ""
     #: the shipped weights file under asg/perception/weights/
     weights: str = ""
-    #: the network those weights belong to (what training builds and feeds: single, early, attfuse)
-    network: str = ""
+    #: how training feeds the network (asg.perception.feeds): the examples of a frame, and how a
+    #: batch of them enters the network; None for a detector asg does not train (a plugin)
+    feed: "Feed | None" = None
 
     def __init__(self, cfg: DetectorConfig | None = None, weights_file: str | None = None, load: bool = True):
         self.cfg = cfg or load_detector_config()
@@ -40,6 +42,11 @@ class V2XDetector(ABC):
     def new_network(cls, cfg: DetectorConfig) -> torch.nn.Module:
         """A fresh, trainable network of this model (what its weights load into and training builds)."""
         raise NotImplementedError(f"{cls.__name__} defines no network")
+
+    @classmethod
+    def card_settings(cls, cfg: DetectorConfig) -> dict:
+        """Settings of ``cfg`` particular to this model, recorded in its weights' model card."""
+        return {}
 
     def build_model(self) -> torch.nn.Module:
         return self.new_network(self.cfg)

@@ -6,6 +6,7 @@ import torch
 
 from ...registry import register
 from ...sensors.frame import CooperativeFrame
+from ..feeds import FUSED_CLOUD
 from ..model import PointPillars, postprocess
 from .base import Detections, V2XDetector
 
@@ -17,7 +18,7 @@ def fused_cloud(frame: CooperativeFrame) -> np.ndarray:
 @register("fusion", "early")
 class EarlyFusion(V2XDetector):
     weights = "early"
-    network = "early"
+    feed = FUSED_CLOUD
 
     @classmethod
     def new_network(cls, cfg) -> torch.nn.Module:

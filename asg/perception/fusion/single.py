@@ -6,6 +6,7 @@ import torch
 
 from ...registry import register
 from ...sensors.frame import CooperativeFrame, boxes_to_sensor, boxes_to_world
+from ..feeds import OWN_CLOUD
 from ..nms import select_boxes
 from ..model import PointPillars, postprocess
 from .base import Detections, V2XDetector
@@ -13,7 +14,7 @@ from .base import Detections, V2XDetector
 
 class _Single(V2XDetector):
     weights = "single"
-    network = "single"
+    feed = OWN_CLOUD
 
     @classmethod
     def new_network(cls, cfg) -> torch.nn.Module:
