@@ -69,6 +69,30 @@ def test_interrupted_training_resumes_to_the_same_weights(sumo_log, tmp_path):
     assert not all(torch.equal(b[k], v) for k, v in torch.load(again, weights_only=True).items())
 
 
+def test_a_sequence_of_chunks_continues_from_committed_weights_alone(sumo_log, tmp_path):
+    """A long training run survives the end of a sitting through its chunk weights: what a
+    repository holds of it (each finished chunk's weights and card), copied to an empty machine (no
+    run folder, no checkpoint), continues to exactly the weights of the same chunks run in one go."""
+    import shutil
+
+    data = tiny_dataset(sumo_log, tmp_path / "tiny")
+    tcfg = TrainConfig(dataset=str(data), steps=4, batch_size=1, lr=0.01, schedule="onecycle", seed=7,
+                       checkpoint_every=2)
+    run(tmp_path, "one-go", tcfg)
+    one_go = run(tmp_path, "one-go", tcfg)  # the second chunk, same machine
+    first = run(tmp_path, "sitting-1", tcfg)
+    committed = tmp_path / "weights-sitting-2"
+    committed.mkdir()
+    for f in (first, first.with_suffix(".json")):  # what a commit holds; the run folder stays behind
+        shutil.copy(f, committed / f.name)
+    shutil.rmtree(tmp_path / "run-sitting-1")
+    second = run(tmp_path, "sitting-2", tcfg)
+    a, b = torch.load(one_go, weights_only=True), torch.load(second, weights_only=True)
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    card = json.loads(second.with_suffix(".json").read_text())
+    assert card["steps"] == 8 and [c["seed"] for c in card["chunks"]] == [[7, 0], [7, 1]]
+
+
 def _world_xy(boxes, pose):
     from asg.sensors.frame import boxes_to_world
 
