@@ -14,13 +14,18 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.log import SOURCES
+from sumo_scenarios.routes import DENSITIES
 
 from . import __version__, commands
 from .cli_args import COUNT, SEED, executor_args, real, weights_arg, whole
 from .executors.base import WorkerLost
 from .generator_config import protocols
+from .io.export import FORMATS as EXPORT_FORMATS
 from .objective.ap import AP_METHODS, DEFAULT_AP_METHOD
 from .registry import names
+from .scene.feasibility import PLAUSIBILITY_LEVELS
+from .scene.from_log import EGO_KINDS
 from .workflows import MAX_ROUNDS
 
 
@@ -90,12 +95,12 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     where = p.add_mutually_exclusive_group()
     where.add_argument("--town", help="a bundled town name (see 'asg towns list')")
     where.add_argument("--net", type=Path, help="any SUMO .net.xml")
-    p.add_argument("--source", choices=["sumo", "highway-env"], default="sumo", help="traffic source (default sumo)")
+    p.add_argument("--source", choices=SOURCES, default="sumo", help="traffic source (default sumo)")
     p.add_argument("--env", default="highway-v0", help="highway-env scenario: highway-v0, merge-v0, roundabout-v0, intersection-v0")
     p.add_argument("--seed", type=SEED, default=1)
     p.add_argument("--duration", type=float, default=60.0, help="recorded seconds (default 60)")
     p.add_argument("--warmup", type=float, default=None, help="seconds simulated before recording (default 90 for SUMO, 0 for highway-env)")
-    p.add_argument("--density", choices=["normal", "dense"], default="normal")
+    p.add_argument("--density", choices=DENSITIES, default="normal")
     p.add_argument("--step", type=float, default=0.1, help="simulation step, s (default 0.1)")
     p.add_argument("--record-period", type=float, default=0.5, help="seconds between recorded frames (default 0.5)")
     p.add_argument("--out", type=Path, required=True, help="log folder to write")
@@ -105,7 +110,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p = _add(ssub, "extract", "write every N-th frame of a log as a scene yaml", commands.scenes_extract)
     p.add_argument("log", type=Path, help="log folder written by 'asg simulate'")
     p.add_argument("--every", type=COUNT, default=10, help="take every N-th recorded frame (default 10)")
-    p.add_argument("--ego", choices=["rsu", "vehicle"], default="rsu", help="ego agent kind (default rsu: V2I)")
+    p.add_argument("--ego", choices=EGO_KINDS, default="rsu", help="ego agent kind (default rsu: V2I)")
     p.add_argument("--radius", type=float, default=120.0, help="keep agents within this many metres of the ego")
     p.add_argument("--min-vehicles", type=whole(0, 10_000, "--min-vehicles"), default=1, help="skip frames with fewer vehicles within 48 m of the ego")
     p.add_argument("--collaborators", type=whole(0, 16, "--collaborators"), default=None,
@@ -137,7 +142,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p = _add(sub, "export", "write scenes for other tools: OPV2V (OpenCOOD), KITTI (OpenPCDet), OpenSCENARIO "
              "1.2 + OpenDRIVE, SUMO routes", commands.export)
     p.add_argument("source", help="a run folder of 'asg generate', a data set (name or folder) or a folder of scene yaml")
-    p.add_argument("--format", required=True, choices=["opv2v", "kitti", "openscenario", "sumo"])
+    p.add_argument("--format", required=True, choices=EXPORT_FORMATS)
     p.add_argument("--out", type=Path, required=True, help="folder to write (nothing is written outside it)")
     p.add_argument("--net", type=Path, default=None,
                    help="openscenario, sumo: the SUMO net of scenes from a net that is not a bundled town")
@@ -216,7 +221,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p.add_argument("--aps", default=None, choices=["on", "off"])
     p.add_argument("--movers", type=whole(0, 64, "--movers"), default=None,
                    help="vehicles the perturbation search moves (m; default 3, the paper's)")
-    p.add_argument("--plausibility", default=None, choices=["paper", "traffic"],
+    p.add_argument("--plausibility", default=None, choices=PLAUSIBILITY_LEVELS,
                    help="paper (default: on the drivable area, no collision, in range) or traffic (also in a lane "
                         "of its own direction, heading within 30 deg of it)")
     p.add_argument("--space", default=None, metavar="NAME[,NAME...]",

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Callable
 
 from .executors import Executor, build_executor, default_workers
+from .registry import names
 
 
 def whole(lo: int, hi: int, what: str) -> Callable[[str], int]:
@@ -65,7 +66,7 @@ def executor_args(p: argparse.ArgumentParser) -> None:
     """--workers, --executor, --address: how a batch command spreads its items."""
     p.add_argument("--workers", type=whole(1, 1024, "--workers"), default=None,
                    help="worker processes, one thread each (default: one per core); results do not depend on it")
-    p.add_argument("--executor", choices=["local", "ray"], default="local",
+    p.add_argument("--executor", choices=names("executor"), default="local",
                    help="local processes (default) or Ray actors (pip install 'asg[ray]')")
     p.add_argument("--address", default=None, help="an existing Ray cluster (default: a local Ray instance)")
 

@@ -14,7 +14,7 @@ import gzip
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 import yaml
@@ -38,9 +38,14 @@ BUILDINGS_NAME = "buildings.poly.xml"
 NEAR_RADIUS_M = 48.0
 
 
+#: where a traffic log comes from (``asg simulate --source``, a scene's ``source``)
+Source = Literal["sumo", "highway-env"]
+SOURCES: tuple[str, ...] = get_args(Source)
+
+
 @dataclass(frozen=True)
 class LogMeta:
-    source: Literal["sumo", "highway-env"]
+    source: Source
     town: str
     seed: int
     density: str

@@ -3,12 +3,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Literal, get_args
 
 from . import sumo_tools
 from .vehicles import MIX_ID
 
 Density = Literal["normal", "dense"]
+#: the traffic densities every town knows (``asg simulate --density``, data sets' ``densities``)
+DENSITIES: tuple[str, ...] = get_args(Density)
 
 
 @dataclass(frozen=True)

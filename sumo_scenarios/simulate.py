@@ -14,7 +14,7 @@ from .buildings import write_buildings
 from .errors import InputError
 from .fcd import FCD_ATTRIBUTES, FCD_ELEVATION_ATTRIBUTES, FcdFrame, FcdVehicle
 from .log import BUILDINGS_NAME, FCD_NAME, NET_NAME, LogMeta, density_stats, write_meta
-from .routes import Density, TrafficParams, make_routes
+from .routes import DENSITIES, Density, TrafficParams, make_routes
 from .rsu import place_rsus
 from .towns import demand_scale, load_town
 from .vehicles import VEHICLE_TYPES, vtypes_additional_xml
@@ -45,8 +45,8 @@ class SimulationRequest:
         checks.number(self.seed, "--seed", 0, 2**31 - 1)
         if self.record_period_s < self.step_s:
             raise InputError(f"--record-period ({self.record_period_s:g} s) must be at least the step ({self.step_s:g} s)")
-        if self.density not in ("normal", "dense"):
-            raise InputError(f"--density must be normal or dense, got {self.density!r}")
+        if self.density not in DENSITIES:
+            raise InputError(f"--density must be one of {', '.join(DENSITIES)}, got {self.density!r}")
 
 
 def validate_times(duration_s: float, warmup_s: float) -> None:

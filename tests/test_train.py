@@ -195,7 +195,7 @@ def test_train_init_from_starts_a_new_sequence(sumo_log, tmp_path):
 
 def test_resumed_onecycle_follows_the_configured_length():
     """A chunk resumed with another configured length anneals on that length (peak and end move)."""
-    from asg.workflows.train import _keep_configured_length, _scheduler
+    from asg.workflows.train import _keep_configured_length, make_scheduler
 
     def lrs(sched, n):
         out = []
@@ -207,7 +207,7 @@ def test_resumed_onecycle_follows_the_configured_length():
 
     def fresh(steps):
         opt = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=0.001)
-        return _scheduler(opt, TrainConfig(dataset="x", steps=steps, schedule="onecycle", lr=0.001), steps)
+        return make_scheduler(opt, TrainConfig(dataset="x", steps=steps, schedule="onecycle", lr=0.001), steps)
 
     long = fresh(40)
     lrs(long, 10)  # a checkpoint of a 40-step chunk at step 10 ...

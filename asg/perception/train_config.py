@@ -68,13 +68,13 @@ FINETUNE_BLOCK = "finetune"
 
 def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
     """The training settings of ``weights`` (its train.yaml block), every number checked."""
-    return check_train_config(from_mapping(TrainConfig, _block(weights, path), f"train.yaml:{weights}"),
+    return check_train_config(from_mapping(TrainConfig, train_block(weights, path), f"train.yaml:{weights}"),
                               f"train.yaml:{weights}")
 
 
 def load_finetune_config(path: Path | None = None) -> FinetuneConfig:
     """The fine-tuning settings (train.yaml's ``finetune`` block), every number checked."""
-    return check_train_config(from_mapping(FinetuneConfig, _block(FINETUNE_BLOCK, path), f"train.yaml:{FINETUNE_BLOCK}"),
+    return check_train_config(from_mapping(FinetuneConfig, train_block(FINETUNE_BLOCK, path), f"train.yaml:{FINETUNE_BLOCK}"),
                               f"train.yaml:{FINETUNE_BLOCK}")
 
 
@@ -113,10 +113,10 @@ def check_train_config(cfg: TrainConfig, where: str):
 
 def load_branch_config(path: Path | None = None) -> BranchFitConfig:
     """The settings of the IoU and refinement branches' fit (train.yaml's ``iou_branch`` block)."""
-    return from_mapping(BranchFitConfig, _block(IOU_BLOCK, path), f"train.yaml:{IOU_BLOCK}")
+    return from_mapping(BranchFitConfig, train_block(IOU_BLOCK, path), f"train.yaml:{IOU_BLOCK}")
 
 
-def _block(name: str, path: Path | None) -> dict:
+def train_block(name: str, path: Path | None) -> dict:
     """Block ``name`` of train.yaml (or of ``path``): a mapping, or one line of InputError."""
     where = path or configs_dir() / "detectors" / "train.yaml"
     data = read_yaml(where)

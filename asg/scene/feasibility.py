@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Literal, Mapping, Sequence, get_args
 
 import fcl
 import numpy as np
@@ -24,6 +24,11 @@ from .scene import Scene
 #: where moved vehicles must stay. The same number as the radius of "near the ego" when logs pick
 #: an ego and count traffic (a circle, sumo_scenarios.log)
 EVAL_RANGE_M = NEAR_RADIUS_M
+
+#: how plausible a moved vehicle must be: "paper" (on a drivable lane, no collision) or "traffic"
+#: (also in a lane of its own direction, heading along it); ``--plausibility``, space.plausibility
+PlausibilityLevel = Literal["paper", "traffic"]
+PLAUSIBILITY_LEVELS: tuple[str, ...] = get_args(PlausibilityLevel)
 
 
 def box_object(a: Agent) -> fcl.CollisionObject:
@@ -82,7 +87,7 @@ class Plausibility:
 class FeasibilityChecker:
     """Checks poses of the ``movable`` vehicles of a scene against everything else in it."""
 
-    def __init__(self, scene: Scene, movable_ids: Sequence[str], plausibility: str = "paper",
+    def __init__(self, scene: Scene, movable_ids: Sequence[str], plausibility: PlausibilityLevel = "paper",
                  traffic_heading_deg: float = 30.0):
         self.scene = scene
         self.movable_ids = tuple(movable_ids)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Literal
+from typing import Iterator, Literal, get_args
 
 import numpy as np
 
@@ -19,6 +19,8 @@ from .neighbours import random_collaborators
 from .scene import Scene
 
 EgoChoice = Literal["rsu", "vehicle"]
+#: the kinds of agent a scene's ego can be (``asg scenes extract --ego``)
+EGO_KINDS: tuple[str, ...] = get_args(EgoChoice)
 
 
 @dataclass(frozen=True)
@@ -44,7 +46,7 @@ class ExtractParams:
     def validate(self) -> None:
         if self.every < 1:
             raise InputError(f"--every must be a positive whole number, got {self.every}")
-        if self.ego not in ("rsu", "vehicle"):
+        if self.ego not in EGO_KINDS:
             raise InputError(f"--ego must be rsu or vehicle, got {self.ego!r}")
         checks.number(self.radius_m, f"--radius (m; beyond the {NEAR_RADIUS_M:g} m evaluation range)", NEAR_RADIUS_M,
                       10_000.0, lo_open=True)

@@ -27,7 +27,7 @@ from shapely.ops import unary_union
 from sumo_scenarios.lanes import DRIVABLE_TOLERANCE_M
 
 from .agent import Agent
-from .feasibility import EVAL_RANGE_M, Plausibility
+from .feasibility import EVAL_RANGE_M, Plausibility, PlausibilityLevel
 from .scene import Scene
 
 #: overlap (m²) below which two footprints count as touching, not colliding (float noise)
@@ -88,7 +88,7 @@ def _wrong_way(final: Scene, moved: list[Agent], max_heading_rad: float) -> int:
     return wrong
 
 
-def recheck(initial: Scene, final: Scene, plausibility: str = "paper", traffic_heading_deg: float = 30.0) -> Plausibility:
+def recheck(initial: Scene, final: Scene, plausibility: PlausibilityLevel = "paper", traffic_heading_deg: float = 30.0) -> Plausibility:
     """Collisions, off-road and out-of-range counts of the vehicles ``final`` moved or inserted (see module),
     and at the ``traffic`` level how many are not in a lane of their own direction."""
     moved = moved_vehicles(initial, final)

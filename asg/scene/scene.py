@@ -27,6 +27,7 @@ from sumo_scenarios import checks
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.buildings import Building
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.log import SOURCES  # where scenes come from (their one home)
 from sumo_scenarios.lanes import LaneMap
 from sumo_scenarios.strict import load_strict_yaml
 
@@ -154,10 +155,6 @@ def _link(value, where: str) -> dict[str, LinkState]:
     if not isinstance(value, dict):
         raise TypeError("'link' must be a mapping of collaborator id to link state")
     return {str(k): LinkState.from_dict(v, str(k), where) for k, v in value.items()}
-
-
-#: where scenes come from
-SOURCES = ("sumo", "highway-env")
 
 
 def _items(value, key: str) -> list:

@@ -26,7 +26,7 @@ from sumo_scenarios.errors import InputError
 
 from ..registry import lookup, names
 from ..scene import Agent, Scene
-from ..scene.feasibility import FeasibilityChecker, box_object, collide_boxes
+from ..scene.feasibility import PLAUSIBILITY_LEVELS, FeasibilityChecker, PlausibilityLevel, box_object, collide_boxes
 from ..scene.link import LinkState
 from .spaces import DropoutConfig, InsertConfig, LatencyConfig, PoseErrorConfig, Slot, SpaceContext
 
@@ -46,7 +46,7 @@ class SpaceConfig:
     max_draw_factor: int = 20
     #: what a moved vehicle must respect: "paper" (on the drivable area, no collision, in range) or
     #: "traffic" (also in a lane of its own direction, heading within traffic_heading_deg of it)
-    plausibility: Literal["paper", "traffic"] = "paper"
+    plausibility: PlausibilityLevel = "paper"
     traffic_heading_deg: float = 30.0
     insert: InsertConfig = field(default_factory=InsertConfig)
     pose_error: PoseErrorConfig = field(default_factory=PoseErrorConfig)
@@ -74,8 +74,8 @@ class SpaceConfig:
         checks.number(self.dyaw_step_deg, "space.dyaw_step_deg", 0.0, self.dyaw_deg)
         checks.number(self.n_q, "space.n_q", 1, 1_000_000)
         checks.number(self.max_draw_factor, "space.max_draw_factor", 1, 10_000)
-        if self.plausibility not in ("paper", "traffic"):
-            raise InputError(f"space.plausibility must be paper or traffic, got {self.plausibility!r}")
+        if self.plausibility not in PLAUSIBILITY_LEVELS:
+            raise InputError(f"space.plausibility must be one of {', '.join(PLAUSIBILITY_LEVELS)}, got {self.plausibility!r}")
         checks.number(self.traffic_heading_deg, "space.traffic_heading_deg", 0.0, 90.0, lo_open=True)
 
     def scale_per_vehicle(self) -> np.ndarray:

@@ -39,7 +39,7 @@ from ..sensors import load_lidar_spec
 from ..perception.checkpoint import load_checkpoint
 from ..perception.config import load_detector_config
 from ..perception.data import Augmentation, make_sample
-from .train import BRANCH_KEYS, Batches, Steps, _augment_record, _corner_record, _scheduler, draw_examples, run_steps
+from .train import BRANCH_KEYS, Batches, Steps, augment_record, corner_record, make_scheduler, draw_examples, run_steps
 from ..perception.fusion import build_network, feed_of
 from ..perception.train_config import FinetuneConfig, load_finetune_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, load_state
@@ -168,7 +168,7 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
     model = build_network(name, cfg)
     load_state(model, start, allow_missing=BRANCH_KEYS)
     opt = torch.optim.Adam(model.parameters(), lr=fcfg.lr, weight_decay=fcfg.weight_decay)
-    sched = _scheduler(opt, fcfg, total)
+    sched = make_scheduler(opt, fcfg, total)
     step, wall_s = 0, 0.0
     state = load_checkpoint(ckpt)
     if state is not None:
@@ -191,7 +191,7 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
             "examples": {n: len(b.items) for n, b in zip(batches.labels, batches.sources)},
             "steps": total, "batch_size": fcfg.batch_size, "lr": fcfg.lr, "schedule": fcfg.schedule,
             "seed": fcfg.seed, "views": fcfg.views, "challenging_views": fcfg.challenging_views or fcfg.views,
-            **_augment_record(fcfg.augment), **_corner_record(fcfg),
+            **augment_record(fcfg.augment), **corner_record(fcfg),
             "threads": threads, "wall_s": round(wall_s, 1)}
 
 

@@ -29,7 +29,7 @@ import json
 import shutil
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Callable, Literal, get_args
 
 import numpy as np
 
@@ -43,14 +43,15 @@ from ..cli_args import executor_from_args, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
 from ..io.run_record import claim
 from ..objective.ap import AP_KEYS
-from ..perception.train_config import FinetuneConfig, _block, check_train_config, weights_for
+from ..perception.train_config import FinetuneConfig, train_block, check_train_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR
 from ..scene import Scene, load_scene
 
 #: the train.yaml block of ``asg harden``
 HARDEN_BLOCK = "harden"
-#: what a round trains on (see the module's docstring)
-DATA_KINDS = ("adversarial", "random", "normal")
+#: what a round trains on (``--data``, the harden block's ``data``)
+DataKind = Literal["adversarial", "random", "normal"]
+DATA_KINDS: tuple[str, ...] = get_args(DataKind)
 #: the name of the noisy evaluation set in a card
 NOISY_SET = "normal-val-noisy"
 #: the seed of the attacks and of the noise (as the challenging sets')
@@ -65,7 +66,7 @@ class HardenConfig(FinetuneConfig):
     scenes_per_round: int = 219
     #: data sets whose train split gives each round fresh scenes
     pool: tuple[str, ...] = ("normal", "detector-train")
-    data: Literal["adversarial", "random", "normal"] = "adversarial"
+    data: DataKind = "adversarial"
     #: a round trains on every earlier round's scenes too (each label an equal part of the share)
     keep_previous: bool = True
     #: evaluate under the standard noisy V2X setting too
@@ -78,7 +79,7 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
     """train.yaml's ``harden`` block (or ``path``'s), then non-None ``overrides``; checked."""
     from sumo_scenarios import checks
 
-    data = dict(_block(HARDEN_BLOCK, path))
+    data = dict(train_block(HARDEN_BLOCK, path))
     data.update({k: v for k, v in overrides.items() if v is not None})
     where = f"train.yaml:{HARDEN_BLOCK}"
     cfg = check_train_config(from_mapping(HardenConfig, data, where), where)
@@ -374,7 +375,7 @@ def _load_scenes(folder: Path) -> list[Scene]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fusion", required=True, help="the model to harden: attfuse, early, none or late")
     p.add_argument("--rounds", type=whole(1, MAX_ROUNDS, "--rounds"), required=True, help="rounds to run (resumable)")
-    p.add_argument("--data", default=None, choices=("adversarial", "random", "normal"),
+    p.add_argument("--data", default=None, choices=DATA_KINDS,
                    help="what a round trains on: adversarial (default), or a control at equal compute: random "
                         "(one plausible random perturbation a scene) or normal (the scenes unperturbed)")
     p.add_argument("--space", default=None, metavar="KIND[,KIND]",

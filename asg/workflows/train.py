@@ -131,7 +131,7 @@ def train_step(model: torch.nn.Module, opt, sched, batch, timer: PhaseTimer | No
         model.encoder.__dict__.pop("encode", None)
     with timer.phase("loss"):
         loss = detection_loss(cls, box, d, labels, targets, dirs, model.anchors, corner_weight)
-        loss.update(_branch_losses(model, cls, box, features, labels, gt))
+        loss.update(branch_losses(model, cls, box, features, labels, gt))
         loss["total"] = loss["total"] + loss["iou"] + loss["refine"]
     with timer.phase("backward"):
         opt.zero_grad()
@@ -186,7 +186,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     model = build_network(name, cfg)
     params = list(model.parameters())
     opt = torch.optim.Adam(params, lr=tcfg.lr, weight_decay=tcfg.weight_decay)
-    sched = _scheduler(opt, tcfg, total)
+    sched = make_scheduler(opt, tcfg, total)
     step, wall = 0, 0.0
     if init_from:
         init_from_weights(model, weights_dir / f"{init_from}.pt")
@@ -219,7 +219,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         torch.save(model.state_dict(), tmp)
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
-                                            **_augment_record(tcfg.augment), **_corner_record(tcfg),
+                                            **augment_record(tcfg.augment), **corner_record(tcfg),
                                             "wall_s": round(wall, 1), "part": "all"}]
     write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
                 examples=len(batches.items), batch_size=tcfg.batch_size)
@@ -341,7 +341,7 @@ def init_from_weights(model: torch.nn.Module, path: Path) -> None:
     model.start_from_base()
 
 
-def _branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.Tensor, labels: torch.Tensor,
+def branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.Tensor, labels: torch.Tensor,
                    gt: list[np.ndarray]) -> dict[str, torch.Tensor]:
     """The IoU and refinement branches' losses on a batch (outputs of ``model``, (B, ...))."""
     per_sample = branch_targets(cls.detach(), box.detach(), model.anchors, labels, gt)
@@ -351,13 +351,13 @@ def _branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.
                                   torch.cat([r for *_, r in per_sample]))}
 
 
-def _augment_record(aug: Augmentation) -> dict:
+def augment_record(aug: Augmentation) -> dict:
     """The chunk record's augmentation entry: none for the default (cards written before the
     setting existed read the same), else its settings."""
     return {} if aug == Augmentation() else {"augment": asdict(aug)}
 
 
-def _corner_record(tcfg: TrainConfig) -> dict:
+def corner_record(tcfg: TrainConfig) -> dict:
     """The chunk record's corner-loss entry: none when off (as in cards written before it existed)."""
     return {"corner_loss": tcfg.corner_loss} if tcfg.corner_loss > 0 else {}
 
@@ -366,7 +366,7 @@ def _corner_record(tcfg: TrainConfig) -> dict:
 BRANCH_KEYS = ("head.iou.", "head.refine.")
 
 
-def _scheduler(opt: torch.optim.Optimizer, tcfg: TrainConfig, total: int):
+def make_scheduler(opt: torch.optim.Optimizer, tcfg: TrainConfig, total: int):
     if tcfg.schedule == "onecycle":
         return torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tcfg.lr, total_steps=total, pct_start=tcfg.pct_start,
                                                    div_factor=tcfg.div_factor)
@@ -381,7 +381,7 @@ def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
     only move the final step, not where the peak and the annealing end).
     """
     if tcfg.schedule == "onecycle":
-        reference = _scheduler(torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=tcfg.lr), tcfg, total)
+        reference = make_scheduler(torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=tcfg.lr), tcfg, total)
         sched.total_steps = reference.total_steps
         sched._schedule_phases = reference._schedule_phases
     else:

@@ -22,7 +22,7 @@ from asg.perception.data import make_sample
 from asg.workflows.finetune import mixed_sources
 from asg.perception.model import AttFuse
 from asg.perception.feeds import AGENT_CLOUDS
-from asg.workflows.train import BRANCH_KEYS, Batches, _scheduler, train_step
+from asg.workflows.train import BRANCH_KEYS, Batches, make_scheduler, train_step
 from asg.perception.weights_io import WEIGHTS_DIR, load_state
 from asg.scene import load_scene
 from asg.sensors import load_lidar_spec
@@ -57,7 +57,7 @@ def main(round_dir: str, out: str, every: int = 50, held: int = 40) -> None:
     model = AttFuse(cfg)
     load_state(model, WEIGHTS_DIR / "attfuse.pt", allow_missing=BRANCH_KEYS)
     opt = torch.optim.Adam(model.parameters(), lr=hcfg.lr, weight_decay=hcfg.weight_decay)
-    sched = _scheduler(opt, hcfg, hcfg.steps)
+    sched = make_scheduler(opt, hcfg, hcfg.steps)
     scenes = [load_scene(p) for p in sorted((Path(round_dir) / "scenes").glob("*.yaml"))]
     batches = mixed_sources("attfuse", {"round": scenes}, hcfg, print)
     anchors = model.anchors.numpy()

@@ -36,7 +36,7 @@ from asg.scene import load_scene
 from asg.sensors import load_lidar_spec
 from asg.perception.train_config import FinetuneConfig
 from asg.perception.feeds import AGENT_CLOUDS
-from asg.workflows.train import BRANCH_KEYS, Batches, Steps, _scheduler, run_steps
+from asg.workflows.train import BRANCH_KEYS, Batches, Steps, make_scheduler, run_steps
 
 THRESHOLDS = (0.3, 0.5, 0.7)
 
@@ -73,7 +73,7 @@ def main(attack_dir: str, k: int, steps: int, lr: float, aug: str, out: str) -> 
     load_state(model, start, allow_missing=BRANCH_KEYS)
     fcfg = FinetuneConfig(steps=steps, lr=lr, schedule="onecycle", pct_start=0.3, checkpoint_every=10 ** 9)
     opt = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=fcfg.weight_decay)
-    sched = _scheduler(opt, fcfg, steps)
+    sched = make_scheduler(opt, fcfg, steps)
     batches = Batches(AGENT_CLOUDS, train_s, "all", augmentation)
     curve: list[tuple[int, float]] = []
     t0 = time.perf_counter()

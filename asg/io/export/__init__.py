@@ -15,7 +15,10 @@ from sumo_scenarios.errors import InputError
 
 from ...scene import Scene, load_scene
 
-FORMATS = ("opv2v", "kitti", "openscenario", "sumo")
+#: each export format (``asg export --format``) and its writer (module of this package, class)
+WRITERS = {"opv2v": ("opv2v", "ScenarioWriter"), "kitti": ("kitti", "KittiWriter"),
+           "openscenario": ("openscenario", "XoscWriter"), "sumo": ("sumo", "RoutesWriter")}
+FORMATS = tuple(WRITERS)
 
 
 def source_scenes(source: Path | str) -> Iterator[Scene]:
@@ -39,10 +42,10 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     from sumo_scenarios.checks import output_dir
 
     out = output_dir(Path(out))
-    from . import kitti, openscenario, opv2v, sumo
+    import importlib
 
-    writer = {"opv2v": opv2v.ScenarioWriter, "kitti": kitti.KittiWriter, "openscenario": openscenario.XoscWriter,
-              "sumo": sumo.RoutesWriter}[fmt](out, net)
+    module, writer_class = WRITERS[fmt]
+    writer = getattr(importlib.import_module(f".{module}", __package__), writer_class)(out, net)
     n = 0
     for n, scene in enumerate(source_scenes(source), start=1):
         writer.write(scene)
