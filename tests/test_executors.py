@@ -211,3 +211,34 @@ def test_third_party_notices_stay_off_a_runs_stderr():
         warnings.warn_explicit("ours", UserWarning, "asg/x.py", 1, module="asg.pipeline")
     assert [str(w.message) for w in seen] == ["ours"]
 
+
+
+def _sigint_disposition(_=None) -> str:
+    import signal
+
+    return "ignored" if signal.getsignal(signal.SIGINT) == signal.SIG_IGN else "handled"
+
+
+def test_processes_spawned_inside_the_block_are_born_ignoring_ctrl_c():
+    """The launcher makes a spawned interpreter ignore SIGINT before Python starts (so a Ctrl-C to
+    the group while a worker imports prints nothing); outside the block, spawn is as it was, and
+    this process's own Ctrl-C handling is untouched."""
+    import multiprocessing
+    import signal
+    from multiprocessing import spawn
+
+    from asg.executors.launcher import sigint_ignoring_launcher, spawned_ignoring_sigint
+
+    if sigint_ignoring_launcher() is None:
+        pytest.skip("no /bin/sh or an executable temporary folder here")
+    ctx = multiprocessing.get_context("spawn")
+    ours = signal.getsignal(signal.SIGINT)
+    before = spawn.get_executable()
+    with spawned_ignoring_sigint():
+        with ctx.Pool(1) as pool:
+            inside = pool.apply(_sigint_disposition)
+        assert signal.getsignal(signal.SIGINT) == ours
+    assert spawn.get_executable() == before
+    with ctx.Pool(1) as pool:
+        outside = pool.apply(_sigint_disposition)
+    assert (inside, outside) == ("ignored", "handled")

@@ -1,7 +1,7 @@
 """``--executor local``: worker processes on this machine (one worker: this process).
 
-Workers are started fresh (``spawn``), build their state once and ignore Ctrl-C (the parent
-decides); SIGTERM makes a worker unwind, so its half-written files are removed, and then exit at
+Workers are started fresh (``spawn``), build their state once and ignore Ctrl-C from their first
+instruction (the parent decides; see launcher.py); SIGTERM makes a worker unwind, so its half-written files are removed, and then exit at
 once (the pool's own loop would otherwise catch the exit and wait for more work, which made a
 terminated batch wait 30 s a worker). Workers get SIGTERM when their parent dies, however it dies
 (Linux's parent-death signal), so none lives on to write a scene for nobody. A worker that dies
@@ -21,6 +21,7 @@ from typing import Any, Iterator, Sequence
 
 from ..registry import register
 from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, quiet_third_party_warnings, signals_deferred
+from .launcher import spawned_ignoring_sigint
 
 _STATE: Any = None
 #: is this worker inside an item (which may hold temporary files) rather than starting or idle?
@@ -126,7 +127,9 @@ class LocalExecutor(Executor):
         finished: list[int] = []
         broken = False
         try:
-            with signals_deferred():  # a worker half-spawned by an interrupted start would print a traceback
+            # a worker half-spawned by an interrupted start would print a traceback; a Ctrl-C to the
+            # group while a worker's interpreter starts would too, so workers are born ignoring it
+            with signals_deferred(), spawned_ignoring_sigint():
                 pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
                                            mp_context=multiprocessing.get_context("spawn"),
                                            initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
