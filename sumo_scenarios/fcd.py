@@ -17,6 +17,7 @@ from typing import Iterable, Iterator
 
 from .atomic import atomic_path
 from .errors import InputError
+from .geometry import wrap_rad
 
 
 #: the fcd-output attributes (besides ``id``) ``asg simulate`` asks SUMO for on a flat net, in SUMO's
@@ -50,8 +51,7 @@ class FcdFrame:
 
 def yaw_rad_from_sumo_angle(angle_deg: float) -> float:
     """SUMO angle (deg, clockwise from north) → yaw (rad, counter-clockwise from +x), in (-pi, pi]."""
-    yaw = math.radians(90.0 - angle_deg)
-    return math.atan2(math.sin(yaw), math.cos(yaw))
+    return wrap_rad(math.radians(90.0 - angle_deg))
 
 
 def sumo_angle_from_yaw_rad(yaw_rad: float) -> float:

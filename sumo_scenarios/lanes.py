@@ -22,6 +22,7 @@ from shapely.ops import unary_union
 
 from . import checks
 from .errors import InputError
+from .geometry import heading_gap_rad
 
 #: slack when testing a footprint against the drivable area (m): SUMO's lane and junction shapes
 #: meet with small gaps and slivers.
@@ -259,12 +260,9 @@ class LaneMap:
         heading within ``max_heading_rad`` of its yaw, and each corner of its footprint on a lane
         of its own direction (within 90 deg: a neighbouring lane of the same road, as in a lane
         change) or inside a junction."""
-        def gap(h: float) -> float:
-            return abs((h - yaw_rad + math.pi) % (2 * math.pi) - math.pi)
-
-        if not any(gap(h) <= max_heading_rad for h in self.directions_at(*center_xy)):
+        if not any(heading_gap_rad(h, yaw_rad) <= max_heading_rad for h in self.directions_at(*center_xy)):
             return False
-        return all(self.in_junction(x, y) or any(gap(h) < math.pi / 2 for h in self.directions_at(x, y))
+        return all(self.in_junction(x, y) or any(heading_gap_rad(h, yaw_rad) < math.pi / 2 for h in self.directions_at(x, y))
                    for x, y in np.asarray(footprint_xy))
 
     @staticmethod

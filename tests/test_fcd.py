@@ -50,3 +50,18 @@ def test_not_fcd(tmp_path):
         fh.write("<routes/>")
     with pytest.raises(InputError, match="not an fcd-output"):
         list(read_fcd(path))
+
+
+def test_angles_wrap_into_one_turn_alike_for_floats_and_arrays():
+    import numpy as np
+
+    from sumo_scenarios.geometry import heading_gap_rad, wrap_rad
+
+    raw = np.array([0.0, math.pi, -math.pi, 3 * math.pi / 2, -3 * math.pi / 2, 7.0, -7.0, 1e3])
+    wrapped = wrap_rad(raw)
+    assert np.all((wrapped > -math.pi) & (wrapped <= math.pi))
+    assert np.allclose(np.exp(1j * wrapped), np.exp(1j * raw))  # the same direction
+    assert [wrap_rad(float(a)) for a in raw] == pytest.approx(list(wrapped))
+    assert wrap_rad(math.pi) == pytest.approx(math.pi) and wrap_rad(-math.pi) == pytest.approx(math.pi)
+    assert heading_gap_rad(math.radians(170), math.radians(-170)) == pytest.approx(math.radians(20))
+    assert heading_gap_rad(0.3, 0.3 + 2 * math.pi) == pytest.approx(0.0, abs=1e-12)

@@ -12,6 +12,8 @@ import math
 import numpy as np
 import torch
 
+from sumo_scenarios.geometry import wrap_rad
+
 from .config import DetectorConfig
 
 #: the direction classifier's bin boundary is at this yaw (rad)
@@ -73,7 +75,7 @@ def decode_with_direction(res: torch.Tensor, dir_logits: torch.Tensor, anchors: 
     rot = limit_period(boxes[:, 6] - DIR_OFFSET, 0.0, math.pi)
     boxes[:, 6] = rot + DIR_OFFSET + math.pi * torch.argmax(dir_logits, dim=-1).float()
     bx = boxes.numpy().astype(np.float64)
-    bx[:, 6] = np.angle(np.exp(1j * bx[:, 6]))
+    bx[:, 6] = wrap_rad(bx[:, 6])
     return bx
 
 

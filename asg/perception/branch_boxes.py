@@ -10,6 +10,8 @@ import math
 import numpy as np
 import torch
 
+from sumo_scenarios.geometry import wrap_rad
+
 from ..objective.iou import bev_iou_matrix
 from .boxes import decode, encode, limit_period, top_candidates
 
@@ -27,7 +29,7 @@ def refine_boxes(boxes: np.ndarray, residuals: torch.Tensor) -> np.ndarray:
     """Boxes (K, 7) float64 moved by the refinement branch's residuals (K, 7), yaw wrapped to
     (-pi, pi]."""
     out = decode(residuals.float(), torch.from_numpy(boxes).float()).numpy().astype(np.float64)
-    out[:, 6] = np.angle(np.exp(1j * out[:, 6]))
+    out[:, 6] = wrap_rad(out[:, 6])
     return out
 
 

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sumo_scenarios.geometry import wrap_rad
+
 from ..scene import Scene
 from ..scene.feasibility import EVAL_RANGE_M
 from ..sensors import LidarSpec, simulate_frame
@@ -134,5 +136,5 @@ def augment(clouds: list[np.ndarray], boxes: np.ndarray, rng: np.random.Generato
         b[:, 2] *= scale
         b[:, 3:6] *= scale
         yaw = -boxes[:, 6] if flip else boxes[:, 6]
-        b[:, 6] = np.angle(np.exp(1j * (yaw + angle)))
+        b[:, 6] = wrap_rad(yaw + angle)
     return out_clouds, b

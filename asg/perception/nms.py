@@ -8,6 +8,8 @@ import math
 
 import numpy as np
 
+from sumo_scenarios.geometry import wrap_rad
+
 from ..objective.iou import bev_iou_matrix, bev_polygons, polygon_iou
 from .boxes import limit_period
 from .config import DetectorConfig
@@ -68,7 +70,7 @@ def vote_boxes(boxes: np.ndarray, scores: np.ndarray, keep: np.ndarray, iou_thre
     out = kept.copy()
     out[:, :6] = w @ boxes[:, :6]
     dyaw = limit_period(boxes[None, :, 6] - kept[:, None, 6], 0.5, math.pi)
-    out[:, 6] = np.angle(np.exp(1j * (kept[:, 6] + (w * dyaw).sum(axis=1))))
+    out[:, 6] = wrap_rad(kept[:, 6] + (w * dyaw).sum(axis=1))
     return out
 
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.geometry import wrap_rad
 
 AgentKind = Literal["vehicle", "rsu"]
 
@@ -48,8 +49,7 @@ class Agent:
 
     def moved(self, dx_m: float, dy_m: float, dyaw_rad: float) -> "Agent":
         """A copy displaced by (dx, dy) metres in the network frame and turned by ``dyaw_rad``."""
-        yaw = math.atan2(math.sin(self.yaw_rad + dyaw_rad), math.cos(self.yaw_rad + dyaw_rad))
-        return replace(self, x_m=self.x_m + dx_m, y_m=self.y_m + dy_m, yaw_rad=yaw)
+        return replace(self, x_m=self.x_m + dx_m, y_m=self.y_m + dy_m, yaw_rad=wrap_rad(self.yaw_rad + dyaw_rad))
 
     def to_dict(self) -> dict:
         return {

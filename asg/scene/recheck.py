@@ -24,6 +24,7 @@ import math
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import unary_union
 
+from sumo_scenarios.geometry import heading_gap_rad
 from sumo_scenarios.lanes import DRIVABLE_TOLERANCE_M
 
 from .agent import Agent
@@ -75,8 +76,7 @@ def _wrong_way(final: Scene, moved: list[Agent], max_heading_rad: float) -> int:
             if line.length > 0 and line.distance(pt) <= width / 2 + DRIVABLE_TOLERANCE_M:
                 s = line.project(pt)
                 a, b = line.interpolate(max(s - 0.25, 0.0)), line.interpolate(min(s + 0.25, line.length))
-                d = math.atan2(b.y - a.y, b.x - a.x) - yaw
-                out.append(abs((d + math.pi) % (2 * math.pi) - math.pi))
+                out.append(heading_gap_rad(math.atan2(b.y - a.y, b.x - a.x), yaw))
         return out
 
     wrong = 0

@@ -14,6 +14,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.geometry import wrap_rad
 
 from ..scene import Agent, Scene
 from ..scene.link import LinkState
@@ -68,7 +69,7 @@ def boxes_to_sensor(boxes_world: np.ndarray, pose: SensorPose) -> np.ndarray:
     out[:, 0] = c * d[:, 0] + s * d[:, 1]
     out[:, 1] = -s * d[:, 0] + c * d[:, 1]
     out[:, 2] = d[:, 2]
-    out[:, 6] = np.angle(np.exp(1j * (boxes_world[:, 6] - pose.yaw_rad)))
+    out[:, 6] = wrap_rad(boxes_world[:, 6] - pose.yaw_rad)
     return out
 
 
@@ -172,7 +173,7 @@ def apply_link(frame: CooperativeFrame, link: Mapping[str, LinkState], delayed: 
             clouds[aid], poses[aid] = delayed(aid, state)
         p = poses[aid]
         poses[aid] = SensorPose(p.x_m + state.dx_m, p.y_m + state.dy_m, p.z_m,
-                                math.atan2(math.sin(p.yaw_rad + state.dyaw_rad), math.cos(p.yaw_rad + state.dyaw_rad)))
+                                wrap_rad(p.yaw_rad + state.dyaw_rad))
         ids.append(aid)
     return replace(frame, sensing_ids=tuple(ids), poses=poses, clouds=clouds)
 

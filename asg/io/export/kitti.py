@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 from sumo_scenarios.atomic import atomic_path, write_text_atomic
+from sumo_scenarios.geometry import wrap_rad
 
 from ...perception.data import in_range
 from ...scene import Scene
@@ -91,8 +92,8 @@ def label_line(box: np.ndarray, type_id: str, points: int) -> str:
     """One KITTI label line for ``box`` (x, y, z, l, w, h, yaw; velodyne frame, z the centre)."""
     x, y, z, length, width, height, yaw = (float(v) for v in box)
     bottom_cam = TR_VELO_TO_CAM @ np.array([x, y, z - height / 2, 1.0])
-    rotation_y = _wrap(-yaw - math.pi / 2)
-    alpha = _wrap(rotation_y - math.atan2(bottom_cam[0], bottom_cam[2]))
+    rotation_y = wrap_rad(-yaw - math.pi / 2)
+    alpha = wrap_rad(rotation_y - math.atan2(bottom_cam[0], bottom_cam[2]))
     cls = "Truck" if any(k in type_id.lower() for k in ("truck", "bus")) else "Car"
     occluded = next((level for level, n in enumerate(OCCLUSION_POINTS) if points >= n), 3)
     left, top, right, bottom = image_box(box)
@@ -135,6 +136,3 @@ def calib_text() -> str:
     return "".join([f"P{i}: {row(P2)}\n" for i in range(4)] + [f"R0_rect: {row(np.eye(3))}\n",
                    f"Tr_velo_to_cam: {row(TR_VELO_TO_CAM)}\n", f"Tr_imu_to_velo: {row(np.eye(4)[:3])}\n"])
 
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi

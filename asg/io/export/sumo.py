@@ -19,6 +19,7 @@ from xml.sax.saxutils import quoteattr
 from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.geometry import heading_gap_rad
 
 from ...scene import Scene
 from . import net_of
@@ -113,8 +114,7 @@ def _place(net, agent):
 def _heading_gap(lane, agent) -> float:
     shape = lane.getShape()
     (x0, y0), (x1, y1) = shape[0], shape[-1]
-    gap = math.atan2(y1 - y0, x1 - x0) - agent.yaw_rad
-    return abs((gap + math.pi) % (2 * math.pi) - math.pi)
+    return heading_gap_rad(math.atan2(y1 - y0, x1 - x0), agent.yaw_rad)
 
 
 def _route(edge) -> list:
