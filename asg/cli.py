@@ -18,13 +18,10 @@ from sumo_scenarios.log import SOURCES
 from sumo_scenarios.routes import DENSITIES
 
 from . import __version__, commands
-from .cli_args import COUNT, SEED, executor_args, real, weights_arg, whole
+from .cli_args import COUNT, SEED, executor_args, real, whole
 from .executors.base import WorkerLost
-from .generator_config import protocols
 from .io.export import FORMATS as EXPORT_FORMATS
 from .objective.ap import AP_METHODS, DEFAULT_AP_METHOD
-from .registry import names
-from .scene.feasibility import PLAUSIBILITY_LEVELS
 from .scene.from_log import EGO_KINDS
 from .workflows import MAX_ROUNDS
 
@@ -43,11 +40,13 @@ def _add(sub, name: str, help_text: str, func: Callable[[argparse.Namespace], in
     return p
 
 
-#: Subcommands a workflow module declares itself: (name, module, one-line help). The module holds
-#: ``add_arguments(parser)`` and ``run(args) -> exit code`` beside the workflow, and is imported only
-#: when its command is asked for, so ``asg --help`` stays quick. A new workflow: its module and one
-#: line here.
-WORKFLOW_COMMANDS = (
+#: Subcommands a module declares itself: (name, module, one-line help). The module holds
+#: ``add_arguments(parser)`` and ``run(args) -> exit code`` beside what it runs (the generator, a
+#: workflow), and is imported only when its command is asked for, so ``asg --help`` stays quick. A
+#: new command: its module and one line here.
+COMMAND_MODULES = (
+    ("generate", "asg.generator.command", "generate challenging scenes: collaborator search, then perturbation search "
+     "(no arguments: a one-minute demo)"),
     ("train", "asg.workflows.train", "train a detector on CPU (resumes from runs/train/NAME/last.pt)"),
     ("finetune", "asg.workflows.finetune", "train a detector further on its challenging scenes, then evaluate it "
      "before and after and attack it again (runs/finetune/FUSION-ft/)"),
@@ -57,10 +56,10 @@ WORKFLOW_COMMANDS = (
 )
 
 
-def _add_workflow_commands(sub, argv: Sequence[str] | None) -> None:
-    """The WORKFLOW_COMMANDS subparsers; the arguments of the one ``argv`` names (all without ``argv``)."""
+def _add_command_modules(sub, argv: Sequence[str] | None) -> None:
+    """The COMMAND_MODULES subparsers; the arguments of the one ``argv`` names (all without ``argv``)."""
     chosen = next((a for a in argv if not a.startswith("-")), None) if argv is not None else None
-    for name, module, help_text in WORKFLOW_COMMANDS:
+    for name, module, help_text in COMMAND_MODULES:
         p = sub.add_parser(name, help=help_text, description=help_text)
         if argv is None or name == chosen:
             workflow = importlib.import_module(module)
@@ -153,7 +152,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p.add_argument("--scenes", type=whole(0, 10_000, "--scenes"), default=6,
                    help="scenes drawn as bird's-eye views per run (default 6; the tables list all)")
 
-    _add_workflow_commands(sub, argv)
+    _add_command_modules(sub, argv)
 
     bench = sub.add_parser("bench", help="benchmarks: simulate, lidar, detect, generate, train, scale, paper",
                            description="Speed benchmarks and the paper's tables.")
@@ -207,48 +206,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=whole(1, 64, "--jobs"), default=None, dest="workers", help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print JSON only")
     bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
-
-    p = _add(sub, "generate", "generate challenging scenes: collaborator search, then perturbation search "
-             "(no arguments: a one-minute demo)", commands.generate)
-    src = p.add_mutually_exclusive_group()
-    src.add_argument("--town", help="sample normal scenes from this bundled town")
-    src.add_argument("--net", type=Path, help="...or from any SUMO net")
-    src.add_argument("--scenes", type=Path, help="...or take the scenes of this folder (scene yaml or a data set) or set (normal, normal-val)")
-    p.add_argument("--fusion", default=None, help="target model: none, late, early, attfuse (default attfuse)")
-    p.add_argument("--search", default=None, help="rs, ga, bo or ng (nevergrad; default bo)")
-    p.add_argument("--acs", default=None, choices=[*acs_strategies(), "off"],
-                   help="collaborator search: attention (ACS-A), random (ACS-R) or off (default attention)")
-    p.add_argument("--aps", default=None, choices=["on", "off"])
-    p.add_argument("--movers", type=whole(0, 64, "--movers"), default=None,
-                   help="vehicles the perturbation search moves (m; default 3, the paper's)")
-    p.add_argument("--plausibility", default=None, choices=PLAUSIBILITY_LEVELS,
-                   help="paper (default: on the drivable area, no collision, in range) or traffic (also in a lane "
-                        "of its own direction, heading within 30 deg of it)")
-    p.add_argument("--space", default=None, metavar="NAME[,NAME...]",
-                   help="perturbation spaces searched together: poses (default, the paper's), insert, pose-error, "
-                        "latency, dropout (bounds: configs/generate.yaml, space)")
-    p.add_argument("--count", type=COUNT, default=None, help="scenes to generate (default 10; demo 3)")
-    p.add_argument("--budget", type=COUNT, default=None, help="evaluations per scene (default 50; demo 20)")
-    p.add_argument("--seed", type=SEED, default=1)
-    p.add_argument("--config", type=Path, default=None, help="generate yaml (default configs/generate.yaml)")
-    p.add_argument("--protocol", default=None, choices=protocols(),
-                   help="a named protocol over the config: paper (the paper's search as its code ran it: "
-                        "turns in 15 deg steps, GA 8 x 15; configs/protocols/)")
-    p.add_argument("--out", type=Path, default=Path("runs/generate"), help="run folder (default runs/generate)")
-    p.add_argument("--force", action="store_true",
-                   help="start the run folder over when it holds a run made with other settings")
-    p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
-                   help="your own target: a function (config) -> (detector, ACS model or None); default the shipped --fusion")
-    weights_arg(p)
-    executor_args(p)
     return parser
-
-
-def acs_strategies() -> list[str]:
-    """The registered collaborator searches (asg.collaborators)."""
-    from . import collaborators  # noqa: F401  (fill the registry)
-
-    return names("acs")
 
 
 class Terminated(Exception):

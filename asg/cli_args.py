@@ -1,6 +1,6 @@
 """Argument types and shared options of the ``asg`` command, for the CLI and for the workflow
 modules that declare their own subcommand (``add_arguments``/``run``, see asg.cli's
-WORKFLOW_COMMANDS): whole numbers and reals in a range, seeds, counts, the executor options."""
+COMMAND_MODULES): whole numbers and reals in a range, seeds, counts, the executor options."""
 from __future__ import annotations
 
 import argparse

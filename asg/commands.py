@@ -96,7 +96,7 @@ def simulate(args: argparse.Namespace) -> int:
 
 
 def scenes_extract(args: argparse.Namespace) -> int:
-    from .generator_config import GenerateConfig
+    from .generator.config import GenerateConfig
 
     k = GenerateConfig().sensing_agents - 1 if args.collaborators is None else args.collaborators
     params = ExtractParams(every=args.every, radius_m=args.radius, ego=args.ego, min_vehicles=args.min_vehicles,
@@ -110,12 +110,6 @@ def scenes_extract(args: argparse.Namespace) -> int:
                          "lower --min-vehicles")
     console.print(f"wrote {n} scenes to {args.out}")
     return 0
-
-
-def generate(args: argparse.Namespace) -> int:
-    from .generate_cmd import run_generate
-
-    return run_generate(args)
 
 
 def bench_simulate(args: argparse.Namespace) -> int:
@@ -207,7 +201,7 @@ def _build_challenging(args: argparse.Namespace) -> int:
 
 
 def report(args: argparse.Namespace) -> int:
-    from .io.report import write_report
+    from .report.page import write_report
 
     if not args.run_dir.is_dir():
         raise InputError(f"{args.run_dir}: not a folder; give a folder written by 'asg generate' or 'asg bench paper'")
@@ -246,7 +240,7 @@ def _bench_tables(args: argparse.Namespace) -> int:
         raise InputError("--budget and --fusion apply to the targets table; the paper's tables use "
                          "configs/generate.yaml and every model")
     if args.detector:
-        from .generate import load_factory
+        from .generator.run import load_factory
 
         load_factory(args.detector)
     command = "asg " + " ".join(shlex.quote(a) for a in args.argv)
@@ -297,7 +291,7 @@ def bench_scale(args: argparse.Namespace) -> int:
 
 def bench_paper(args: argparse.Namespace) -> int:
     from .benchmarks.paper import bench_paper as run
-    from .io.run import after_acs_ap
+    from .generator.run_folder import after_acs_ap
 
     from .cli_args import executor_from_args
 
@@ -307,7 +301,7 @@ def bench_paper(args: argparse.Namespace) -> int:
         return _bench_tables(args)
     if args.detector:
         raise InputError("--detector applies to --table runs; the targets table attacks the shipped --fusion")
-    from .generator_config import GenerateConfig
+    from .generator.config import GenerateConfig
 
     if args.ap_method == "both":
         raise InputError("--ap-method both applies to --table runs; the targets table takes global or per-frame")

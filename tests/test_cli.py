@@ -242,7 +242,7 @@ def test_bench_paper_refuses_a_folder_of_other_scenes(capsys, out):
 
 def test_a_new_workflow_is_one_module_and_one_registry_line(capsys, tmp_path, monkeypatch):
     """A workflow module declares its own subcommand (add_arguments, run); one line in
-    WORKFLOW_COMMANDS makes it a command, with its arguments, one-line errors and exit codes."""
+    COMMAND_MODULES makes it a command, with its arguments, one-line errors and exit codes."""
     import asg.cli as cli
 
     (tmp_path / "hello_workflow.py").write_text(
@@ -253,7 +253,7 @@ def test_a_new_workflow_is_one_module_and_one_registry_line(capsys, tmp_path, mo
         "    print('hello ' * args.times)\n"
         "    return 0\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(cli, "WORKFLOW_COMMANDS", (*cli.WORKFLOW_COMMANDS, ("hello", "hello_workflow", "say hello")))
+    monkeypatch.setattr(cli, "COMMAND_MODULES", (*cli.COMMAND_MODULES, ("hello", "hello_workflow", "say hello")))
     assert main(["hello", "--times", "2"]) == 0
     assert capsys.readouterr().out.strip() == "hello hello"
     with pytest.raises(SystemExit) as exc:

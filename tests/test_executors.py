@@ -9,8 +9,8 @@ import pytest
 
 from asg.cli import main
 from asg.executors import Job, build_executor
-from asg.generate import generate
-from asg.pipeline import GenerateConfig
+from asg.generator.run import run_scenes
+from asg.generator.pipeline import GenerateConfig
 from asg.search import SpaceConfig
 
 from test_cli import assert_one_line_error, run
@@ -36,7 +36,7 @@ def _numbers(out: Path) -> dict:
 
 
 def _run(out: Path, executor=None) -> dict:
-    generate(CFG, _scenes(), out, seed=3, detector_factory="fakes:oracle_factory", executor=executor)
+    run_scenes(CFG, _scenes(), out, seed=3, detector_factory="fakes:oracle_factory", executor=executor)
     return _numbers(out)
 
 
@@ -68,7 +68,7 @@ def test_a_killed_worker_is_recovered(tmp_path, monkeypatch):
     monkeypatch.setenv("ASG_TEST_MARKER", str(tmp_path / "marker"))
     reference = _run(tmp_path / "reference")
     with build_executor("local", 2) as two:
-        generate(CFG, _scenes(), tmp_path / "killed", seed=3, detector_factory="fakes:dies_once_factory", executor=two)
+        run_scenes(CFG, _scenes(), tmp_path / "killed", seed=3, detector_factory="fakes:dies_once_factory", executor=two)
     assert (tmp_path / "marker").exists()  # a worker was killed mid-scene
     assert _numbers(tmp_path / "killed") == reference  # every scene once, same numbers
     assert not [p for p in (tmp_path / "killed").rglob(".*")]
@@ -79,7 +79,7 @@ def test_a_killed_ray_actor_is_recovered(tmp_path, monkeypatch):
     monkeypatch.setenv("ASG_TEST_MARKER", str(tmp_path / "marker"))
     reference = _run(tmp_path / "reference")
     with build_executor("ray", 2) as ray_two:
-        generate(CFG, _scenes(), tmp_path / "killed", seed=3, detector_factory="fakes:dies_once_factory",
+        run_scenes(CFG, _scenes(), tmp_path / "killed", seed=3, detector_factory="fakes:dies_once_factory",
                  executor=ray_two)
     assert (tmp_path / "marker").exists()
     assert _numbers(tmp_path / "killed") == reference
@@ -153,17 +153,17 @@ def test_evaluate_on_workers_gives_the_same_ap(capsys, tmp_path):
 def test_progress_reaches_the_caller_in_process_and_a_pool_runs_without_it(tmp_path):
     """The evaluation callback travels with the job (no module state): called at every evaluation
     when the scenes run in this process; worker processes (which cannot call back) run the same."""
-    from asg.generate import open_run
+    from asg.generator.run import open_run
 
     steps: list[int] = []
     with build_executor("local", 1) as one:
         assert one.in_process
-        open_run(CFG, tmp_path / "one", scenes=_scenes(), seed=3).generate(
+        open_run(CFG, tmp_path / "one", scenes=_scenes(), seed=3).run(
             detector_factory="fakes:oracle_factory", executor=one, on_step=steps.append)
     assert steps and max(steps) == CFG.budget and len(steps) >= 3 * CFG.budget
     with build_executor("local", 2) as two:
         assert not two.in_process
-        open_run(CFG, tmp_path / "two", scenes=_scenes(), seed=3).generate(
+        open_run(CFG, tmp_path / "two", scenes=_scenes(), seed=3).run(
             detector_factory="fakes:oracle_factory", executor=two, on_step=lambda step: pytest.fail("called"))
     assert _numbers(tmp_path / "one") == _numbers(tmp_path / "two")
 
@@ -171,10 +171,10 @@ def test_progress_reaches_the_caller_in_process_and_a_pool_runs_without_it(tmp_p
 def test_open_run_refuses_other_settings_and_removes_a_folder_it_made_for_bad_input(tmp_path):
     from dataclasses import replace
 
-    from asg.generate import open_run
+    from asg.generator.run import open_run
     from sumo_scenarios.errors import InputError
 
-    open_run(CFG, tmp_path / "run", scenes=_scenes(), seed=3).generate(detector_factory="fakes:oracle_factory")
+    open_run(CFG, tmp_path / "run", scenes=_scenes(), seed=3).run(detector_factory="fakes:oracle_factory")
     with pytest.raises(InputError, match="other settings"):
         open_run(replace(CFG, budget=5), tmp_path / "run", scenes=_scenes(), seed=3)
     twice = _scenes() + _scenes()[:1]
@@ -208,7 +208,7 @@ def test_third_party_notices_stay_off_a_runs_stderr():
         warnings.warn_explicit("a beta API", UserWarning, "torch/x.py", 1, module="torch.serialization")
         warnings.warn_explicit("overflow", RuntimeWarning, "shapely/x.py", 1, module="shapely.geometry")
         warnings.warn("index_reduce() is in beta (Triggered internally at TensorAdvancedIndexing.cpp:1523.)")
-        warnings.warn_explicit("ours", UserWarning, "asg/x.py", 1, module="asg.pipeline")
+        warnings.warn_explicit("ours", UserWarning, "asg/x.py", 1, module="asg.generator.pipeline")
     assert [str(w.message) for w in seen] == ["ours"]
 
 

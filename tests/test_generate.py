@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from asg.pipeline import GenerateConfig, Generator
+from asg.generator.pipeline import GenerateConfig, Generator
 from asg.scene.feasibility import FeasibilityChecker
 from asg.scene.recheck import moved_vehicles
 from asg.scene.from_log import ExtractParams, extract_scenes
@@ -32,8 +32,8 @@ def make_gen(cfg=FAST):
 
 def test_generate_is_plausible_and_reproducible(busy_scene):
     gen = make_gen()
-    a = gen.generate(busy_scene, seed=4)
-    b = gen.generate(busy_scene, seed=4)
+    a = gen.attack(busy_scene, seed=4)
+    b = gen.attack(busy_scene, seed=4)
     assert a.final.to_dict() == b.final.to_dict() and [e.loss for e in a.history] == [e.loss for e in b.history]
     assert a.plausibility.ok
     assert len(a.after_acs.collaborators) == 2 and len(a.perturbed) == 3
@@ -51,7 +51,7 @@ def test_generate_is_plausible_and_reproducible(busy_scene):
 def test_every_algorithm_runs_and_finals_are_plausible(busy_scene):
     for search in ("rs", "ga", "bo"):
         cfg = GenerateConfig(fusion="none", search=search, acs="random", budget=6, space=SpaceConfig(n_q=100))
-        r = make_gen(cfg).generate(busy_scene, seed=1)
+        r = make_gen(cfg).attack(busy_scene, seed=1)
         assert r.plausibility.ok and len(r.history) == 6
 
 
@@ -107,7 +107,7 @@ def test_fewer_vehicles_than_m_is_reported(cross_map):
     agents = [rsu("r", 9.0, 9.0), car("a", -20.0, -1.6), car("b", 20.0, 1.6, math.pi), car("c", 1.6, -25.0, math.pi / 2)]
     scene = make_scene(cross_map, agents)
     cfg = GenerateConfig(fusion="none", search="rs", acs="random", budget=4, space=SpaceConfig(n_q=50))
-    r = make_gen(cfg).generate(scene, seed=0)
+    r = make_gen(cfg).attack(scene, seed=0)
     assert any("fewer than m" in n for n in r.notes) or any("candidate" in n for n in r.notes)
     assert r.plausibility.ok
 
@@ -145,7 +145,7 @@ def test_blas_runs_on_one_thread_while_a_scene_is_generated(busy_scene):
     seen = []
     with threadpool_limits(limits=2, user_api="blas"):
         gen = make_gen(GenerateConfig(fusion="none", search="bo", acs="random", budget=4, space=SpaceConfig(n_q=50)))
-        gen.generate(busy_scene, seed=1, on_step=lambda e: seen.append(blas_threads()))
+        gen.attack(busy_scene, seed=1, on_step=lambda e: seen.append(blas_threads()))
         after = blas_threads()
     assert seen and all(s == {1} for s in seen)
     assert after == {2}
@@ -154,7 +154,7 @@ def test_blas_runs_on_one_thread_while_a_scene_is_generated(busy_scene):
 def test_acs_that_ends_easier_than_the_start_says_so(busy_scene, monkeypatch):
     """The paper's ACS samples combinations among the candidates and may miss the scene's own pair:
     when the scene after ACS is easier than the scene as given, the scene's notes say so."""
-    from asg.pipeline import AcsOutcome
+    from asg.generator.pipeline import AcsOutcome
 
     gen = make_gen()
     start = busy_scene.with_collaborators(busy_scene.collaborators or [a.agent_id for a in busy_scene.vehicles[:2]])
@@ -164,12 +164,12 @@ def test_acs_that_ends_easier_than_the_start_says_so(busy_scene, monkeypatch):
         return AcsOutcome(type(scored)(scene, scored.loss + 0.5, scored.ap, scored.frame), {}, 3)
 
     monkeypatch.setattr(gen, "collaborator_search", easier)
-    result = gen.generate(start, seed=4)
+    result = gen.attack(start, seed=4)
     assert any(n.startswith("ACS ended easier than the scene began") for n in result.notes)
     monkeypatch.undo()
     from asg.objective import adversarial_loss
 
-    real = make_gen().generate(start, seed=4)  # the note only when it happened
+    real = make_gen().attack(start, seed=4)  # the note only when it happened
     after_loss = adversarial_loss(real.ap_after_acs, FAST.objective)
     assert any(n.startswith("ACS ended easier") for n in real.notes) == (after_loss > real.loss_normal)
 
@@ -187,7 +187,7 @@ def test_a_new_collaborator_search_is_one_class_and_one_registry_line(busy_scene
             return [tuple(sorted(candidates)[:size])], {}
 
     try:
-        result = make_gen(replace(FAST, acs="first-two")).generate(busy_scene, seed=4)
+        result = make_gen(replace(FAST, acs="first-two")).attack(busy_scene, seed=4)
         cands = sorted(a.agent_id for a in busy_scene.vehicles if a.agent_id != busy_scene.ego_id)
         assert result.evaluations == 1 + 1 + 8 and set(result.after_acs.collaborators) <= set(cands)
         from asg.cli import build_parser

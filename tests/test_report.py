@@ -119,7 +119,7 @@ def test_the_final_view_marks_inserted_vehicles(cross_map):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from asg.io.report import _bev
+    from asg.report.page import _bev
     from asg.sensors import load_lidar_spec, simulate_frame
     from conftest import car, make_scene, rsu
 

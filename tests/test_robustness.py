@@ -513,7 +513,7 @@ def test_unusable_net_is_named(capsys, tmp_path):
 
 # ---- 8. byte-identical scene files ----------------------------------------------------------------
 def test_scenes_from_a_town_record_no_temporary_path(tmp_path):
-    from asg.generate import SceneSource, load_scenes
+    from asg.generator.run import SceneSource, load_scenes
 
     scenes = load_scenes(SceneSource(town="fiveleg", duration_s=20.0), 2, 1, tmp_path / ".work")
     assert scenes and all(s.log is None for s in scenes)

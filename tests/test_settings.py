@@ -5,7 +5,7 @@ import inspect
 import pytest
 
 from asg.perception.config import DetectorConfig, load_detector_config
-from asg.generator_config import GenerateConfig, load_generate_config, search_params
+from asg.generator.config import GenerateConfig, load_generate_config, search_params
 from asg.registry import lookup, names
 from asg.sensors import LidarSpec, load_lidar_spec
 
@@ -43,7 +43,7 @@ def test_the_paper_protocol_is_one_flag(capsys, tmp_path):
     the config's other settings are kept."""
     import numpy as np
 
-    from asg.generator_config import load_generate_config, protocols
+    from asg.generator.config import load_generate_config, protocols
 
     assert "paper" in protocols()
     cfg = load_generate_config(protocol="paper")

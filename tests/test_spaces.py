@@ -235,7 +235,7 @@ def test_a_town_sources_scenes_keep_their_log_for_latency(capsys, tmp_path):
     reads the past: the scenes are the same as without it, and latency works on them."""
     from dataclasses import replace
 
-    from asg.generate import SceneSource, load_scenes
+    from asg.generator.run import SceneSource, load_scenes
 
     source = SceneSource(town="grid_small", duration_s=10.0)
     plain = load_scenes(source, 2, 3, tmp_path / "plain")

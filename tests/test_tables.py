@@ -152,7 +152,7 @@ def test_tables_both_ways_from_one_measurement(capsys, tmp_path, data_root, monk
         assert "ranked globally" in (out / f"{name}.md").read_text()
         assert "no sort across frames" in (out / f"{name}.per-frame.md").read_text()
         assert len(ours["rows"]) == len(paper_way["rows"])
-    from asg.io.run import load_detections, pooled_ap
+    from asg.generator.run_folder import load_detections, pooled_ap
 
     index = json.loads((data_root / "challenging-attfuse-train" / "index.json").read_text())
     per_scene = [load_detections(data_root / "challenging-attfuse-train" / "run", i) for i in index["splits"]["train"]]

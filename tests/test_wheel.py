@@ -38,7 +38,7 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_from_any_folder(tmp_path):
     assert where[0].startswith(str(venv)) and where[1].startswith(str(venv)), where
     towns = json.loads(_run(venv / "bin" / "asg", "towns", "list", "--json", cwd=elsewhere))
     assert {"fiveleg", "grid_small"} <= {t["name"] for t in towns}
-    loaded = _run(python, "-c", "from asg.pipeline import load_generate_config; "
+    loaded = _run(python, "-c", "from asg.generator.config import load_generate_config; "
                   "from asg.perception import build_detector; "
                   "print(load_generate_config().fusion, type(build_detector('attfuse')).__name__, "
                   "load_generate_config(protocol='paper').space.dyaw_step_deg)", cwd=elsewhere)

@@ -10,8 +10,8 @@ import numpy as np
 
 from ..perception import build_detector
 from ..datasets import scenes_of
-from ..generator_config import load_generate_config
-from ..pipeline import Generator
+from ..generator.config import load_generate_config
+from ..generator.pipeline import Generator
 
 
 def bench_generate(scenes: int = 5, budget: int = 50, seed: int = 1) -> dict:
@@ -24,7 +24,7 @@ def bench_generate(scenes: int = 5, budget: int = 50, seed: int = 1) -> dict:
     seconds, evals, overhead = [], [], []
     for scene in itertools.islice(scenes_of("normal"), scenes):
         t = time.perf_counter()
-        r = gen.generate(scene, seed)
+        r = gen.attack(scene, seed)
         seconds.append(time.perf_counter() - t)
         evals.append(r.evaluations)
         overhead += r.bo_overhead_s

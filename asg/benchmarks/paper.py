@@ -29,7 +29,7 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
     """Run (or resume) the seven configurations and collect their pooled AP, ranked by
     ``ap_method`` (asg.objective.ap.AP_METHODS). Each configuration's scenes run on ``executor``
     (default: this process); a scene's result does not depend on which worker ran it."""
-    from ..io.run import aggregate_ap
+    from ..generator.run_folder import aggregate_ap
     check_ap_method(ap_method)
     scene_dir = out / f"scenes-{scenes}"
     todo = [(out / f"{acs}-{search}", acs, search) for acs, search in CONFIGS]
@@ -80,12 +80,12 @@ def pick_scenes(scene_dir: Path, count: int, set_name: str = "normal") -> Path:
 def _run_config(run_dir: Path, scene_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str,
                 seed: int, executor: Executor | None = None) -> None:
     """One configuration as an ``asg generate`` run into ``run_dir`` (resumes a partial one)."""
-    from ..generate import SceneSource, open_run
-    from ..io.run import print_table
-    from ..generator_config import load_generate_config
+    from ..generator.run import SceneSource, open_run
+    from ..generator.run_folder import print_table
+    from ..generator.config import load_generate_config
     from ..progress import console
 
     cfg = load_generate_config(fusion=fusion, search=search, acs=acs, aps=True, budget=budget)
     source = SceneSource(scenes=scene_dir)
-    run = open_run(cfg, run_dir, source=source, count=scenes, seed=seed).generate(executor=executor)
+    run = open_run(cfg, run_dir, source=source, count=scenes, seed=seed).run(executor=executor)
     print_table(run.summary, console)  # per-scene tables to stderr: stdout holds the result

@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 
 from ..executors import build_executor
-from ..generate import SceneSource, open_run
-from ..generator_config import load_generate_config
+from ..generator.run import SceneSource, open_run
+from ..generator.config import load_generate_config
 from .paper import pick_scenes
 
 #: (name, executor, workers, threads per worker)
@@ -50,7 +50,7 @@ def bench_scale(out: Path, scenes: int = 8, budget: int = 50, seed: int = 1, way
                 executor.connect()  # Ray's own start-up is not the generator's cost
             first: list = []
             t0 = time.perf_counter()
-            run = run_folder.generate(
+            run = run_folder.run(
                 executor=executor, on_scene=lambda n, total, sid: first or first.append((time.perf_counter() - t0, sid)))
             wall = time.perf_counter() - t0
         seconds = {e["scene_id"]: e["seconds"] for e in run.summary["scenes"]}

@@ -237,7 +237,7 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
     benchmark's scenes (``run.scenes`` of them, default 30), at the config's plausibility level;
     the spaces that place vehicles (TRAFFIC_SPACES) also at the ``traffic`` level, and the union
     with WIDE_UNION_MOVERS moved vehicles. Drop = AP on the normal scenes minus AP after the search."""
-    from ..generator_config import load_generate_config
+    from ..generator.config import load_generate_config
     from .paper import pick_scenes
 
     count = run.scenes or BENCHMARK_SCENES
@@ -298,9 +298,9 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     the config's): an ``asg generate`` folder under OUT/runs/, resumed if there."""
     import statistics
 
-    from ..generate import SceneSource, open_run
-    from ..generator_config import load_generate_config, with_space_flags
-    from ..io.run import aggregate_ap
+    from ..generator.run import SceneSource, open_run
+    from ..generator.config import load_generate_config, with_space_flags
+    from ..generator.run_folder import aggregate_ap
 
     cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
                            plausibility, kinds)
@@ -314,7 +314,7 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
         name += f"-movers_{movers}"
     run_dir = run.out / "runs" / name
     summary = open_run(cfg, run_dir, source=source, count=run.scenes, record={"detector": run.detector_factory},
-                       seed=run.seed).generate(detector_factory=run.detector_factory, executor=run.executor,
+                       seed=run.seed).run(detector_factory=run.detector_factory, executor=run.executor,
                                                artifacts=False).summary
     agg, entries = summary["aggregate"], summary["scenes"]
     return {"scenes": agg["scenes"], "normal": aggregate_ap(agg, "ap_normal", run.ap_method),

@@ -41,9 +41,9 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     ``fusion`` instead of the shipped ones (then give ``out``: the set is not the shipped model's).
     Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT). A set attacked
     against shipped weights that have changed since is generated again."""
-    from ..generate import SceneSource, made_with_other_shipped_weights, open_run
-    from ..io.run import load_done
-    from ..generator_config import load_generate_config
+    from ..generator.run import SceneSource, made_with_other_shipped_weights, open_run
+    from ..generator.run_folder import load_done
+    from ..generator.config import load_generate_config
     from ..perception import check_fusion
 
     if split not in SPLITS:
@@ -68,7 +68,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
         (out / "index.json").unlink(missing_ok=True)  # not a built set until the new attack is done
     # the split's size, not --count, is the setting: a later build with a larger --count resumes
     run = open_run(cfg, run_dir, source=source, pick=wanted, record={"detector": detector_factory}, seed=SEED,
-                   force=changed is not None).generate(
+                   force=changed is not None).run(
         detector_factory=detector_factory, executor=executor, on_scene=on_scene, artifacts=False)
     ids = [e["scene_id"] for e in run.summary["scenes"]]
     with atomic_path(out / "frames.jsonl.gz") as tmp:
@@ -100,7 +100,7 @@ def first_scenes_ap(out: Path, count: int | None, ap_method: str = DEFAULT_AP_ME
     """Pooled AP (normal and challenging) over the first ``count`` scenes of a built challenging
     set (all when None), from the detections its run folder stored, ranked by ``ap_method``
     (asg.objective.ap.AP_METHODS; per-frame in the set's scene order)."""
-    from ..io.run import load_detections, pooled_ap
+    from ..generator.run_folder import load_detections, pooled_ap
 
     index = json.loads((out / "index.json").read_text())
     ids = [i for ids in index["splits"].values() for i in ids][:count]

@@ -47,8 +47,8 @@ def target_detector(fusion: str, weights_file: str | None = None, detector_facto
     """The detector scored as ``fusion``: its shipped weights (or ``weights_file``), or the target
     that ``detector_factory`` ("module:function", as for ``asg generate --detector``) returns for it."""
     if detector_factory:
-        from ..generate import factory_models
-        from ..generator_config import GenerateConfig
+        from ..generator.run import factory_models
+        from ..generator.config import GenerateConfig
 
         return factory_models(detector_factory, GenerateConfig(fusion=fusion))[0]
     return build_detector(fusion, weights_file=weights_file)
@@ -88,7 +88,7 @@ def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None
     return result
 
 
-# ``asg evaluate``: this workflow's command (asg.cli's WORKFLOW_COMMANDS)
+# ``asg evaluate``: this workflow's command (asg.cli's COMMAND_MODULES)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse")

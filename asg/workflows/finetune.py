@@ -91,7 +91,7 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
     start = Path(weights) if weights is not None else WEIGHTS_DIR / f"{name}.pt"
     challenging_scenes(on)  # one clear line if the set is not built
     from ..datasets import check_set_name
-    from ..generate import file_digest
+    from ..generator.run import file_digest
 
     for set_name in fcfg.eval_sets:  # refused now, not after the training
         check_set_name(set_name)
@@ -239,7 +239,7 @@ def reattack(fusion: str, ft_weights: Path, out: Path, executor, log: Callable[[
                          "normal": original["ap_normal"], "challenging": original["ap_challenging"]}}
 
 
-# ``asg finetune``: this workflow's command (asg.cli's WORKFLOW_COMMANDS)
+# ``asg finetune``: this workflow's command (asg.cli's COMMAND_MODULES)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fusion", required=True, help="the model to fine-tune: attfuse, early, none or late")

@@ -113,7 +113,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     name = weights_for(fusion)
     start = _start_weights(weights, fusion, name)
     out = Path(out) if out is not None else default_out(fusion, cfg.data)
-    from ..generate import file_digest
+    from ..generator.run import file_digest
 
     pool = _pool(cfg)
     if rounds * cfg.scenes_per_round > len(pool):
@@ -178,7 +178,7 @@ def _eval_cache(out: Path, k: int, weights: Path) -> Path:
     weights) a folder of the data root named by the weights' digest and :func:`scoring_digest`,
     shared by every run (and control) that starts from the same weights with the same code."""
     from ..datasets import data_root
-    from ..generate import file_digest
+    from ..generator.run import file_digest
 
     if k:
         return out / f"round-{k}" / "eval"
@@ -248,8 +248,8 @@ def _pool(cfg: HardenConfig) -> list[Scene]:
 def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfig, space, run_dir: Path, executor,
                detector_factory: str | None, log: Callable[[str], None]) -> tuple[list[Scene], dict]:
     """The round's training scenes (see ``cfg.data``) and a record of how they were made."""
-    from ..generate import open_run
-    from ..generator_config import load_generate_config
+    from ..generator.run import open_run
+    from ..generator.config import load_generate_config
 
     gen_cfg = load_generate_config(fusion=fusion, weights=str(weights))
     if space:
@@ -261,7 +261,7 @@ def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfi
         return made, {"kind": "random", "scenes": len(made), "moved": sum(m is not s for m, s in zip(made, scenes))}
     log(f"attacking {len(scenes)} scenes against {weights} ...")
     run = open_run(gen_cfg, run_dir, scenes=scenes, record={"harden": str(run_dir), "detector": detector_factory},
-                   seed=ATTACK_SEED).generate(detector_factory=detector_factory, executor=executor, artifacts=False)
+                   seed=ATTACK_SEED).run(detector_factory=detector_factory, executor=executor, artifacts=False)
     ids = [e["scene_id"] for e in run.summary["scenes"]]
     made = [load_scene(run_dir / "scenes" / i / "final.yaml") for i in ids]
     agg = run.summary["aggregate"]
@@ -273,7 +273,7 @@ def random_draw(scene: Scene, gen_cfg, seed: int) -> Scene:
     """``scene`` with one plausible perturbation drawn uniformly from the members of the feasible
     set the search would use (same movers by the occlusion heuristic, same spaces and plausibility
     level), its collaborators as they are; the scene itself when nothing can move."""
-    from ..pipeline import Generator
+    from ..generator.pipeline import Generator
     from ..search import EmptyFeasibleSet, FeasibleSet, SearchSpace
 
     rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
@@ -370,7 +370,7 @@ def _load_scenes(folder: Path) -> list[Scene]:
     return [load_scene(p) for p in sorted(folder.glob("*.yaml"))]
 
 
-# ``asg harden``: this workflow's command (asg.cli's WORKFLOW_COMMANDS)
+# ``asg harden``: this workflow's command (asg.cli's COMMAND_MODULES)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fusion", required=True, help="the model to harden: attfuse, early, none or late")

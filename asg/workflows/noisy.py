@@ -35,7 +35,7 @@ def noisy_scene(scene: Scene, rng: np.random.Generator, noise: NoisyLink = STAND
     """``scene`` with each collaborator's message delayed and its shared pose off (drawn from
     ``rng``); the ego's own cloud and pose are exact. A scene whose log cannot give the earlier
     frame raises InputError (see asg.scene.history)."""
-    from ..generator_config import load_generate_config
+    from ..generator.config import load_generate_config
     from ..search.spaces.base import SpaceContext
     from ..search.spaces.latency import LatencySpace
 

@@ -388,7 +388,7 @@ def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
         sched.milestones = Counter(int(f * total) for f in tcfg.decay_at)
 
 
-# ``asg train``: this workflow's command (asg.cli's WORKFLOW_COMMANDS)
+# ``asg train``: this workflow's command (asg.cli's COMMAND_MODULES)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fusion", required=True, help="none, late, early or attfuse (none and late share weights)")

@@ -10,7 +10,7 @@ import sys
 from asg.executors import apply_threads
 from asg.perception import build_detector
 from asg.datasets import scenes_of
-from asg.pipeline import Generator, load_generate_config
+from asg.generator.pipeline import Generator, load_generate_config
 
 #: stage -> the function whose cumulative time it is (file suffix, function name)
 STAGES = {
@@ -37,11 +37,11 @@ def main(count: int) -> None:
     det = build_detector("attfuse")
     gen = Generator(cfg, det, det)
     scenes = list(itertools.islice(scenes_of("normal"), 0, 10 * (count + 1), 10))
-    gen.generate(scenes[0], 1)  # warm-up: compiled kernels, caches
+    gen.attack(scenes[0], 1)  # warm-up: compiled kernels, caches
     prof = cProfile.Profile()
     prof.enable()
     for scene in scenes[1:]:
-        gen.generate(scene, 1)
+        gen.attack(scene, 1)
     prof.disable()
     stats = pstats.Stats(prof).stats
     total = max(v[3] for (f, _, n), v in stats.items() if f.endswith("asg/pipeline.py") and n == "generate")

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 from asg.datasets import scenes_of
-from asg.pipeline import GenerateConfig, Generator
+from asg.generator.pipeline import GenerateConfig, Generator
 from asg.scene.recheck import recheck
 from asg.search import EmptyFeasibleSet, FeasibleSet, SearchSpace, SpaceConfig
 

@@ -18,7 +18,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from asg.generate import file_digest
+from asg.generator.run import file_digest
 from asg.objective.ap import AP_KEYS
 from asg.perception.weights_io import WEIGHTS_DIR
 

@@ -16,12 +16,12 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-import asg.pipeline as pipeline
+import asg.generator.pipeline as pipeline
 from asg.benchmarks.tables import UNION
 from asg.executors import build_executor
 from asg.datasets import scenes_of
-from asg.generate import open_run
-from asg.pipeline import load_generate_config, with_space_flags
+from asg.generator.run import open_run
+from asg.generator.pipeline import load_generate_config, with_space_flags
 
 
 def _value(text: str):
@@ -55,7 +55,7 @@ def run_variant(scenes: Path, out: Path, variant: str) -> dict:
         if workers and params:
             raise SystemExit("WORKERS applies to variants without settings (the workers read the searches' yaml)")
         executor = build_executor("local", workers) if workers else None
-        agg = run_folder.generate(artifacts=False, executor=executor).summary["aggregate"]
+        agg = run_folder.run(artifacts=False, executor=executor).summary["aggregate"]
     finally:
         pipeline.search_params = defaults
     return {"variant": variant, "budget": cfg.budget, "movers": cfg.perturbed, "n_q": cfg.space.n_q, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}

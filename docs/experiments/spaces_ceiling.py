@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from asg.io.run import load_detections, pooled_ap
+from asg.generator.run_folder import load_detections, pooled_ap
 
 
 def neighbour_correlation(run: Path) -> list[float]:

@@ -1,4 +1,4 @@
-"""``generate(cfg, scenes, out, ...)``: run ACS then APS on each scene and write the run folder.
+"""``open_run(cfg, out, ...).run()`` (or ``run_scenes(cfg, scenes, out, ...)``): run ACS then APS on each scene and write the run folder.
 
 The library call behind ``asg generate`` and the benchmarks. A run folder records the settings it
 was made with (``OUT/run.json``): a rerun with the same settings resumes (finished scenes are kept),
@@ -19,12 +19,12 @@ from sumo_scenarios.atomic import remove_stale_partials
 from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
 
-from .executors import Executor, Job
-from .executors.local import LocalExecutor
-from .io.run_record import RUN_RECORD, claim
-from .generator_config import GenerateConfig
+from ..executors import Executor, Job
+from ..executors.local import LocalExecutor
+from ..io.run_record import RUN_RECORD, claim
+from .config import GenerateConfig
 from .pipeline import Generator
-from .scene import Scene
+from ..scene import Scene
 
 #: temporary work (a simulated log) inside the run folder, removed when the run ends
 WORK_DIR = ".work"
@@ -79,7 +79,7 @@ StepProgress = Callable[[int], None]
 
 @dataclass(frozen=True)
 class OpenRun:
-    """A claimed run folder and the scenes it will run (:func:`open_run`); ``generate`` runs them."""
+    """A claimed run folder and the scenes it will run (:func:`open_run`); ``run`` runs them."""
 
     cfg: GenerateConfig
     out: Path
@@ -88,12 +88,12 @@ class OpenRun:
     #: this run created ``out``: bad input that stops it before any scene is done removes it again
     fresh: bool
 
-    def generate(self, *, detector_factory: str | None = None, executor: Executor | None = None,
+    def run(self, *, detector_factory: str | None = None, executor: Executor | None = None,
                  on_scene: SceneProgress | None = None, on_step: StepProgress | None = None,
                  artifacts: bool = True) -> GenerateRun:
-        """:func:`generate` on this folder's scenes (resuming what an earlier run finished)."""
+        """:func:`run_scenes` on this folder's scenes (resuming what an earlier run finished)."""
         try:
-            return generate(self.cfg, self.scenes, self.out, seed=self.seed, detector_factory=detector_factory,
+            return run_scenes(self.cfg, self.scenes, self.out, seed=self.seed, detector_factory=detector_factory,
                             executor=executor, on_scene=on_scene, on_step=on_step, artifacts=artifacts)
         except InputError:
             if self.fresh and not any((self.out / "scenes").glob("*/result.json")):
@@ -138,7 +138,7 @@ def open_run(cfg: GenerateConfig, out: Path, *, source: SceneSource | None = Non
     return OpenRun(cfg, out, tuple(chosen), seed, fresh)
 
 
-def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: int = 1,
+def run_scenes(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: int = 1,
              detector_factory: str | None = None, executor: Executor | None = None,
              on_scene: SceneProgress | None = None, on_step: StepProgress | None = None,
              artifacts: bool = True) -> GenerateRun:
@@ -152,7 +152,7 @@ def generate(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed: i
     ``on_step`` reports evaluations only when the scenes run in this process
     (``executor.in_process``). ``artifacts``: write each scene's final clouds and pictures too (off
     for data sets of challenging scenes)."""
-    from .io.run import load_done, previous_wall_s, write_summary
+    from .run_folder import load_done, previous_wall_s, write_summary
 
     check_scenes(cfg, scenes)
     for s in scenes:
@@ -201,12 +201,12 @@ def _worker_setup(cfg: GenerateConfig, detector_factory: str | None, out: str, s
 def _worker_run(state, scene_dict: dict) -> tuple[str, object]:
     """One scene: generated and written to its folder; ("done", its summary entry) or ("skipped",
     why) when the scene cannot be attacked (too few vehicles, nothing plausible to move)."""
-    from .io.run import write_scene
+    from .run_folder import write_scene
 
     gen, out, seed, artifacts, on_step = state
     scene = Scene.from_dict(scene_dict)
     try:
-        result = gen.generate(scene, seed, on_step=(lambda e: on_step(e.step)) if on_step else None)
+        result = gen.attack(scene, seed, on_step=(lambda e: on_step(e.step)) if on_step else None)
     except InputError as exc:
         return "skipped", str(exc)
     return "done", write_scene(out, result, artifacts)
@@ -232,7 +232,7 @@ def factory_models(spec: str, cfg: GenerateConfig):
     """(target, ACS model or None) that factory ``spec`` returns for ``cfg``, each behind the checks
     every detector from outside gets (asg.perception.plugins.CheckedDetector); InputError if the
     factory fails or returns something else."""
-    from .perception.plugins import CheckedDetector, guarded_call
+    from ..perception.plugins import CheckedDetector, guarded_call
 
     where = f"detector factory {spec!r}"
     out = guarded_call(where, "the factory", load_factory(spec), cfg)
@@ -243,15 +243,15 @@ def factory_models(spec: str, cfg: GenerateConfig):
     if acs_model is not None and not callable(getattr(acs_model, "attention_weights", None)):
         raise InputError(f"{where}: its ACS model has no attention_weights(frame, cells) method")
     if acs_model is None and cfg.acs == "attention":  # as for a shipped model without attention: AttFuse's
-        from .perception import build_detector
+        from ..perception import build_detector
 
         return CheckedDetector(where, target), build_detector("attfuse")
     return CheckedDetector(where, target), (None if acs_model is None else CheckedDetector(where, acs_model))
 
 
 def _shipped_models(cfg: GenerateConfig):
-    from .perception import build_detector
-    from .perception.fusion import has_own_attention
+    from ..perception import build_detector
+    from ..perception.fusion import has_own_attention
 
     target = build_detector(cfg.fusion, weights_file=cfg.weights)
     acs_model = None
@@ -285,7 +285,7 @@ def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> di
 def shipped_digests(fusion: str, weights: str | None, acs: str) -> dict[str, str]:
     """{weights name: sha256} of the shipped weights files a run of these settings loads (the
     target's when no ``weights`` file is given; the shipped AttFuse's for attention-based ACS)."""
-    from .perception.fusion import shipped_weights_of
+    from ..perception.fusion import shipped_weights_of
 
     files = shipped_weights_of(fusion, target=not weights, acs_attention=acs == "attention")
     return {name: file_digest(path) for name, path in sorted(files.items())}
@@ -369,7 +369,7 @@ def check_scenes(cfg: GenerateConfig, scenes: Sequence[Scene]) -> None:
     whose log cannot give the past a space reads (latency)."""
     _refuse_duplicates(scenes)
     if cfg.space.needs_past:
-        from .scene.history import check_past
+        from ..scene.history import check_past
 
         for s in scenes:
             check_past(s, cfg.space.latency.max_delay_s)
@@ -397,8 +397,8 @@ def _scenes_from_town(source: SceneSource, seed: int, workdir: Path, log_dir: Pa
     from sumo_scenarios.log import META_NAME
     from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
-    from .scene.from_log import ExtractParams, extract_scenes
-    from .scene.history import HISTORY_MARGIN_S
+    from ..scene.from_log import ExtractParams, extract_scenes
+    from ..scene.history import HISTORY_MARGIN_S
 
     request = SimulationRequest(out_dir=workdir / "log", town=source.town, net=source.net, seed=seed,
                                 duration_s=source.duration_s, density="normal")
@@ -420,6 +420,6 @@ def _scenes_from_town(source: SceneSource, seed: int, workdir: Path, log_dir: Pa
 
 
 def _scenes_from_dir(path: Path) -> Iterator[Scene]:
-    from .datasets import scenes_of
+    from ..datasets import scenes_of
 
     return scenes_of(str(path))

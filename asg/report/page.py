@@ -38,9 +38,9 @@ from sumo_scenarios.errors import InputError  # noqa: E402
 
 from ..objective import ap_text  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
-from .figures import points_above_ground  # noqa: E402
-from .run import POOLED_STAGES, load_detections  # noqa: E402
-from .report_training import training_folders, training_section  # noqa: E402
+from ..io.figures import points_above_ground  # noqa: E402
+from ..generator.run_folder import POOLED_STAGES, load_detections  # noqa: E402
+from .training import training_folders, training_section  # noqa: E402
 from .view3d import plotly_script, scene_view_html  # noqa: E402
 
 STAGES = (("initial", "initial"), ("after_acs", "after ACS"), ("final", "final"))

@@ -11,7 +11,7 @@ from matplotlib.colors import to_hex
 
 from ..scene import footprint_xy
 from ..sensors.frame import CooperativeFrame
-from .figures import points_above_ground
+from ..io.figures import points_above_ground
 
 #: most points drawn per view (a uniform, seeded subsample above that): the page stays a few MB
 MAX_POINTS = 12000

@@ -2,7 +2,7 @@
 each round's training loss) and ``asg finetune`` (before / after on each set, the training loss).
 
 Every value comes from the run's own files (card.json, the fine-tuning card, loss.csv) and is
-escaped; a file that is not what asg wrote ends in one InputError (asg.io.report's guard).
+escaped; a file that is not what asg wrote ends in one InputError (asg.report.page's guard).
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..objective import ap_text  # noqa: E402
-from .curves import LOSS_CURVE, read_loss_curve  # noqa: E402
+from ..io.curves import LOSS_CURVE, read_loss_curve  # noqa: E402
 
 #: the files that make a folder a training run
 HARDEN_CARD = "card.json"

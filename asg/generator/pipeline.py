@@ -1,4 +1,4 @@
-"""``generate(scene, ...)``: Adversarial Collaborator Search, then Adversarial Perturbation Search.
+"""``Generator.attack(scene, ...)``: Adversarial Collaborator Search, then Adversarial Perturbation Search.
 
 What the CLI and the benchmarks call. Works with any detector behind the V2XDetector interface
 (the tests use a fake one); AttFuse's attention steers ACS-A whatever the target model is.
@@ -13,16 +13,16 @@ import numpy as np
 
 from sumo_scenarios.errors import InputError
 
-from .generator_config import MAX_BUDGET, GenerateConfig, load_generate_config, search_params, with_space_flags  # noqa: F401  (re-exported)
-from .objective import adversarial_loss, ap_at
-from .scene import Scene
-from .perception.data import in_range
-from .scene.feasibility import Plausibility, in_eval_range
-from .scene.recheck import recheck
-from .scene.neighbours import vehicles_within
-from .search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, best_of, build_optimizer, check_settings, run_search
-from .sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
-from .sensors.frame import CooperativeFrame, apply_link, delayed_view, render_frame
+from .config import MAX_BUDGET, GenerateConfig, load_generate_config, search_params, with_space_flags  # noqa: F401  (re-exported)
+from ..objective import adversarial_loss, ap_at
+from ..scene import Scene
+from ..perception.data import in_range
+from ..scene.feasibility import Plausibility, in_eval_range
+from ..scene.recheck import recheck
+from ..scene.neighbours import vehicles_within
+from ..search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, best_of, build_optimizer, check_settings, run_search
+from ..sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
+from ..sensors.frame import CooperativeFrame, apply_link, delayed_view, render_frame
 
 Detections = tuple[np.ndarray, np.ndarray, np.ndarray]  # boxes (K, 7), scores (K,), ground truth (M, 7)
 
@@ -103,7 +103,7 @@ class Generator:
     def collaborator_search(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> "AcsOutcome":
         """The lowest-loss of the combinations ``cfg.acs``'s strategy proposes (asg.collaborators),
         with the strategy's probabilities."""
-        from .registry import lookup
+        from ..registry import lookup
 
         strategy = lookup("acs", self.cfg.acs)(self.cfg.acs_samples, self.cfg.acs_tau)
         cands = [a.agent_id for a in vehicles_within(scene, scene.ego_id, self.cfg.comm_range_m)]
@@ -144,10 +144,10 @@ class Generator:
         return [a.agent_id for a in ranked[: self.cfg.perturbed]]
 
     # ---- one scene ---------------------------------------------------------------------------
-    def generate(self, scene: Scene, seed: int, on_step: Callable[[Evaluation], None] | None = None) -> SceneResult:
+    def attack(self, scene: Scene, seed: int, on_step: Callable[[Evaluation], None] | None = None) -> SceneResult:
         """ACS, then APS, then the independent plausibility re-check of one scene (BLAS on one
         thread meanwhile: see :func:`asg.executors.base.blas_on_one_thread`)."""
-        from .executors.base import blas_on_one_thread
+        from ..executors.base import blas_on_one_thread
 
         with blas_on_one_thread():
             return self._generate(scene, seed, on_step)

@@ -12,10 +12,10 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import from_mapping, read_yaml
 
-from .objective import ObjectiveConfig
-from .scene.neighbours import COMM_RANGE_M
-from .search import SpaceConfig
-from .sensors.lidar_spec import DEFAULT_LIDAR
+from ..objective import ObjectiveConfig
+from ..scene.neighbours import COMM_RANGE_M
+from ..search import SpaceConfig
+from ..sensors.lidar_spec import DEFAULT_LIDAR
 
 #: evaluations per scene at most (a scene at 50 takes seconds; this many is a day)
 MAX_BUDGET = 100_000
@@ -43,8 +43,8 @@ class GenerateConfig:
     space: SpaceConfig = field(default_factory=SpaceConfig)
 
     def validate(self) -> "GenerateConfig":
-        from .registry import names
-        from . import collaborators as _c, search as _s  # noqa: F401  (fill the registries)
+        from ..registry import names
+        from .. import collaborators as _c, search as _s  # noqa: F401  (fill the registries)
 
         if self.search not in names("search"):
             raise InputError(f"unknown search algorithm '{self.search}'; known: {', '.join(names('search'))}")

@@ -30,10 +30,10 @@ from sumo_scenarios.checks import inside
 
 from ..objective import AP_KEYS, ap_text
 from ..objective.ap import AP_METHODS, DEFAULT_AP_METHOD, ap_by_method, check_ap_method
-from ..pipeline import SceneResult
+from .pipeline import SceneResult
 from ..scene import save_scene
-from .figures import bev_figure
-from .pcd import write_pcd
+from ..io.figures import bev_figure
+from ..io.pcd import write_pcd
 
 
 def scene_entry(r: SceneResult) -> dict:
