@@ -364,3 +364,21 @@ def test_bench_train_needs_no_data_set_built(tmp_path, monkeypatch):
     scenes, source = bench_frames(3)
     assert len(scenes) == 3 and "not built" in source
     assert all(s.town == load_spec("detector-train").towns[0] and s.collaborators for s in scenes)
+
+
+def test_a_detector_builds_and_trains_with_its_own_config_file(monkeypatch, tmp_path):
+    """A variant of a model (another size) is an entry with its own config file: its detector,
+    training and card read that file, not the shipped default."""
+    import asg.perception.fusion.base as base
+    from asg.perception.fusion import card_settings_of, detector_config_of
+    from asg.perception.fusion.single import _Single
+
+    (tmp_path / "detectors").mkdir()
+    (tmp_path / "detectors" / "wide.yaml").write_text("filters: [64, 128, 256]\nupsample_channels: 64\n")
+    monkeypatch.setattr(base, "configs_dir", lambda: tmp_path)
+    monkeypatch.setattr(_Single, "config_file", "wide.yaml")
+    cfg = detector_config_of("single")
+    assert cfg.filters == (64, 128, 256) and cfg.upsample_channels == 64
+    detector = _Single.__subclasses__()[0](load=False)
+    assert detector.cfg == cfg and detector.model.backbone.stage_channels == (64, 128, 256)
+    assert card_settings_of("single", cfg)["detector_config"] == "configs/detectors/wide.yaml"

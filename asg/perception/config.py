@@ -86,5 +86,9 @@ class DetectorConfig:
         return len(self.anchors) * len(self.anchor_rotations_deg)
 
 
+#: the shipped detectors' settings (configs/detectors/), unless a detector names another file
+DEFAULT_CONFIG_FILE = "pointpillars.yaml"
+
+
 def load_detector_config(path: str | Path | None = None) -> DetectorConfig:
-    return load_dataclass(DetectorConfig, path or configs_dir() / "detectors" / "pointpillars.yaml")
+    return load_dataclass(DetectorConfig, path or configs_dir() / "detectors" / DEFAULT_CONFIG_FILE)

@@ -29,7 +29,7 @@ def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: 
             # absent when the last chunk trained them alongside the whole network
             **({"branch_fit": branch_fit} if branch_fit else {}),
             **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
-            "detector_config": "configs/detectors/pointpillars.yaml", "lidar": DEFAULT_LIDAR,
+            "lidar": DEFAULT_LIDAR,
             **card_settings_of(name, cfg)}
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
 

@@ -37,10 +37,9 @@ from ..io.curves import LOSS_CURVE, LossCurve
 from ..io.run_record import claim
 from ..sensors import load_lidar_spec
 from ..perception.checkpoint import load_checkpoint
-from ..perception.config import load_detector_config
 from ..perception.data import Augmentation, make_sample
 from .train import BRANCH_KEYS, Batches, Steps, augment_record, corner_record, make_scheduler, draw_examples, run_steps
-from ..perception.fusion import build_network, feed_of
+from ..perception.fusion import build_network, detector_config_of, feed_of
 from ..perception.train_config import FinetuneConfig, load_finetune_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, load_state
 
@@ -161,7 +160,7 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
               threads: int, log: Callable[[str], None], progress, sources: Callable[[], MixedBatches]) -> dict:
     """Train ``total`` steps from the weights ``start`` on the batches ``sources()`` draws
     (resuming ``ckpt``), write ``weights_out``; the record of the chunk for a card."""
-    cfg = load_detector_config()
+    cfg = detector_config_of(name)
     torch.set_num_threads(threads)
     torch.manual_seed(fcfg.seed)
     rng = np.random.default_rng([fcfg.seed, 0])

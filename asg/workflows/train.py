@@ -33,11 +33,10 @@ from ..sensors import load_lidar_spec
 from ..perception.boxes import assign_targets
 from ..perception.branch_boxes import branch_targets
 from ..perception.branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
-from ..perception.config import load_detector_config
 from ..perception.data import Augmentation, Sample, augment, make_sample
 from ..perception.head import detection_loss, iou_loss, refine_loss
 from ..perception.feeds import Feed
-from ..perception.fusion import build_network, feed_of
+from ..perception.fusion import build_network, detector_config_of, feed_of
 from ..perception.model import PointPillars
 from .cards import card_validation, init_record, previous_training, write_card
 from ..perception.checkpoint import load_checkpoint, save_checkpoint
@@ -166,7 +165,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
                                   detector_config=detector_config, weights_dir=weights_dir, validate=validate)
     tcfg = train_config or load_train_config(name)
     total = steps or tcfg.steps
-    cfg = detector_config or load_detector_config()
+    cfg = detector_config or detector_config_of(name)
     torch.set_num_threads(threads)
     run_dir = out_dir or runs_dir() / "train" / name
     ckpt = run_dir / "last.pt"
@@ -288,7 +287,7 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     from ..perception.weights_io import load_state
 
     fcfg = branch_config or load_branch_config()
-    cfg = detector_config or load_detector_config()
+    cfg = detector_config or detector_config_of(name)
     previous = previous_training(name, weights_dir)
     if not previous.get("chunks"):
         raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit the branches to; train them first")

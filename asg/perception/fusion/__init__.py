@@ -8,7 +8,7 @@ from . import attfuse, early, single  # noqa: F401  (fill the registry)
 from .base import Detections, V2XDetector
 
 __all__ = ["Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
-           "card_settings_of", "feed_of", "fusions_of", "has_own_attention", "shipped_model", "shipped_weights_of", "weights_names"]
+           "card_settings_of", "detector_config_of", "feed_of", "fusions_of", "has_own_attention", "shipped_model", "shipped_weights_of", "weights_names"]
 
 
 def detector_names() -> list[str]:
@@ -114,8 +114,15 @@ def feed_of(weights_name: str):
 
 
 def card_settings_of(weights_name: str, cfg) -> dict:
-    """The detector settings of ``cfg`` particular to the model of a weights file, for its card."""
-    return _entry_of(weights_name).card_settings(cfg)
+    """What the card of a weights file records of its network's settings ``cfg``: the settings
+    file and the settings particular to its model."""
+    entry = _entry_of(weights_name)
+    return {"detector_config": f"configs/detectors/{entry.config_file}", **entry.card_settings(cfg)}
+
+
+def detector_config_of(weights_name: str):
+    """The settings the network of a weights file is built with (its detector's config file)."""
+    return _entry_of(weights_name).detector_config()
 
 
 def build_network(weights_name: str, cfg):

@@ -7,7 +7,9 @@ import numpy as np
 import torch
 
 from ...sensors.frame import CooperativeFrame
-from ..config import DetectorConfig, load_detector_config
+from sumo_scenarios.paths import configs_dir
+
+from ..config import DEFAULT_CONFIG_FILE, DetectorConfig, load_detector_config
 from ..data import in_range
 from ..feeds import Feed
 from ..inference import fold_batch_norms
@@ -21,12 +23,15 @@ class V2XDetector(ABC):
     registry_name: str = ""
     #: the shipped weights file under asg/perception/weights/
     weights: str = ""
+    #: its network's settings: a file of configs/detectors/ (a larger or slimmer variant of a model
+    #: is its own entry with its own file and weights)
+    config_file: str = DEFAULT_CONFIG_FILE
     #: how training feeds the network (asg.perception.feeds): the examples of a frame, and how a
     #: batch of them enters the network; None for a detector asg does not train (a plugin)
     feed: "Feed | None" = None
 
     def __init__(self, cfg: DetectorConfig | None = None, weights_file: str | None = None, load: bool = True):
-        self.cfg = cfg or load_detector_config()
+        self.cfg = cfg or self.detector_config()
         self.model = self.build_model()
         if load:
             from ..weights_io import load_state, weights_path
@@ -42,6 +47,11 @@ class V2XDetector(ABC):
     def new_network(cls, cfg: DetectorConfig) -> torch.nn.Module:
         """A fresh, trainable network of this model (what its weights load into and training builds)."""
         raise NotImplementedError(f"{cls.__name__} defines no network")
+
+    @classmethod
+    def detector_config(cls) -> DetectorConfig:
+        """The settings its network is built with (configs/detectors/``config_file``)."""
+        return load_detector_config(configs_dir() / "detectors" / cls.config_file)
 
     @classmethod
     def card_settings(cls, cfg: DetectorConfig) -> dict:
