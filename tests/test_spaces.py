@@ -258,3 +258,15 @@ def test_a_town_sources_scenes_keep_their_log_for_latency(capsys, tmp_path):
     run(tmp_path / "b")  # another folder, the same files
     assert (folder / "final.yaml").read_text() == (tmp_path / "b" / "scenes" / entry["scene_id"] / "final.yaml").read_text()
     capsys.readouterr()
+
+
+def test_each_space_declares_what_it_needs_from_the_run():
+    """The generator asks the spaces, not their names: whether to pick movers, how far back to read."""
+    from asg.search.space import SpaceConfig
+    from asg.search.spaces import LatencyConfig
+
+    poses, links = SpaceConfig(kinds=("poses",)), SpaceConfig(kinds=("dropout", "pose-error"))
+    assert poses.needs_movers and not links.needs_movers
+    assert poses.past_s == 0.0 and not links.needs_past
+    late = SpaceConfig(kinds=("insert", "latency"), latency=LatencyConfig(max_delay_s=0.3))
+    assert late.past_s == 0.3 and late.needs_past and not late.needs_movers

@@ -165,7 +165,7 @@ class Generator:
                          f"its {acs.combinations} sampled collaborator combinations did not include the scene's own")
         aps = ApsOutcome(after, [], [], ())
         if self.cfg.aps:
-            perturbed = self.pick_perturbed(after.scene, notes) if "poses" in self.cfg.space.kinds else []
+            perturbed = self.pick_perturbed(after.scene, notes) if self.cfg.space.needs_movers else []
             try:
                 aps = self._perturb(after, perturbed, rng, on_step)
             except EmptyFeasibleSet as exc:

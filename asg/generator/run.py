@@ -372,7 +372,7 @@ def check_scenes(cfg: GenerateConfig, scenes: Sequence[Scene]) -> None:
         from ..scene.history import check_past
 
         for s in scenes:
-            check_past(s, cfg.space.latency.max_delay_s)
+            check_past(s, cfg.space.past_s)
 
 
 # ---- where scenes come from ----------------------------------------------------------------------

@@ -54,9 +54,19 @@ class SpaceConfig:
     dropout: DropoutConfig = field(default_factory=DropoutConfig)
 
     @property
+    def past_s(self) -> float:
+        """How far into the scene's past (s) the spaces of ``kinds`` read from its SUMO log (0: none)."""
+        return max(lookup("space", k).past_s(self) for k in self.kinds)
+
+    @property
     def needs_past(self) -> bool:
         """Does a space of ``kinds`` read the scene's past from its SUMO log (latency)?"""
-        return any(lookup("space", k).needs_past for k in self.kinds)
+        return self.past_s > 0
+
+    @property
+    def needs_movers(self) -> bool:
+        """Does a space of ``kinds`` move the vehicles the occlusion heuristic picks (poses)?"""
+        return any(lookup("space", k).needs_movers for k in self.kinds)
 
     def __post_init__(self) -> None:
         from . import spaces as _  # noqa: F401  (the registry)

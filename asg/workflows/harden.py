@@ -278,7 +278,7 @@ def random_draw(scene: Scene, gen_cfg, seed: int) -> Scene:
 
     rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
     gen = Generator(gen_cfg, target=None)
-    perturbed = gen.pick_perturbed(scene, []) if "poses" in gen_cfg.space.kinds else []
+    perturbed = gen.pick_perturbed(scene, []) if gen_cfg.space.needs_movers else []
     try:
         space = SearchSpace(scene, perturbed, gen_cfg.space)
         if space.dim == 0:

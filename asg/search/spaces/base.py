@@ -60,8 +60,15 @@ class PerturbationSpace(ABC):
     """A registered perturbation space: physical slots and/or link dimensions."""
 
     registry_name: str = ""
-    #: the space reads the scene's past from its SUMO log (the source must keep one)
-    needs_past: bool = False
+    #: the space moves the vehicles the occlusion heuristic picks (``SpaceContext.movers``): the
+    #: generator picks them only when a space of the run asks
+    needs_movers: bool = False
+
+    @classmethod
+    def past_s(cls, cfg) -> float:
+        """How far into the scene's past (s) the space reads, from its SUMO log, under the space
+        settings ``cfg`` (a SpaceConfig); 0: it reads none (the source need not keep a log)."""
+        return 0.0
 
     def __init__(self, ctx: SpaceContext, cfg) -> None:
         self.ctx = ctx

@@ -35,7 +35,9 @@ class LatencyConfig:
 
 @register("space", "latency")
 class LatencySpace(PerturbationSpace):
-    needs_past = True
+    @classmethod
+    def past_s(cls, cfg) -> float:
+        return cfg.latency.max_delay_s
 
     def __init__(self, ctx: SpaceContext, cfg) -> None:
         super().__init__(ctx, cfg)

@@ -45,6 +45,7 @@ class MoveSlot(Slot):
 
 @register("space", "poses")
 class PosesSpace(PerturbationSpace):
+    needs_movers = True
     @property
     def slots(self) -> list[MoveSlot]:
         scale, levels = self.cfg.scale_per_vehicle(), self.cfg.yaw_levels()
