@@ -211,8 +211,8 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     samples = render_samples(tcfg.dataset, "train")
     batches = Batches(feed_of(name), samples, tcfg.views, tcfg.augment)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
-    wall = run_steps(model, opt, sched, batches, rng,
-                     Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every, tcfg.corner_loss), cfg, ckpt, wall, previous, log, progress)
+    steps_at = Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every, tcfg.corner_loss)
+    wall = run_steps(model, opt, sched, batches, rng, steps_at, cfg, ckpt, wall, previous, log, progress)
     weights = weights_dir / f"{name}.pt"
     with atomic_path(weights) as tmp:
         torch.save(model.state_dict(), tmp)
