@@ -232,13 +232,18 @@ def test_processes_spawned_inside_the_block_are_born_ignoring_ctrl_c():
     if sigint_ignoring_launcher() is None:
         pytest.skip("no /bin/sh or an executable temporary folder here")
     ctx = multiprocessing.get_context("spawn")
-    ours = signal.getsignal(signal.SIGINT)
-    before = spawn.get_executable()
-    with spawned_ignoring_sigint():
+    # this process as a terminal's foreground command has it (a shell's background job starts with
+    # SIGINT ignored, and its children inherit that)
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        before = spawn.get_executable()
+        with spawned_ignoring_sigint():
+            with ctx.Pool(1) as pool:
+                inside = pool.apply(_sigint_disposition)
+            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert spawn.get_executable() == before
         with ctx.Pool(1) as pool:
-            inside = pool.apply(_sigint_disposition)
-        assert signal.getsignal(signal.SIGINT) == ours
-    assert spawn.get_executable() == before
-    with ctx.Pool(1) as pool:
-        outside = pool.apply(_sigint_disposition)
+            outside = pool.apply(_sigint_disposition)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
     assert (inside, outside) == ("ignored", "handled")

@@ -425,7 +425,8 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment
     a two-worker ``asg generate``, ``asg dataset build`` or ``asg harden``: while the command imports (trimesh
     swallowed a KeyboardInterrupt there and the run went on to exit 0; ``moment`` seconds after
     asg's start holds the signals, or later when the imports are done) or while its workers import:
-    exit 130 / 143 within 5 s, one line, no traceback from any process of the group, none left."""
+    exit 130 / 143 within seconds (no summary written), one line, no traceback from any process of
+    the group, none left."""
     psutil = pytest.importorskip("psutil")
     scenes = tmp_path / "scenes"
     for i in range(2):
@@ -462,7 +463,8 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment
     # 130 / 143, or ended by the signal itself after saying so (once in a loaded run, a SIGINT still
     # pending at the interpreter's exit): a shell reports both as 130 / 143
     assert proc.returncode in (code, -sig), err
-    assert time.time() - sent < 5.0
+    # it stopped, rather than finishing the run: promptly (a generous bound, for a loaded machine)
+    assert time.time() - sent < 15.0 and not (out / "summary.json").exists()
     # the command's one line; nothing from a worker, also one whose interpreter was starting
     assert word in err and "Traceback" not in err and len([l for l in err.splitlines() if l.strip()]) == 1, err
     _, alive = psutil.wait_procs(family, timeout=10)
