@@ -222,7 +222,7 @@ def test_folding_batch_norms_keeps_the_function(where):
 def test_registry_lists_all_fusions():
     from asg import perception  # noqa: F401
 
-    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft"}
+    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper"}
     with pytest.raises(InputError, match="unknown fusion 'mid'.*attfuse"):
         perception.build_detector("mid")
 
@@ -527,3 +527,29 @@ def test_the_corner_loss_counts_in_the_total_only_when_weighted():
     assert box.grad[labels == 1].abs().sum() > 0 and box.grad[labels != 1].abs().sum() == 0
     with pytest.raises(ValueError):
         detection_loss(cls, box, d, labels, res, dirs, None, 0.5)
+
+
+def test_fcooper_fuses_by_maxout_and_is_single_with_one_agent():
+    """F-Cooper's fusion: per cell and channel the largest feature of the agents present; with the
+    ego alone it is the single-agent network with the same weights, and the collaborators' order
+    and an absent agent's slot change nothing."""
+    from asg.perception.model import MaxFuse, MaxOverAgents
+
+    torch.manual_seed(0)
+    feats = torch.randn(2, 3, 4, 5, 5)
+    mask = torch.tensor([[True, True, True], [True, False, False]])
+    fused, att = MaxOverAgents()(feats, mask)
+    assert att is None
+    assert torch.equal(fused[0], feats[0].amax(dim=0)) and torch.equal(fused[1], feats[1, 0])
+    single, maxfuse = PointPillars(TINY), MaxFuse(TINY)
+    missing = maxfuse.load_state_dict(single.state_dict(), strict=False)
+    assert not missing.missing_keys and not missing.unexpected_keys  # nothing beyond PointPillars
+    single.eval(), maxfuse.eval()
+    rng = np.random.default_rng(1)
+    clouds = [torch.from_numpy(np.c_[rng.uniform(-15, 15, (400, 2)), rng.uniform(-2, 1, (400, 1)),
+                                     rng.uniform(0, 1, (400, 1))].astype(np.float32)) for _ in range(3)]
+    with torch.no_grad():
+        assert torch.allclose(maxfuse([[clouds[0]]])[0], single([clouds[0]])[0], atol=1e-5)
+        a = maxfuse([clouds, [clouds[0]]])[0]
+        b = maxfuse([[clouds[0], clouds[2], clouds[1]], [clouds[0]]])[0]
+    assert torch.allclose(a, b, atol=1e-5)

@@ -19,7 +19,7 @@ def test_every_fusion_entry_builds_untrained(cross_map):
     tiny = DetectorConfig(range_m=16.0, pfn_channels=8, layers=(1, 1, 1), filters=(8, 8, 8), upsample_channels=8,
                           score_threshold=0.99, iou_rescore=0.0, iou_patch=1, box_refine=False,
                           attfuse_fusion="output")
-    assert names("fusion") == ["attfuse", "attfuse-ft", "early", "late", "none"]
+    assert names("fusion") == ["attfuse", "attfuse-ft", "early", "fcooper", "late", "none"]
     for name in names("fusion"):
         det = lookup("fusion", name)(cfg=tiny, load=False)
         boxes, scores = det.detect(frame)

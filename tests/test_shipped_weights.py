@@ -25,13 +25,13 @@ def held_out_samples(tmp_path_factory):
 
 #: floors of AP@0.3 and AP@0.7 on 3 held-out frames (random weights score 0), about 0.15 below what
 #: the shipped weights scored there when the floors were set (AP@0.3 / AP@0.7: none 0.84 / 0.46, late 0.95 /
-#: 0.78, early 0.95 / 0.84, attfuse 0.95 / 0.82); quality on the whole validation split is in the
-#: model cards
+#: 0.78, early 0.95 / 0.84, attfuse 0.95 / 0.82, fcooper 0.95 / 0.73); quality on the whole validation
+#: split is in the model cards
 FLOOR = {"none": (0.65, 0.26), "late": (0.8, 0.65), "early": (0.8, 0.68), "attfuse": (0.8, 0.7),
-         "attfuse-ft": (0.8, 0.7)}
+         "attfuse-ft": (0.8, 0.7), "fcooper": (0.8, 0.58)}
 
 
-@pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse", "attfuse-ft"])
+@pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse", "attfuse-ft", "fcooper"])
 def test_shipped_model_detects_vehicles(fusion, held_out_samples):
     det = build_detector(fusion)
     frames = [(*det.detect(s.frame), s.gt_eval()) for s in held_out_samples]
@@ -46,6 +46,12 @@ def test_model_cards_describe_the_weights():
         # the IoU and refinement branches the shipped config uses were fitted on these weights
         assert card["branch_fit"]["candidates"] > 0 and card["chunks"][-1]["part"] == "branches"
         assert (WEIGHTS_DIR / card["weights"]).is_file()
+
+
+def test_the_fcooper_card_says_it_started_from_single():
+    card = json.loads((WEIGHTS_DIR / "fcooper.json").read_text())
+    assert card["fusion"] == ["fcooper"] and card["init_from"]["weights"] == "single.pt"
+    assert card["steps"] > 0 and card["chunks"][-1]["part"] == "all" and card["validation"]["fcooper"]["frames"] == 112
 
 
 def test_the_fine_tuned_card_says_what_it_was_tuned_on():

@@ -11,6 +11,10 @@ from ..scene.neighbours import with_nearest_collaborators
 from ..sensors import load_lidar_spec, simulate_frame
 
 
+#: a row per shipped network (attfuse-ft runs AttFuse's network)
+MODELS = ("none", "late", "early", "attfuse", "fcooper")
+
+
 def bench_detect(frames: int = 10, repeats: int = 3) -> dict:
     import torch
 
@@ -20,7 +24,7 @@ def bench_detect(frames: int = 10, repeats: int = 3) -> dict:
     coop = [simulate_frame(s, spec) for s in scenes]
     out = {"frames": len(coop), "agents_per_frame": round(statistics.mean(len(f.sensing_ids) for f in coop), 2),
            "threads": torch.get_num_threads()}
-    for name in ("none", "late", "early", "attfuse"):
+    for name in MODELS:
         det = build_detector(name)
         det.detect(coop[0])  # warm-up
         times = []

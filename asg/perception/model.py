@@ -151,8 +151,46 @@ class AttFuse(nn.Module):
                 fused = backbone.after_first_stage(first)
             else:
                 fused, att = self.fusion(per_sample(backbone.after_first_stage(first)), mask)
-        self.last_attention = att.detach()
+        self.last_attention = None if att is None else att.detach()
         return self.head(fused)
+
+
+class MaxOverAgents(nn.Module):
+    """F-Cooper's maxout fusion: per BEV cell and channel, the largest feature of the agents present.
+    No parameters, no attention."""
+
+    def forward(self, feats: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, None]:
+        """feats (B, N, C, H, W), mask (B, N) of present agents → fused features (B, C, H, W), None."""
+        absent = ~mask[:, :, None, None, None]
+        return feats.masked_fill(absent, float("-inf")).amax(dim=1), None
+
+
+class MaxFuse(AttFuse):
+    """F-Cooper (Chen et al., 2019) on our PointPillars: each agent's cloud (in the ego frame) through
+    the shared pillar net and first backbone stage, the agents' feature maps fused by maxout
+    (:class:`MaxOverAgents`, F-Cooper's spatial-feature fusion), the rest of the backbone and the
+    head on the fused map. Where AttFuse places its attention (``stage1``), so the two differ only
+    in how they fuse. No parameters beyond PointPillars': it starts from ``single`` as it is.
+    ``last_attention`` stays None."""
+
+    parts_beyond_base = ()
+
+    def __init__(self, cfg: DetectorConfig):
+        nn.Module.__init__(self)
+        self.cfg = cfg
+        self.placement = "stage1"
+        self.encoder = PillarEncoder(cfg)
+        self.backbone = Backbone(cfg)
+        self.fusion = MaxOverAgents()
+        self.head = AnchorHead(cfg, self.backbone.out_channels)
+        self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
+        self.last_attention = None
+
+    def attentions(self) -> list:
+        return []
+
+    def start_from_base(self) -> None:
+        """After PointPillars weights were loaded: nothing more to set."""
 
 
 @torch.no_grad()

@@ -1,10 +1,10 @@
-"""Fusion methods, registered by name: none, late, early, attfuse, attfuse-ft; and any detector
+"""Fusion methods, registered by name: none, late, early, attfuse, attfuse-ft, fcooper; and any detector
 plugin of the ``asg.detectors`` entry point group (see asg.perception.plugins)."""
 from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
-from . import attfuse, early, single  # noqa: F401  (fill the registry)
+from . import attfuse, early, fcooper, single  # noqa: F401  (fill the registry)
 from .base import Detections, V2XDetector
 
 __all__ = ["Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
