@@ -12,7 +12,7 @@ truth and the detections in distinct colours, and each moved vehicle's displacem
 was; below each scene's row, an interactive 3D view of its final stage (the fused cloud with
 ground truth and detections); then the paper's tables beside ours; for an ``asg harden`` or ``asg
 finetune`` folder, the table a round (or before / after) and the training curves
-(asg.io.report_training). Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
+(asg.report.training). Written atomically to ``RUN_DIR/report.html`` unless told otherwise.
 """
 from __future__ import annotations
 
