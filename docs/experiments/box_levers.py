@@ -37,7 +37,7 @@ from miss_stages import STAGES, rows_of  # this folder's
 CONTINUE = TrainConfig(steps=2000, batch_size=4, lr=0.0005, schedule="onecycle", pct_start=0.3, seed=1,
                        checkpoint_every=200)
 #: a fresh network: the first chunks of the shipped recipe, one chunk at its first rate
-SCRATCH = TrainConfig(steps=1500, batch_size=4, lr=0.002, schedule="onecycle", pct_start=0.3, seed=1,
+SCRATCH = TrainConfig(steps=1000, batch_size=4, lr=0.002, schedule="onecycle", pct_start=0.3, seed=1,
                       checkpoint_every=200)
 BASE = load_detector_config()
 #: the paper's PointPillars (0.4 m pillars, layers [3, 5, 8], filters 64/128/256) and steps between
