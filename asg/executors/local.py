@@ -1,12 +1,13 @@
 """``--executor local``: worker processes on this machine (one worker: this process).
 
 Workers are started fresh (``spawn``), build their state once and ignore Ctrl-C from their first
-instruction (the parent decides; see launcher.py); SIGTERM makes a worker unwind, so its half-written files are removed, and then exit at
-once (the pool's own loop would otherwise catch the exit and wait for more work, which made a
-terminated batch wait 30 s a worker). Workers get SIGTERM when their parent dies, however it dies
-(Linux's parent-death signal), so none lives on to write a scene for nobody. A worker that dies
-(killed, out of memory) breaks the pool: the items that had not finished run again on a new pool;
-if no item finishes between MAX_ATTEMPTS breaks in a row, the batch stops with WorkerLost.
+instruction (the parent decides; see launcher.py); SIGTERM makes a worker unwind, so its
+half-written files are removed, and then exit at once (the pool's own loop would otherwise catch the
+exit and wait for more work, which made a terminated batch wait 30 s a worker). Workers get SIGTERM
+when their parent dies, however it dies (Linux's parent-death signal), so none lives on to write a
+scene for nobody. A worker that dies (killed, out of memory) breaks the pool: the items that had not
+finished run again on a new pool; if no item finishes between MAX_ATTEMPTS breaks in a row, the
+batch stops with WorkerLost.
 """
 from __future__ import annotations
 

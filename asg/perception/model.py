@@ -94,20 +94,29 @@ class AttFuse(nn.Module):
     def __init__(self, cfg: DetectorConfig):
         super().__init__()
         self.cfg = cfg
-        self.placement = cfg.attfuse_fusion
+        self.placement = self.fusion_placement(cfg)
         self.encoder = PillarEncoder(cfg)
         self.backbone = Backbone(cfg)
-        if self.placement == "stages":
-            self.fusion = nn.ModuleList(ScaledDotAttention(c) for c in self.backbone.stage_channels)
-        else:
-            channels = {"output": self.backbone.out_channels, "stage1": self.backbone.stage_channels[0],
-                        "pillars": cfg.pfn_channels}[self.placement]
-            self.fusion = ScaledDotAttention(channels)
+        self.fusion = self.make_fusion(cfg)
         self.head = AnchorHead(cfg, self.backbone.out_channels)
         self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
         self.last_attention: torch.Tensor | None = None
 
     parts_beyond_base = ("fusion.",)
+
+    @staticmethod
+    def fusion_placement(cfg: DetectorConfig) -> str:
+        """Where the agents are fused (see the class docstring)."""
+        return cfg.attfuse_fusion
+
+    def make_fusion(self, cfg: DetectorConfig) -> nn.Module:
+        """The module fusing the agents at ``self.placement`` (``self.backbone`` built): one
+        attention, or one per stage for "stages"."""
+        if self.placement == "stages":
+            return nn.ModuleList(ScaledDotAttention(c) for c in self.backbone.stage_channels)
+        channels = {"output": self.backbone.out_channels, "stage1": self.backbone.stage_channels[0],
+                    "pillars": cfg.pfn_channels}[self.placement]
+        return ScaledDotAttention(channels)
 
     def attentions(self) -> list[ScaledDotAttention]:
         return list(self.fusion) if isinstance(self.fusion, nn.ModuleList) else [self.fusion]
@@ -175,22 +184,15 @@ class MaxFuse(AttFuse):
 
     parts_beyond_base = ()
 
-    def __init__(self, cfg: DetectorConfig):
-        nn.Module.__init__(self)
-        self.cfg = cfg
-        self.placement = "stage1"
-        self.encoder = PillarEncoder(cfg)
-        self.backbone = Backbone(cfg)
-        self.fusion = MaxOverAgents()
-        self.head = AnchorHead(cfg, self.backbone.out_channels)
-        self.register_buffer("anchors", torch.from_numpy(make_anchors(cfg)).float(), persistent=False)
-        self.last_attention = None
+    @staticmethod
+    def fusion_placement(cfg: DetectorConfig) -> str:
+        return "stage1"
+
+    def make_fusion(self, cfg: DetectorConfig) -> nn.Module:
+        return MaxOverAgents()
 
     def attentions(self) -> list:
-        return []
-
-    def start_from_base(self) -> None:
-        """After PointPillars weights were loaded: nothing more to set."""
+        return []  # so start_from_base has nothing to set
 
 
 @torch.no_grad()

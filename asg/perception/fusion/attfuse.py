@@ -7,15 +7,13 @@ import torch
 
 from ...registry import register
 from ...sensors.frame import CooperativeFrame
-from ..feeds import AGENT_CLOUDS
-from ..model import AttFuse, postprocess
-from .base import Detections, V2XDetector
+from ..model import AttFuse
+from .base import AgentCloudsDetector
 
 
 @register("fusion", "attfuse")
-class AttFuseDetector(V2XDetector):
+class AttFuseDetector(AgentCloudsDetector):
     weights = "attfuse"
-    feed = AGENT_CLOUDS
 
     @classmethod
     def card_settings(cls, cfg) -> dict:
@@ -24,14 +22,6 @@ class AttFuseDetector(V2XDetector):
     @classmethod
     def new_network(cls, cfg) -> torch.nn.Module:
         return AttFuse(cfg)
-
-    def _clouds(self, frame: CooperativeFrame) -> list[torch.Tensor]:
-        return [torch.from_numpy(c) for c in frame.clouds_in_frame_of(frame.ego_id)]
-
-    @torch.no_grad()
-    def detect(self, frame: CooperativeFrame) -> Detections:
-        boxes, scores = postprocess(self.model([self._clouds(frame)]), self.model, self.cfg)[0]
-        return self._clip(boxes, scores)
 
     @torch.no_grad()
     def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float]:

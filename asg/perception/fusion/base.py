@@ -11,8 +11,9 @@ from sumo_scenarios.paths import configs_dir
 
 from ..config import DEFAULT_CONFIG_FILE, DetectorConfig, load_detector_config
 from ..data import in_range
-from ..feeds import Feed
+from ..feeds import AGENT_CLOUDS, Feed
 from ..inference import fold_batch_norms
+from ..model import postprocess
 
 Detections = tuple[np.ndarray, np.ndarray]  # boxes (K, 7) in the ego sensor frame, scores (K,)
 
@@ -73,3 +74,18 @@ class V2XDetector(ABC):
     def _clip(boxes: np.ndarray, scores: np.ndarray) -> Detections:
         keep = in_range(boxes)
         return boxes[keep], scores[keep]
+
+
+class AgentCloudsDetector(V2XDetector):
+    """A detector whose network takes every sensing agent's cloud moved to the ego frame, apart
+    (AttFuse, F-Cooper): trained with the agent-clouds feed, detecting in one pass."""
+
+    feed = AGENT_CLOUDS
+
+    def _clouds(self, frame: CooperativeFrame) -> list[torch.Tensor]:
+        return [torch.from_numpy(c) for c in frame.clouds_in_frame_of(frame.ego_id)]
+
+    @torch.no_grad()
+    def detect(self, frame: CooperativeFrame) -> Detections:
+        boxes, scores = postprocess(self.model([self._clouds(frame)]), self.model, self.cfg)[0]
+        return self._clip(boxes, scores)
