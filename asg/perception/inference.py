@@ -4,6 +4,7 @@ from __future__ import annotations
 from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval, fuse_linear_bn_eval
 
+from .numerics import zero_subnormals_
 from .pillars import PillarEncoder
 
 
@@ -22,4 +23,5 @@ def fold_batch_norms(model: nn.Module) -> nn.Module:
         elif isinstance(module, PillarEncoder) and isinstance(module.norm, nn.BatchNorm1d):
             module.linear = fuse_linear_bn_eval(module.linear, module.norm)
             module.norm = nn.Identity()
+    zero_subnormals_(model)  # folding scales dead filters below float32's normal range (numerics.py)
     return model

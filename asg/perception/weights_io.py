@@ -8,6 +8,8 @@ from torch import nn
 
 from sumo_scenarios.errors import InputError
 
+from .numerics import zero_subnormals_
+
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 
 
@@ -56,6 +58,7 @@ def load_state(model: nn.Module, path: str | Path, allow_missing: str | tuple[st
     except RuntimeError as exc:
         first = str(exc).splitlines()[1].strip() if len(str(exc).splitlines()) > 1 else str(exc)
         raise InputError(f"{p}: weights do not match this model ({first}){_MISMATCH_HINT}") from None
+    zero_subnormals_(model)  # the same outputs, computed at full speed (numerics.py)
     model.eval()
     return model
 
