@@ -18,7 +18,7 @@ from sumo_scenarios.log import SOURCES
 from sumo_scenarios.routes import DENSITIES
 
 from . import __version__, commands
-from .cli_args import COUNT, SEED, executor_args, real, whole
+from .cli_args import COUNT, SEED, executor_args, fusion_arg, real, whole
 from .executors.base import WorkerLost
 from .io.export import FORMATS as EXPORT_FORMATS
 from .objective.ap import AP_METHODS, DEFAULT_AP_METHOD
@@ -132,7 +132,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     p = _add(dsub, "build", "simulate and extract a data set from configs/datasets.yaml, or generate a "
              "challenging set", commands.dataset_build)
     p.add_argument("name", help="detector-train, normal, or challenging (with --fusion and --split)")
-    p.add_argument("--fusion", default=None, help="challenging: the shipped model attacked")
+    fusion_arg(p, "challenging: the shipped model attacked")
     p.add_argument("--split", default=None, help="challenging: train or val (of the normal set)")
     p.add_argument("--count", type=COUNT, default=None, help="challenging: only the first N scenes of the split")
     executor_args(p)
@@ -192,7 +192,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                    help="scenes per split (tables: default the whole split, as the paper; targets: default 30)")
     p.add_argument("--budget", type=COUNT, default=None,
                    help="targets table only (default the generator's, 50; the tables use configs/generate.yaml)")
-    p.add_argument("--fusion", default=None, help="targets table only (default attfuse)")
+    fusion_arg(p, "targets table only (default attfuse)")
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="tables: a factory standing in for every model (as 'asg generate --detector')")
     p.add_argument("--harden-rounds", type=whole(1, MAX_ROUNDS, "--harden-rounds"), default=None,

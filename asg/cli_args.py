@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Callable
 
 from .executors import Executor, build_executor, default_workers
-from .registry import names
+from .registry import detector_entry_names, names
 
 
 def whole(lo: int, hi: int, what: str) -> Callable[[str], int]:
@@ -54,6 +54,13 @@ SEED = whole(0, 2**31 - 1, "a seed")
 COUNT = whole(1, 1_000_000, "a count")
 #: training threads
 THREADS = whole(1, 256, "--threads")
+
+
+def fusion_arg(p: argparse.ArgumentParser, what: str, required: bool = False) -> None:
+    """--fusion: a detector by name; the help lists every installed one (validated where the command
+    runs, by asg.perception.check_fusion, before any run folder or worker starts)."""
+    p.add_argument("--fusion", required=required, default=None, metavar="NAME",
+                   help=f"{what}: one of {', '.join(detector_entry_names())}")
 
 
 def weights_arg(p: argparse.ArgumentParser) -> None:

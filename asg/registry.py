@@ -5,9 +5,13 @@ package is imported.
 """
 from __future__ import annotations
 
+from importlib import metadata
 from typing import Callable, TypeVar
 
 from sumo_scenarios.errors import InputError
+
+#: the entry-point group of detectors: the shipped ones (pyproject.toml) and installed plugins
+DETECTOR_ENTRY_POINTS = "asg.detectors"
 
 T = TypeVar("T")
 _REGISTRIES: dict[str, dict[str, type]] = {}
@@ -34,3 +38,9 @@ def lookup(kind: str, name: str) -> type:
     if name not in table:
         raise InputError(f"unknown {kind} '{name}'; known: {', '.join(sorted(table)) or 'none'}")
     return table[name]
+
+
+def detector_entry_names() -> list[str]:
+    """Every detector name installed as an entry point (the shipped models and the plugins), read
+    from the package metadata without importing a detector."""
+    return sorted({ep.name for ep in metadata.entry_points(group=DETECTOR_ENTRY_POINTS)})

@@ -285,3 +285,15 @@ def test_an_unknown_fusion_is_refused_before_anything_runs(capsys, tmp_path, mon
     assert code == 2
     assert_one_line_error(err, "unknown fusion 'nope'")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", ["generate", "evaluate", "train", "finetune", "harden", "dataset build", "bench paper"])
+def test_every_fusion_option_lists_every_installed_detector(command, capsys):
+    from asg.registry import detector_entry_names
+
+    with pytest.raises(SystemExit) as done:
+        main([*command.split(), "--help"])
+    assert done.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper"} <= set(detector_entry_names())
+    assert ", ".join(detector_entry_names()) in text

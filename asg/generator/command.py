@@ -8,7 +8,7 @@ from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
-from ..cli_args import COUNT, SEED, executor_args, executor_from_args, weights_arg, whole
+from ..cli_args import COUNT, SEED, executor_args, executor_from_args, fusion_arg, weights_arg, whole
 from ..registry import names
 from ..scene.feasibility import PLAUSIBILITY_LEVELS
 from .run import SceneSource, factory_models, open_run
@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--town", help="sample normal scenes from this bundled town")
     src.add_argument("--net", type=Path, help="...or from any SUMO net")
     src.add_argument("--scenes", type=Path, help="...or take the scenes of this folder (scene yaml or a data set) or set (normal, normal-val)")
-    p.add_argument("--fusion", default=None, help="target model: none, late, early, attfuse (default attfuse)")
+    fusion_arg(p, "the model attacked (default attfuse)")
     p.add_argument("--search", default=None, help="rs, ga, bo or ng (nevergrad; default bo)")
     p.add_argument("--acs", default=None, choices=[*acs_strategies(), "off"],
                    help="collaborator search: attention (ACS-A), random (ACS-R) or off (default attention)")

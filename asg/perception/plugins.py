@@ -27,10 +27,10 @@ import numpy as np
 
 from sumo_scenarios.errors import InputError
 
+from ..registry import DETECTOR_ENTRY_POINTS, detector_entry_names
 from ..sensors.frame import CooperativeFrame
 from .data import in_range
 
-ENTRY_POINT_GROUP = "asg.detectors"
 #: a detector from outside (a plugin, a ``--detector`` factory) returning more boxes a frame is refused
 MAX_BOXES = 1000
 #: ...and one whose ``detect`` (or ``attention``) call takes longer than this (s) is stopped
@@ -64,13 +64,13 @@ def cooperative_input(frame: CooperativeFrame) -> CooperativeInput:
 
 
 def plugin_names() -> list[str]:
-    return sorted({ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)})
+    return detector_entry_names()
 
 
 def load_plugin(name: str) -> "PluginDetector | None":
     """The detector plugin registered as ``name``, built and wrapped (None if no plugin has that
     name); InputError if it cannot be imported or built."""
-    found = [ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
+    found = [ep for ep in metadata.entry_points(group=DETECTOR_ENTRY_POINTS) if ep.name == name]
     if not found:
         return None
     ep = found[0]

@@ -6,7 +6,7 @@ from typing import Callable, Iterable
 
 from sumo_scenarios.errors import InputError
 
-from ..cli_args import COUNT, executor_args, weights_arg
+from ..cli_args import COUNT, executor_args, fusion_arg, weights_arg
 from ..datasets import SETS, scenes_of  # noqa: F401  (scenes_of, SETS: also this module's API)
 from ..objective.ap import ap_by_method
 from ..scene import Scene, load_scene
@@ -91,7 +91,7 @@ def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None
 # ``asg evaluate``: this workflow's command (asg.cli's COMMAND_MODULES)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fusion", required=True, help="none, late, early or attfuse")
+    fusion_arg(p, "the model scored", required=True)
     p.add_argument("--set", default="normal", help="normal (train split), normal-val, normal-all, or a folder of scenes")
     p.add_argument("--limit", type=COUNT, default=None, help="only the first N scenes")
     weights_arg(p)

@@ -31,7 +31,7 @@ from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
-from ..cli_args import COUNT, executor_from_args, training_run_args
+from ..cli_args import COUNT, executor_from_args, fusion_arg, training_run_args
 from ..datasets import iter_frames
 from ..io.curves import LOSS_CURVE, LossCurve
 from ..io.run_record import claim
@@ -241,7 +241,7 @@ def reattack(fusion: str, ft_weights: Path, out: Path, executor, log: Callable[[
 # ``asg finetune``: this workflow's command (asg.cli's COMMAND_MODULES)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fusion", required=True, help="the model to fine-tune: attfuse, early, none or late")
+    fusion_arg(p, "the model fine-tuned", required=True)
     p.add_argument("--on", default=None, metavar="SET",
                    help="challenging set to train on (default challenging-FUSION-train)")
     p.add_argument("--steps", type=COUNT, default=None, help="override train.yaml's finetune steps")

@@ -39,7 +39,7 @@ from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
 
 from . import MAX_ROUNDS
-from ..cli_args import executor_from_args, training_run_args, whole
+from ..cli_args import executor_from_args, fusion_arg, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
 from ..io.run_record import claim
 from ..objective.ap import AP_KEYS
@@ -373,7 +373,7 @@ def _load_scenes(folder: Path) -> list[Scene]:
 # ``asg harden``: this workflow's command (asg.cli's COMMAND_MODULES)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fusion", required=True, help="the model to harden: attfuse, early, none or late")
+    fusion_arg(p, "the model hardened", required=True)
     p.add_argument("--rounds", type=whole(1, MAX_ROUNDS, "--rounds"), required=True, help="rounds to run (resumable)")
     p.add_argument("--data", default=None, choices=DATA_KINDS,
                    help="what a round trains on: adversarial (default), or a control at equal compute: random "

@@ -27,7 +27,7 @@ from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
-from ..cli_args import COUNT, THREADS
+from ..cli_args import COUNT, THREADS, fusion_arg
 from ..datasets import iter_frames
 from ..sensors import load_lidar_spec
 from ..perception.boxes import assign_targets
@@ -390,7 +390,7 @@ def _keep_configured_length(sched, tcfg: TrainConfig, total: int) -> None:
 # ``asg train``: this workflow's command (asg.cli's COMMAND_MODULES)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fusion", required=True, help="none, late, early or attfuse (none and late share weights)")
+    fusion_arg(p, "the model trained (none and late share weights)", required=True)
     p.add_argument("--steps", type=COUNT, default=None, help="override the configured number of steps")
     p.add_argument("--threads", type=THREADS, default=2)
     p.add_argument("--validate-only", action="store_true",
