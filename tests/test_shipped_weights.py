@@ -48,10 +48,24 @@ def test_model_cards_describe_the_weights():
         assert (WEIGHTS_DIR / card["weights"]).is_file()
 
 
+def test_the_point_stage_every_model_uses_is_shipped_with_its_record():
+    """Every shipped detector refines its boxes with a shipped point stage (its own, else single's),
+    whose card records how it was fitted."""
+    from asg.perception.weights_io import stage_file_for
+
+    for fusion in ("none", "late", "early", "attfuse", "attfuse-ft", "fcooper"):
+        det = build_detector(fusion)
+        assert det.point_stage is not None, fusion
+        path = stage_file_for(det.weights)
+        card = json.loads((WEIGHTS_DIR / path.name.replace(".stage.pt", ".json")).read_text())
+        assert card["point_stage"]["weights"] == path.name and card["point_stage"]["boxes"] > 0
+
+
 def test_the_fcooper_card_says_it_started_from_single():
     card = json.loads((WEIGHTS_DIR / "fcooper.json").read_text())
     assert card["fusion"] == ["fcooper"] and card["init_from"]["weights"] == "single.pt"
-    assert card["steps"] > 0 and card["chunks"][-1]["part"] == "all" and card["validation"]["fcooper"]["frames"] == 112
+    assert card["steps"] > 0 and card["chunks"][-1]["part"] in ("all", "branches")
+    assert card["validation"]["fcooper"]["frames"] == 112
 
 
 def test_the_fine_tuned_card_says_what_it_was_tuned_on():

@@ -57,6 +57,11 @@ class DetectorConfig:
     #: (the first stage's output; stages 2 and 3 and every upsampling block run once, on the fused
     #: map) or "pillars" (the pillar canvas; the whole backbone runs once)
     attfuse_fusion: str = "stage1"
+    #: the point stage (asg/perception/point_stage.py): each final box refined from the points
+    #: inside it, its score rescored as score ** (1 - point_stage_rescore) * the stage's predicted
+    #: IoU ** point_stage_rescore; off: the detector's boxes as they are (faster)
+    point_stage: bool = True
+    point_stage_rescore: float = 0.5
 
     def __post_init__(self) -> None:
         checks = [("range_m", self.range_m > 0), ("pillar_m", self.pillar_m > 0),
@@ -65,7 +70,8 @@ class DetectorConfig:
                   ("iou_rescore", 0 <= self.iou_rescore <= 1), ("iou_hidden", self.iou_hidden >= 1),
                   ("iou_patch", self.iou_patch >= 1 and self.iou_patch % 2 == 1),
                   ("max_detections", self.max_detections >= 1),
-                  ("attfuse_fusion", self.attfuse_fusion in ATTFUSE_FUSIONS)]
+                  ("attfuse_fusion", self.attfuse_fusion in ATTFUSE_FUSIONS),
+                  ("point_stage_rescore", 0 <= self.point_stage_rescore <= 1)]
         for name, ok in checks:
             if not ok:
                 raise InputError(f"detector config: {name} = {getattr(self, name)!r} is out of range; "

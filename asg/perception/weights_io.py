@@ -22,6 +22,26 @@ def weights_path(name: str) -> Path:
     return WEIGHTS_DIR / f"{name}.pt"
 
 
+#: the point stage's weights beside a detector's: NAME.pt -> NAME.stage.pt
+STAGE_SUFFIX = ".stage.pt"
+#: the stage a model without one of its own uses (trained on the single-agent detector's boxes)
+DEFAULT_STAGE = "single"
+
+
+def stage_path_of(weights_file: str | Path) -> Path:
+    """Where the point stage of the weights ``weights_file`` (.../NAME.pt) is: .../NAME.stage.pt."""
+    p = Path(weights_file)
+    return p.with_name(p.name.removesuffix(".pt") + STAGE_SUFFIX)
+
+
+def stage_file_for(weights_name: str, weights_file: str | Path | None = None) -> Path | None:
+    """The point stage a detector uses: the one beside ``weights_file`` when given and present,
+    else the shipped one of ``weights_name``, else the shipped single-agent one; None if none is."""
+    candidates = ([stage_path_of(weights_file)] if weights_file else []) + [
+        stage_path_of(weights_path(weights_name)), stage_path_of(weights_path(DEFAULT_STAGE))]
+    return next((p for p in candidates if p.is_file()), None)
+
+
 def load_state(model: nn.Module, path: str | Path, allow_missing: str | tuple[str, ...] | None = None) -> nn.Module:
     """Load a state_dict into ``model``; a missing, corrupt or mismatched file is one InputError.
 

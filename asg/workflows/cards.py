@@ -29,6 +29,8 @@ def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: 
             # absent when the last chunk trained them alongside the whole network
             **({"branch_fit": branch_fit} if branch_fit else {}),
             **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
+            # the point stage fitted to earlier weights stays in use (asg train --point-stage refits it)
+            **({"point_stage": previous["point_stage"]} if previous.get("point_stage") else {}),
             "lidar": DEFAULT_LIDAR,
             **card_settings_of(name, cfg)}
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
@@ -65,7 +67,7 @@ def previous_training(name: str, weights_dir: Path = WEIGHTS_DIR) -> dict:
                                      "wall_s": card.get("train_wall_s", 0.0)}]
     out = {"chunks": chunks, "steps_total": sum(c.get("steps", 0) for c in chunks),
            # what the detector chunks trained on, for a branch fit's card
-           **{k: card[k] for k in ("dataset", "examples", "batch_size") if k in card}}
+           **{k: card[k] for k in ("dataset", "examples", "batch_size", "point_stage") if k in card}}
     if card.get("init_from"):
         out["init_from"] = card["init_from"]
     return out

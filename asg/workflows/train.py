@@ -402,13 +402,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--iou-branch", action="store_true",
                    help="fit only the IoU and box-refinement branches on the frozen shipped weights "
                         "(train.yaml's iou_branch block; about 10 minutes)")
+    p.add_argument("--point-stage", action="store_true",
+                   help="fit only the point stage (each final box refined from its points) on the frozen shipped "
+                        "weights (train.yaml's point_stage block; about 20 minutes)")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..progress import console, loss_progress, progress_bar
 
-    if args.validate_only and (args.init_from or args.iou_branch):
-        raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from or --iou-branch")
+    if args.validate_only and (args.init_from or args.iou_branch or args.point_stage):
+        raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from, "
+                         "--iou-branch or --point-stage")
+    if args.point_stage and (args.init_from or args.iou_branch or args.steps is not None):
+        raise InputError("--point-stage fits the stage of the shipped weights alone; it cannot be combined with "
+                         "--init-from, --iou-branch or --steps (set epochs in train.yaml's point_stage block)")
     if args.validate_only:
         card = card_validation(weights_for(args.fusion), console.print)
         console.print(f"updated the model card of {card['weights']}")
@@ -416,6 +423,12 @@ def run(args: argparse.Namespace) -> int:
     if args.steps is not None and args.iou_branch:
         raise InputError("--steps does not apply to --iou-branch (a fit of epochs over the collected candidates: "
                          "set epochs in train.yaml's iou_branch block)")
+    if args.point_stage:
+        from .point_stage_fit import fit_point_stage
+
+        console.print(f"weights: {fit_point_stage(args.fusion, console.print, args.threads)}")
+        card_validation(weights_for(args.fusion), console.print)
+        return 0
     with progress_bar() as bar:
         report = loss_progress(bar, bar.add_task(f"training {args.fusion}", total=None), f"training {args.fusion}",
                                without_loss=f"collecting {args.fusion}'s candidates")

@@ -14,6 +14,16 @@ from ..data import in_range
 from ..feeds import AGENT_CLOUDS, Feed
 from ..inference import fold_batch_norms
 from ..model import postprocess
+from ..point_stage import PointStage, refine
+
+
+def load_point_stage(weights_name: str, weights_file: str | None) -> PointStage | None:
+    """The point stage of a detector whose weights are ``weights_name`` (or ``weights_file``), loaded
+    (asg.perception.weights_io.stage_file_for says which); None when none is shipped."""
+    from ..weights_io import load_state, stage_file_for
+
+    path = stage_file_for(weights_name, weights_file)
+    return None if path is None else load_state(PointStage(), path)
 
 Detections = tuple[np.ndarray, np.ndarray]  # boxes (K, 7) in the ego sensor frame, scores (K,)
 
@@ -34,10 +44,13 @@ class V2XDetector(ABC):
     def __init__(self, cfg: DetectorConfig | None = None, weights_file: str | None = None, load: bool = True):
         self.cfg = cfg or self.detector_config()
         self.model = self.build_model()
+        self.point_stage = None
         if load:
             from ..weights_io import load_state, weights_path
 
             load_state(self.model, weights_file or weights_path(self.weights))
+            if self.cfg.point_stage:
+                self.point_stage = load_point_stage(self.weights, weights_file)
         self.model.eval()
         fold_batch_norms(self.model)
         # the canvases are channels-last (see PillarEncoder); weights in the same layout spare
@@ -70,6 +83,18 @@ class V2XDetector(ABC):
         """Ego-row attention toward each agent, averaged over BEV cells; None for non-attention models."""
         return None
 
+    def refined(self, boxes: np.ndarray, scores: np.ndarray, cloud: np.ndarray) -> Detections:
+        """Boxes (K, 7) and scores (K,) after the point stage, from ``cloud`` (N, 4), all in the
+        detecting frame; as they are when the stage is off or none is shipped."""
+        if self.point_stage is None:
+            return boxes, scores
+        return refine(self.point_stage, boxes, scores, cloud, self.cfg.point_stage_rescore)
+
+    def seen_cloud(self, frame: CooperativeFrame) -> np.ndarray:
+        """(N, 4) the points this detector sees in the ego frame: every sensing agent's (the
+        fusion models); No Fusion overrides it with the ego's own."""
+        return np.vstack(frame.clouds_in_frame_of(frame.ego_id))
+
     @staticmethod
     def _clip(boxes: np.ndarray, scores: np.ndarray) -> Detections:
         keep = in_range(boxes)
@@ -87,5 +112,6 @@ class AgentCloudsDetector(V2XDetector):
 
     @torch.no_grad()
     def detect(self, frame: CooperativeFrame) -> Detections:
-        boxes, scores = postprocess(self.model([self._clouds(frame)]), self.model, self.cfg)[0]
-        return self._clip(boxes, scores)
+        clouds = self._clouds(frame)
+        boxes, scores = postprocess(self.model([clouds]), self.model, self.cfg)[0]
+        return self._clip(*self.refined(boxes, scores, torch.cat(clouds).numpy()))

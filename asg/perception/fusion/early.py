@@ -26,5 +26,6 @@ class EarlyFusion(V2XDetector):
 
     @torch.no_grad()
     def detect(self, frame: CooperativeFrame) -> Detections:
-        boxes, scores = postprocess(self.model([torch.from_numpy(fused_cloud(frame))]), self.model, self.cfg)[0]
-        return self._clip(boxes, scores)
+        cloud = fused_cloud(frame)
+        boxes, scores = postprocess(self.model([torch.from_numpy(cloud)]), self.model, self.cfg)[0]
+        return self._clip(*self.refined(boxes, scores, cloud))

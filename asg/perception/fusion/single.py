@@ -22,8 +22,13 @@ class _Single(V2XDetector):
 
     @torch.no_grad()
     def detect_own(self, clouds: list[np.ndarray]) -> list[Detections]:
-        """Detections of each cloud in its own frame."""
-        return postprocess(self.model([torch.from_numpy(c) for c in clouds]), self.model, self.cfg)
+        """Detections of each cloud in its own frame (each refined by the point stage from its own points)."""
+        found = postprocess(self.model([torch.from_numpy(c) for c in clouds]), self.model, self.cfg)
+        return [self.refined(boxes, scores, cloud) for (boxes, scores), cloud in zip(found, clouds)]
+
+    def seen_cloud(self, frame: CooperativeFrame) -> np.ndarray:
+        """The ego's own cloud (N, 4): what No Fusion sees (Late Fusion: each agent its own)."""
+        return frame.clouds[frame.ego_id]
 
 
 @register("fusion", "none")

@@ -1,0 +1,150 @@
+"""The point stage: each final box refined from the LiDAR points inside it.
+
+The anchor head places a box from BEV features of 1 m cells; the points on the vehicle say where
+its faces are to a few centimetres. The stage takes each detection after NMS and voting, gathers
+the points of the cloud the detector saw inside the box grown by GROW_M on every side, in the box's
+frame, and a PointNet (a per-point MLP, a max over the points, an MLP with the box's size, score
+and point count) predicts the residuals to the vehicle's box and its IoU with it (for rescoring).
+
+Frames and units: boxes (K, 7) x, y, z, l, w, h, yaw and clouds (N, 4) x, y, z, intensity in the
+detecting agent's sensor frame (metres, radians). Residuals (K, 7): the centre offset along the
+box, across it and up (m), log ratios of length, width and height, the yaw offset folded into
+[-pi/2, pi/2) (a box's IoU does not see its heading; the detector's direction is kept).
+
+Its weights are a file of their own beside the detector's (``NAME.stage.pt``), trained by
+``asg train --fusion F --point-stage`` on the frozen detector (asg.workflows.point_stage_fit).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from sumo_scenarios.geometry import wrap_rad
+
+from ..objective.iou import bev_iou_matrix
+
+#: points a box keeps (evenly spaced over those inside when more), and the margin (m) the box is
+#: grown by on every side to gather them
+POINTS = 64
+GROW_M = 0.5
+#: per-point features: along, across, up (m), the same over half the length, width, height, intensity
+POINT_FEATURES = 7
+#: per-box features: length, width, height (m), score, log(1 + points)
+BOX_FEATURES = 5
+#: a box learns residuals from the vehicle it overlaps by at least this BEV IoU
+MIN_IOU = 0.3
+#: typical size of each residual: the stage predicts in these units and its loss weighs the seven alike
+RES_SCALE = (0.3, 0.15, 0.1, 0.08, 0.06, 0.06, 0.1)
+#: boxes whose points are gathered at once (bounds the (chunk, N, 3) offsets held in memory)
+_CHUNK = 16
+
+
+class PointStage(nn.Module):
+    """Points (K, POINTS, POINT_FEATURES), their mask (K, POINTS) and box features (K, BOX_FEATURES)
+    → residuals (K, 7) and IoU logits (K,)."""
+
+    def __init__(self):
+        super().__init__()
+        self.point = nn.Sequential(nn.Linear(POINT_FEATURES, 64), nn.ReLU(), nn.Linear(64, 128), nn.ReLU(),
+                                   nn.Linear(128, 256))
+        self.head = nn.Sequential(nn.Linear(256 + BOX_FEATURES, 256), nn.ReLU(), nn.Linear(256, 128), nn.ReLU(),
+                                  nn.Linear(128, 8))
+        self.register_buffer("res_scale", torch.tensor(RES_SCALE), persistent=False)
+
+    def forward(self, feats: torch.Tensor, mask: torch.Tensor, box: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        h = self.point(feats).masked_fill(~mask[..., None], -1e4).amax(dim=1)
+        h = torch.where(mask.any(dim=1, keepdim=True), h, torch.zeros_like(h))  # a box with no points
+        out = self.head(torch.cat([h, box], dim=1))
+        return out[:, :7] * self.res_scale, out[:, 7]
+
+
+def box_points(boxes: np.ndarray, cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points of ``cloud`` (N, 4) inside each of ``boxes`` (K, 7) grown by GROW_M: features
+    (K, POINTS, POINT_FEATURES) float32 in the box's frame and the mask (K, POINTS) of real points.
+    Deterministic: with more than POINTS inside, evenly spaced ones in the cloud's order."""
+    feats = np.zeros((len(boxes), POINTS, POINT_FEATURES), dtype=np.float32)
+    mask = np.zeros((len(boxes), POINTS), dtype=bool)
+    xyz = np.ascontiguousarray(cloud[:, :3], dtype=np.float32)
+    for start in range(0, len(boxes), _CHUNK):
+        part = boxes[start:start + _CHUNK].astype(np.float32)
+        d = xyz[None] - part[:, None, :3]  # (k, N, 3)
+        c, s = np.cos(part[:, 6])[:, None], np.sin(part[:, 6])[:, None]
+        along, across = c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]
+        inside = ((np.abs(along) <= part[:, 3:4] / 2 + GROW_M) & (np.abs(across) <= part[:, 4:5] / 2 + GROW_M)
+                  & (np.abs(d[..., 2]) <= part[:, 5:6] / 2 + GROW_M))
+        for j in range(len(part)):
+            idx = np.flatnonzero(inside[j])
+            if len(idx) > POINTS:
+                idx = idx[np.linspace(0, len(idx) - 1, POINTS).astype(int)]
+            n, k = len(idx), start + j
+            local = np.stack([along[j, idx], across[j, idx], d[j, idx, 2]], axis=1)
+            feats[k, :n, :3] = local
+            feats[k, :n, 3:6] = local / (part[j, 3:6] / 2)
+            feats[k, :n, 6] = cloud[idx, 3]
+            mask[k, :n] = True
+    return feats, mask
+
+
+def box_features(boxes: np.ndarray, scores: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(K, BOX_FEATURES) float32: length, width, height, score, log(1 + points inside)."""
+    return np.column_stack([boxes[:, 3:6], scores, np.log1p(mask.sum(axis=1))]).astype(np.float32)
+
+
+def residual_targets(boxes: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per box of ``boxes`` (K, 7): its best BEV IoU with ``gt`` (M, 7) (K,) and the residuals (K, 7)
+    from it to that vehicle's box (zeros where there is no vehicle)."""
+    if not len(gt) or not len(boxes):
+        return np.zeros(len(boxes)), np.zeros((len(boxes), 7))
+    iou = bev_iou_matrix(boxes, gt)
+    best, match = iou.max(axis=1), gt[iou.argmax(axis=1)]
+    d = match[:, :3] - boxes[:, :3]
+    c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
+    turn = (wrap_rad(match[:, 6] - boxes[:, 6]) + math.pi / 2) % math.pi - math.pi / 2
+    res = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2],
+                           np.log(match[:, 3:6] / boxes[:, 3:6]), turn])
+    return best, res
+
+
+def apply_residuals(boxes: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """``boxes`` (K, 7) moved by residuals (K, 7) (the inverse of :func:`residual_targets`), yaw
+    wrapped to (-pi, pi]."""
+    out = boxes.astype(np.float64, copy=True)
+    c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
+    out[:, 0] += c * res[:, 0] - s * res[:, 1]
+    out[:, 1] += s * res[:, 0] + c * res[:, 1]
+    out[:, 2] += res[:, 2]
+    out[:, 3:6] *= np.exp(res[:, 3:6])
+    out[:, 6] = wrap_rad(boxes[:, 6] + res[:, 6])
+    return out
+
+
+@torch.no_grad()
+def refine(stage: PointStage, boxes: np.ndarray, scores: np.ndarray, cloud: np.ndarray,
+           rescore_power: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (K, 7) and scores (K,) after the stage: each box moved by its predicted residuals, each
+    score ``score ** (1 - p) * predicted IoU ** p`` with p = ``rescore_power`` (0: unchanged)."""
+    if not len(boxes):
+        return boxes, scores
+    feats, mask = box_points(boxes, cloud)
+    res, iou_logit = stage(torch.from_numpy(feats), torch.from_numpy(mask),
+                           torch.from_numpy(box_features(boxes, scores, mask)))
+    moved = apply_residuals(boxes, res.double().numpy())
+    if rescore_power > 0:
+        scores = scores ** (1 - rescore_power) * torch.sigmoid(iou_logit).double().numpy() ** rescore_power
+    return moved, scores
+
+
+def stage_loss(stage: PointStage, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Smooth-L1 (beta 0.5, in RES_SCALE units) of the residuals of the boxes with a vehicle (IoU >=
+    MIN_IOU) plus the IoU branch's binary cross-entropy against the boxes' IoU → scalar. ``batch``:
+    feats, mask, box (the stage's inputs), iou (K,), res (K, 7)."""
+    res, iou_logit = stage(batch["feats"], batch["mask"], batch["box"])
+    near = batch["iou"] >= MIN_IOU
+    scale = stage.res_scale
+    l_res = (F.smooth_l1_loss(res[near] / scale, batch["res"][near] / scale, beta=0.5) if near.any()
+             else res.sum() * 0.0)
+    return l_res + F.binary_cross_entropy_with_logits(iou_logit, batch["iou"])
