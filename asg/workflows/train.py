@@ -404,7 +404,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(train.yaml's iou_branch block; about 10 minutes)")
     p.add_argument("--point-stage", action="store_true",
                    help="fit only the point stage (each final box refined from its points) on the frozen shipped "
-                        "weights (train.yaml's point_stage block; about 20 minutes)")
+                        "weights (train.yaml's point_stage block; about 5 minutes)")
 
 
 def run(args: argparse.Namespace) -> int:

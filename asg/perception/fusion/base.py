@@ -91,8 +91,8 @@ class V2XDetector(ABC):
         return refine(self.point_stage, boxes, scores, cloud, self.cfg.point_stage_rescore)
 
     def seen_cloud(self, frame: CooperativeFrame) -> np.ndarray:
-        """(N, 4) the points this detector sees in the ego frame: every sensing agent's (the
-        fusion models); No Fusion overrides it with the ego's own."""
+        """(N, 4) the points behind this detector's boxes, in the ego frame: every sensing agent's
+        (the fusion models, and Late Fusion's boxes from every agent); No Fusion's: the ego's own."""
         return np.vstack(frame.clouds_in_frame_of(frame.ego_id))
 
     @staticmethod

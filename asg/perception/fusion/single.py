@@ -26,10 +26,6 @@ class _Single(V2XDetector):
         found = postprocess(self.model([torch.from_numpy(c) for c in clouds]), self.model, self.cfg)
         return [self.refined(boxes, scores, cloud) for (boxes, scores), cloud in zip(found, clouds)]
 
-    def seen_cloud(self, frame: CooperativeFrame) -> np.ndarray:
-        """The ego's own cloud (N, 4): what No Fusion sees (Late Fusion: each agent its own)."""
-        return frame.clouds[frame.ego_id]
-
 
 @register("fusion", "none")
 class NoFusion(_Single):
@@ -38,6 +34,10 @@ class NoFusion(_Single):
     def detect(self, frame: CooperativeFrame) -> Detections:
         boxes, scores = self.detect_own([frame.clouds[frame.ego_id]])[0]
         return self._clip(boxes, scores)
+
+    def seen_cloud(self, frame: CooperativeFrame) -> np.ndarray:
+        """The ego's own cloud (N, 4): all No Fusion sees."""
+        return frame.clouds[frame.ego_id]
 
 
 @register("fusion", "late")
