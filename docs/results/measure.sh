@@ -9,7 +9,7 @@ ASG=.venv/bin/asg
 mkdir -p "$OUT"
 git rev-parse --short HEAD > "$OUT/commit"
 for set in normal-val normal holdout; do
-  for fusion in none late early attfuse attfuse-ft; do
+  for fusion in none late early attfuse attfuse-ft fcooper; do
     $ASG evaluate --fusion "$fusion" --set "$set" --json > "$OUT/evaluate-$fusion-$set.json"
   done
 done
