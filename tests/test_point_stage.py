@@ -104,7 +104,12 @@ def test_the_shipped_stage_sharpens_no_fusions_boxes_on_held_out_frames():
 
 def test_point_stage_fit_resumes_to_the_same_stage_and_records_it(sumo_log, tmp_path):
     """`asg train --fusion none --point-stage` on a tiny set: interrupted after its first epoch and
-    run again, the same stage as an uninterrupted fit; the card records it; nothing left behind."""
+    run again, the same stage as an uninterrupted fit (a rerun with other settings is refused); the
+    card records it; nothing left behind."""
+    from dataclasses import replace
+
+    from sumo_scenarios.errors import InputError
+
     from asg.perception.weights_io import WEIGHTS_DIR
     from asg.workflows.point_stage_fit import BOXES_CACHE, CHECKPOINT, PointStageFitConfig, fit_point_stage
     from test_train import tiny_dataset
@@ -133,6 +138,9 @@ def test_point_stage_fit_resumes_to_the_same_stage_and_records_it(sumo_log, tmp_
         fit_point_stage("none", stop_after_first_epoch, 1, fit_config=fcfg, weights_dir=split_dir,
                         out_dir=tmp_path / "run-split")
     assert (tmp_path / "run-split" / CHECKPOINT).is_file() and not (split_dir / "single.stage.pt").exists()
+    with pytest.raises(InputError, match="other settings"):  # a rerun with other settings is refused
+        fit_point_stage("none", lambda *_: None, 1, fit_config=replace(fcfg, epochs=3), weights_dir=split_dir,
+                        out_dir=tmp_path / "run-split")
     resumed = fit_point_stage("none", lambda *_: None, 1, fit_config=fcfg, weights_dir=split_dir,
                               out_dir=tmp_path / "run-split")
     a, b = torch.load(whole, weights_only=True), torch.load(resumed, weights_only=True)

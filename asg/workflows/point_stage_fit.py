@@ -75,13 +75,22 @@ def load_point_stage_config(path: Path | None = None) -> PointStageFitConfig:
 Frame = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # boxes (K, 7), scores (K,), gt (M, 7), cloud (N, 4)
 
 
+def _check_same_run(found: str, settings: str, path: Path) -> None:
+    """A cache or checkpoint of another fit (other settings or weights) is refused, not reused."""
+    if found != settings:
+        raise InputError(f"{path} belongs to a point-stage fit with other settings or weights; delete "
+                         f"{path.parent} to start this one over")
+
+
 def collect(fusion: str, dataset: str, run_dir: Path, log: Callable[[str], None],
-            weights_file: Path | None = None) -> list[Frame]:
+            weights_file: Path | None = None, settings: str = "") -> list[Frame]:
     """The detector's final boxes (its point stage off), the vehicles in range and the cloud it saw,
-    per frame of ``dataset``'s train split, ego frame; cached in ``run_dir``."""
+    per frame of ``dataset``'s train split, ego frame; cached in ``run_dir`` with ``settings`` (a
+    rerun with other settings is refused)."""
     cache = run_dir / BOXES_CACHE
     if cache.is_file():
         z = np.load(cache)
+        _check_same_run(str(z["settings"]) if "settings" in z.files else "", settings, cache)
         cut = lambda key, i: z[key][z["n" + key][i]:z["n" + key][i + 1]]  # noqa: E731
         return [(cut("boxes", i), cut("scores", i), cut("gt", i), cut("cloud", i)) for i in range(len(z["nboxes"]) - 1)]
     det = build_detector(fusion, weights_file=None if weights_file is None else str(weights_file))
@@ -99,7 +108,7 @@ def collect(fusion: str, dataset: str, run_dir: Path, log: Callable[[str], None]
     run_dir.mkdir(parents=True, exist_ok=True)
     with atomic_path(cache) as tmp:
         with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays, **offsets)
+            np.savez(fh, **arrays, **offsets, settings=np.array(settings))
     return frames
 
 
@@ -130,8 +139,9 @@ def examples(frames: list[Frame], fcfg: PointStageFitConfig) -> dict[str, torch.
 
 
 def fit(data: dict[str, torch.Tensor], fcfg: PointStageFitConfig, run_dir: Path,
-        log: Callable[[str], None]) -> PointStage:
-    """The stage fitted on ``data`` (Adam, one-cycle schedule), resuming from the epoch checkpoint."""
+        log: Callable[[str], None], settings: str = "") -> PointStage:
+    """The stage fitted on ``data`` (Adam, one-cycle schedule), resuming from the epoch checkpoint
+    of the same ``settings``."""
     torch.manual_seed(fcfg.seed)
     stage = PointStage()
     n = len(data["iou"])
@@ -142,16 +152,23 @@ def fit(data: dict[str, torch.Tensor], fcfg: PointStageFitConfig, run_dir: Path,
     start = 0
     checkpoint = run_dir / CHECKPOINT
     if checkpoint.is_file():
+        def unreadable(exc: Exception) -> InputError:  # a damaged checkpoint: say how to start over
+            return InputError(f"{checkpoint}: not a readable point-stage checkpoint ({type(exc).__name__}); "
+                              "delete it to fit from the start")
+
         try:
             state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+        except Exception as exc:
+            raise unreadable(exc) from None
+        _check_same_run(state.get("settings", "") if isinstance(state, dict) else "", settings, checkpoint)
+        try:
             stage.load_state_dict(state["stage"])
             opt.load_state_dict(state["optimizer"])
             sched.load_state_dict(state["scheduler"])
             gen.set_state(state["generator"])
             start = int(state["epoch"])
-        except Exception as exc:  # a damaged checkpoint: say how to start over
-            raise InputError(f"{checkpoint}: not a readable point-stage checkpoint ({type(exc).__name__}); "
-                             "delete it to fit from the start") from None
+        except Exception as exc:
+            raise unreadable(exc) from None
         log(f"resuming the point stage's fit after epoch {start}")
     for epoch in range(start, fcfg.epochs):
         stage.train()
@@ -167,7 +184,7 @@ def fit(data: dict[str, torch.Tensor], fcfg: PointStageFitConfig, run_dir: Path,
             total += loss.item() * len(rows)
         with atomic_path(checkpoint) as tmp:
             torch.save({"stage": stage.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-                        "generator": gen.get_state(), "epoch": epoch + 1}, tmp)
+                        "generator": gen.get_state(), "epoch": epoch + 1, "settings": settings}, tmp)
         log(f"point stage epoch {epoch + 1}/{fcfg.epochs}: loss {total / n:.4f}")
     return stage.eval()
 
@@ -191,10 +208,13 @@ def fit_point_stage(fusion: str, log: Callable[[str], None] = print, threads: in
     torch.set_num_threads(threads)
     run_dir = out_dir or runs_dir() / "train" / f"{name}-stage"
     started = time.perf_counter()
-    frames = collect(fusion, fcfg.dataset, run_dir, log, weights)
+    # what a cache or checkpoint must have been made with to be reused: these settings, these weights
+    settings = json.dumps({"fusion": fusion, "fit": asdict(fcfg), "weights": str(weights.resolve()),
+                           "weights_bytes": weights.stat().st_size}, sort_keys=True)
+    frames = collect(fusion, fcfg.dataset, run_dir, log, weights, settings)
     data = examples(frames, fcfg)
     log(f"{len(data['iou'])} examples, {int((data['iou'] >= MIN_IOU).sum())} on a vehicle")
-    stage = fit(data, fcfg, run_dir, log)
+    stage = fit(data, fcfg, run_dir, log, settings)
     path = stage_path_of(weights)
     with atomic_path(path) as tmp:
         torch.save(stage.state_dict(), tmp)
