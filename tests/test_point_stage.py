@@ -78,28 +78,39 @@ def test_a_stage_without_points_or_residuals_leaves_the_box():
     assert nothing[0].shape == (0, 7)
 
 
-def test_the_shipped_stage_sharpens_no_fusions_boxes_on_held_out_frames():
-    """The shipped single-agent stage, on 20 normal-val frames: the boxes that overlap a vehicle
-    fit it better than without the stage (the point stage's measured gain is in docs/results)."""
+@pytest.fixture(scope="module")
+def held_out_frames(tmp_path_factory):
+    """8 frames of a town no detector trained on (roundabout, 20 s of normal traffic)."""
+    from asg.perception.data import Sample
+    from asg.scene.from_log import ExtractParams, extract_scenes
+    from asg.scene.neighbours import with_nearest_collaborators
+    from asg.sensors import load_lidar_spec, simulate_frame
+    from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
+
+    log = tmp_path_factory.mktemp("stage") / "log"
+    simulate_sumo(SimulationRequest(out_dir=log, town="roundabout", seed=78, duration_s=20.0, density="normal"))
+    spec = load_lidar_spec()
+    scenes = [with_nearest_collaborators(s, 2) for s in extract_scenes(log, ExtractParams(every=5, min_vehicles=5))][:8]
+    return [Sample(s.scene_id, simulate_frame(s, spec)) for s in scenes]
+
+
+@pytest.mark.parametrize("fusion", ["none", "attfuse"])
+def test_the_shipped_stage_sharpens_the_boxes_on_held_out_frames(fusion, held_out_frames):
+    """The shipped stage, on frames of a town no detector trained on: the boxes that overlap a
+    vehicle fit it better than without the stage (the measured gain is in docs/results)."""
     from dataclasses import replace
 
-    from asg.datasets import scenes_of
     from asg.perception import build_detector
-    from asg.perception.data import Sample
-    from asg.sensors import load_lidar_spec, simulate_frame
     from asg.workflows.point_stage_fit import mean_iou
 
-    with_stage = build_detector("none")
+    with_stage = build_detector(fusion)
     assert with_stage.point_stage is not None
-    without = build_detector("none", cfg=replace(with_stage.cfg, point_stage=False))
+    without = build_detector(fusion, cfg=replace(with_stage.cfg, point_stage=False))
     assert without.point_stage is None
-    spec = load_lidar_spec()
-    frames = {"with": [], "without": []}
-    for scene in list(scenes_of("normal-val"))[:20]:
-        sample = Sample(scene.scene_id, simulate_frame(scene, spec))
-        for key, det in (("with", with_stage), ("without", without)):
-            frames[key].append((*det.detect(sample.frame), sample.gt_eval()))
-    assert mean_iou(frames["with"]) > mean_iou(frames["without"]) + 0.05
+    frames = {key: [(*det.detect(s.frame), s.gt_eval()) for s in held_out_frames]
+              for key, det in (("with", with_stage), ("without", without))}
+    assert sum(len(f[2]) for f in frames["with"]) >= 20  # enough vehicles to compare
+    assert mean_iou(frames["with"]) > mean_iou(frames["without"]) + 0.04
 
 
 def test_point_stage_fit_resumes_to_the_same_stage_and_records_it(sumo_log, tmp_path):
