@@ -25,7 +25,8 @@ from torch.nn import functional as F
 
 from sumo_scenarios.geometry import wrap_rad
 
-from ..objective.iou import bev_iou_matrix
+from .boxes import limit_period
+from .branch_boxes import best_match
 
 #: points a box keeps (evenly spaced over those inside when more), and the margin (m) the box is
 #: grown by on every side to gather them
@@ -97,13 +98,12 @@ def box_features(boxes: np.ndarray, scores: np.ndarray, mask: np.ndarray) -> np.
 def residual_targets(boxes: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per box of ``boxes`` (K, 7): its best BEV IoU with ``gt`` (M, 7) (K,) and the residuals (K, 7)
     from it to that vehicle's box (zeros where there is no vehicle)."""
+    best, match = best_match(boxes, gt)
     if not len(gt) or not len(boxes):
-        return np.zeros(len(boxes)), np.zeros((len(boxes), 7))
-    iou = bev_iou_matrix(boxes, gt)
-    best, match = iou.max(axis=1), gt[iou.argmax(axis=1)]
+        return best, np.zeros((len(boxes), 7))
     d = match[:, :3] - boxes[:, :3]
     c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
-    turn = (wrap_rad(match[:, 6] - boxes[:, 6]) + math.pi / 2) % math.pi - math.pi / 2
+    turn = limit_period(wrap_rad(match[:, 6] - boxes[:, 6]), 0.5, math.pi)
     res = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2],
                            np.log(match[:, 3:6] / boxes[:, 3:6]), turn])
     return best, res

@@ -32,6 +32,7 @@ from sumo_scenarios.strict import from_mapping
 from ..datasets import iter_frames
 from ..perception import build_detector
 from ..perception.data import Sample
+from ..perception.branch_boxes import best_match
 from ..perception.point_stage import (MIN_IOU, PointStage, box_features, box_points, refine, residual_targets,
                                       stage_loss)
 from ..perception.train_config import train_block, weights_for
@@ -191,7 +192,7 @@ def fit(data: dict[str, torch.Tensor], fcfg: PointStageFitConfig, run_dir: Path,
 
 def mean_iou(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> float:
     """Mean best IoU of the boxes that overlap a vehicle by at least MIN_IOU."""
-    ious = [iou[iou >= MIN_IOU] for boxes, _, gt in frames for iou in [residual_targets(boxes, gt)[0]]]
+    ious = [iou[iou >= MIN_IOU] for boxes, _, gt in frames for iou in [best_match(boxes.reshape(-1, 7), gt)[0]]]
     ious = np.concatenate(ious) if ious else np.zeros(0)
     return round(float(ious.mean()), 4) if len(ious) else 0.0
 
