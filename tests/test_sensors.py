@@ -347,3 +347,47 @@ def test_embree_scenes_built_cast_and_released_many_times():
 @pytest.mark.slow
 def test_embree_scenes_built_cast_and_released_thousands_of_times():
     _hammer_embree(3000)
+
+
+def _hammer_trimesh_caster(iterations: int) -> None:
+    """Two threads casting through one TrimeshCaster at once (World's static views with backend
+    trimesh), each caster then freed by the collector: the pattern that corrupted the heap when
+    two threads queried trimesh's R-tree together (the suite's native crash); every cast checked
+    against a cast on one thread."""
+    import gc
+    import threading
+
+    rng = np.random.default_rng(1)
+    box = unit_box_triangles()
+    dirs = rng.normal(size=(500, 3))
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    origins = np.zeros((500, 3))
+    for i in range(iterations):
+        caster = TrimeshCaster(np.concatenate([box + rng.normal(0, 6, 3) for _ in range(100)]))
+        expected = caster.first_hits(origins, dirs)
+        results = [None, None]
+
+        def cast(k, caster=caster):
+            results[k] = caster.first_hits(origins, dirs)
+
+        threads = [threading.Thread(target=cast, args=(k,)) for k in range(2)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        for t, prim in results:
+            assert np.array_equal(t, expected[0]) and np.array_equal(prim, expected[1])
+        cycle = {"caster": caster}
+        cycle["self"] = cycle
+        del caster, cycle
+        if i % 10 == 0:
+            gc.collect()
+
+
+def test_trimesh_caster_cast_on_two_threads_many_times():
+    _hammer_trimesh_caster(60)
+
+
+@pytest.mark.slow
+def test_trimesh_caster_cast_on_two_threads_thousands_of_times():
+    _hammer_trimesh_caster(2000)

@@ -4,6 +4,7 @@ the first hit distance along each ray and the hit triangle.
 """
 from __future__ import annotations
 
+import threading
 from typing import Protocol
 
 import numpy as np
@@ -12,6 +13,9 @@ from sumo_scenarios.errors import InputError
 
 
 class Caster(Protocol):
+    """Casters are safe to call from several threads at once (World casts a sensor's channels on
+    two)."""
+
     def first_hits(self, origins: np.ndarray, directions: np.ndarray,
                    far: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(N, 3) origins and unit directions → ((N,) distance, inf where missed; (N,) triangle index, -1).
@@ -96,13 +100,22 @@ def _far32(far: np.ndarray) -> np.ndarray:
 
 
 class TrimeshCaster:
-    """First hits through trimesh's pure-Python ray-triangle test (about 200x slower than Embree)."""
+    """First hits through trimesh's pure-Python ray-triangle test (about 200x slower than Embree).
+
+    One cast at a time: trimesh finds candidate triangles in an R-tree of libspatialindex (rtree),
+    whose queries share the index's memory pool and are not safe to run concurrently
+    (libspatialindex issue 189, rtree issue 53), and rtree's ctypes calls release the GIL. Two
+    threads querying one index corrupted the heap, which crashed the process later, wherever
+    memory was next freed (the test suite's intermittent segmentation fault: the index freed by
+    the garbage collector; reproduced every time by two threads casting through one caster).
+    """
 
     def __init__(self, triangles: np.ndarray):
         import trimesh
         from trimesh.ray.ray_triangle import RayMeshIntersector
 
         self.n_triangles = len(triangles)
+        self._lock = threading.Lock()
         if self.n_triangles:
             tri = np.asarray(triangles, dtype=np.float64)
             mesh = trimesh.Trimesh(vertices=tri.reshape(-1, 3), faces=np.arange(len(tri) * 3).reshape(-1, 3), process=False)
@@ -115,7 +128,9 @@ class TrimeshCaster:
         prim = np.full(n, -1, dtype=np.int64)
         if n == 0 or self.n_triangles == 0:
             return t, prim
-        tri_idx, ray_idx, locations = self._ray.intersects_id(origins, directions, multiple_hits=True, return_locations=True)
+        with self._lock:
+            tri_idx, ray_idx, locations = self._ray.intersects_id(origins, directions, multiple_hits=True,
+                                                                  return_locations=True)
         if len(ray_idx):
             dist = np.einsum("ij,ij->i", locations - origins[ray_idx], directions[ray_idx])
             order = np.lexsort((dist, ray_idx))
