@@ -343,6 +343,41 @@ def test_stale_partials_are_removed_on_rerun(capsys, tmp_path):
     assert not [p for p in stale if p.exists()]
 
 
+@pytest.mark.parametrize("interrupted_write", [1, 3], ids=["first-scene-summary", "final-summary"])
+def test_ctrl_c_while_the_summary_is_written(capsys, tmp_path, monkeypatch, interrupted_write):
+    """Ctrl-C while ``asg generate`` writes its summary (after a scene, or the final one): half the
+    text written when it lands. Exit 130, no temporary file, summary.json absent or a whole earlier
+    one; the rerun completes every scene."""
+    from asg.generator import run_folder
+    from sumo_scenarios.atomic import atomic_path
+
+    scenes = tmp_path / "scenes"
+    for i in range(2):
+        _write(scenes, _scene_dict(f"s{i}"))
+    out = tmp_path / "out"
+    writes = []
+
+    def write_then_interrupt(path, text):
+        writes.append(path)
+        if len(writes) != interrupted_write:
+            return write_text_atomic(path, text)
+        with atomic_path(path) as tmp:
+            tmp.write_text(text[: len(text) // 2])
+            raise KeyboardInterrupt
+
+    write_text_atomic = run_folder.write_text_atomic
+    monkeypatch.setattr(run_folder, "write_text_atomic", write_then_interrupt)
+    code, err = _generate(capsys, scenes, out, "--workers", "1")
+    assert code == 130 and "interrupted" in err and len(writes) == interrupted_write
+    assert not [p for p in out.rglob("*") if p.name.startswith(".")]
+    summary = out / "summary.json"
+    assert not summary.exists() or len(json.loads(summary.read_text())["scenes"]) == interrupted_write - 1
+    monkeypatch.setattr(run_folder, "write_text_atomic", write_text_atomic)
+    code, err = _generate(capsys, scenes, out, "--workers", "1")
+    assert code == 0, err
+    assert [e["scene_id"] for e in json.loads(summary.read_text())["scenes"]] == ["s0", "s1"]
+
+
 def _wait_for(condition, what: str, proc: subprocess.Popen, limit_s: float = 300.0) -> None:
     """Poll ``condition()`` until true (a marker on disk, not a clock); fail if ``proc`` ended first."""
     deadline = time.time() + limit_s
@@ -353,7 +388,8 @@ def _wait_for(condition, what: str, proc: subprocess.Popen, limit_s: float = 300
 
 
 _SIGNAL_CASES = [pytest.param(moment, sig, "local", id=f"{sig.name}-{moment.replace(' ', '-')}")
-                 for moment in ("workers starting", "first scene written") for sig in (signal.SIGTERM, signal.SIGINT)]
+                 for moment in ("workers starting", "first scene written", "last scene")
+                 for sig in (signal.SIGTERM, signal.SIGINT)]
 _SIGNAL_CASES += [pytest.param("workers starting", signal.SIGINT, "ray", id="ray-SIGINT-starting"),
                   pytest.param("first scene written", signal.SIGTERM, "ray", id="ray-SIGTERM-first-scene")]
 
@@ -363,7 +399,7 @@ def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig, execut
     """SIGTERM or Ctrl-C to a two-worker ``asg generate`` (local processes, or Ray actors on a local
     Ray instance, whose start-up and C++ waits take signals their own way): exit 143 / 130, no
     temporary file, no process left behind; the same command then resumes and completes (checked
-    once: it costs the remaining scenes)."""
+    after the first scene and during the last: it costs the remaining scenes)."""
     psutil = pytest.importorskip("psutil")
     if executor == "ray":
         pytest.importorskip("ray")
@@ -385,8 +421,9 @@ def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig, execut
     if moment == "workers starting":  # local: the pool's two workers; Ray: its node's first processes
         _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= (2 if executor == "local" else 1),
                   "worker processes", proc)
-    else:
-        _wait_for(lambda: any((out / "scenes").glob("s*")), "finished scene", proc)
+    else:  # the first scene written, or all but the last (the last one in flight)
+        written = 1 if moment == "first scene written" else 2
+        _wait_for(lambda: len(list((out / "scenes").glob("s*"))) >= written, f"{written} finished scenes", proc)
     family = psutil.Process(proc.pid).children(recursive=True)
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
@@ -398,7 +435,7 @@ def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig, execut
     leftovers = [p for p in out.rglob("*") if p.name.startswith(".")]
     assert not leftovers, leftovers
     assert not list(tmp.iterdir())  # no folder in the system's temporary directory
-    if sig != signal.SIGTERM or moment != "first scene written":
+    if (sig, moment) not in ((signal.SIGTERM, "first scene written"), (signal.SIGINT, "last scene")):
         return
     resumed = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
     assert resumed.returncode == 0, resumed.stderr
