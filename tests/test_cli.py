@@ -205,7 +205,7 @@ def test_generate_writes_the_run_folder_and_resumes(capsys, tmp_path):
 
 
 def test_train_validate_only_updates_the_card_without_training(capsys, monkeypatch):
-    import asg.workflows.train as train_mod
+    import asg.training.command as train_mod
 
     calls = []
     monkeypatch.setattr(train_mod, "card_validation", lambda name, log: calls.append(name) or {"weights": f"{name}.pt"})

@@ -10,7 +10,7 @@ import torch
 
 from asg.workflows.challenging import build_challenging
 from asg.workflows.finetune import finetune
-from asg.perception.train_config import load_finetune_config
+from asg.training.config import load_finetune_config
 from asg.perception.weights_io import WEIGHTS_DIR
 from sumo_scenarios.errors import InputError
 
@@ -115,7 +115,7 @@ def test_bad_weights_are_one_line(capsys, tmp_path, data_root):
                                  "mix_with: ['../..']", "augment: {rotate_deg: 200}", "augment: {scale: 0.9}",
                                  "augment: {spin: 1}", "corner_loss: -1", "corner_loss: .nan"])
 def test_bad_finetune_settings_are_refused_when_loaded(tmp_path, bad):
-    from asg.perception.train_config import load_finetune_config
+    from asg.training.config import load_finetune_config
     from asg.workflows.harden import load_harden_config
 
     key = bad.split(":")[0]

@@ -1,11 +1,13 @@
 """The package reads top-down: every import (also one inside a function) goes to a lower layer.
 
 Layers, lowest first: settings and registries; the scene; the stages (sensors, objective, search,
-collaborators); perception (networks and detectors) and the executors; data sets and the
-generator's settings; the generator's pipeline (one scene); outputs (io) and the run folder; the
-generator's run and the report; the workflows; the benchmarks; the command line. A wing
-(``generator/``) spans layers: each of its modules has its own. A new module has to be given its layer here, which is the point: a
-test that fails when an arrow runs upward."""
+collaborators); perception (networks and detectors) and the executors; training's settings,
+checkpoints and branch fit; data sets and the generator's settings; the training loop; the
+generator's pipeline (one scene); outputs (io) and the run folder; the generator's run and the
+report; the evaluation core; training's model cards, runs and command; the workflows; the
+benchmarks; the command line. A wing (``generator/``, ``training/``) spans layers: each of its
+modules has its own. A new module has to be given its layer here, which is the point: a test that
+fails when an arrow runs upward."""
 import ast
 from pathlib import Path
 
@@ -17,10 +19,14 @@ LAYERS = {
     "scene": 1,
     "sensors": 2, "objective": 2, "search": 2, "collaborators": 2,
     "metrics": 3, "perception": 3, "executors": 3,
+    "training.__init__": 3.5, "training.checkpoint": 3.5, "training.branch_fit": 3.5, "training.config": 3.6,
     "datasets": 4, "generator.config": 4, "generator.__init__": 4, "cli_args": 4,
+    "training.loop": 4.5,
     "generator.pipeline": 5,
     "io": 6, "generator.run_folder": 6.5,
     "generator.run": 7, "report": 7,
+    "evaluation": 7.5,
+    "training.cards": 7.6, "training.train": 7.7, "training.point_stage_fit": 7.7, "training.command": 7.8,
     "workflows": 8,
     "benchmarks": 9,
     "generator.command": 10,
@@ -32,7 +38,7 @@ LAYERS = {
 
 #: sub-packages whose modules sit on layers of their own (a wing: one feature from its settings to
 #: its command); their parts are named ``wing.module``
-WINGS = ("generator",)
+WINGS = ("generator", "training")
 
 
 def _part(module: str) -> str:

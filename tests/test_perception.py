@@ -159,7 +159,7 @@ def test_attention_rows_sum_to_one_and_mask_missing_agents(where):
 def test_attfuse_from_single_weights_is_the_single_model_on_copies(tmp_path, where):
     """Started from PointPillars weights (v = identity), AttFuse fed the same cloud by every agent
     predicts exactly what the single-agent model predicts, wherever it fuses."""
-    from asg.workflows.train import init_from_weights
+    from asg.training.loop import init_from_weights
 
     torch.manual_seed(0)
     single = PointPillars(TINY)

@@ -101,7 +101,7 @@ def test_the_shipped_stage_sharpens_the_boxes_on_held_out_frames(fusion, held_ou
     from dataclasses import replace
 
     from asg.perception import build_detector
-    from asg.workflows.point_stage_fit import mean_iou
+    from asg.training.point_stage_fit import mean_iou
 
     with_stage = build_detector(fusion)
     assert with_stage.point_stage is not None
@@ -122,7 +122,7 @@ def test_point_stage_fit_resumes_to_the_same_stage_and_records_it(sumo_log, tmp_
     from sumo_scenarios.errors import InputError
 
     from asg.perception.weights_io import WEIGHTS_DIR
-    from asg.workflows.point_stage_fit import BOXES_CACHE, CHECKPOINT, PointStageFitConfig, fit_point_stage
+    from asg.training.point_stage_fit import BOXES_CACHE, CHECKPOINT, PointStageFitConfig, fit_point_stage
     from test_train import tiny_dataset
 
     data = tiny_dataset(sumo_log, tmp_path / "tiny")
@@ -165,7 +165,7 @@ def test_point_stage_fit_resumes_to_the_same_stage_and_records_it(sumo_log, tmp_
 def test_point_stage_settings_are_checked():
     from sumo_scenarios.errors import InputError
 
-    from asg.workflows.point_stage_fit import PointStageFitConfig, load_point_stage_config
+    from asg.training.point_stage_fit import PointStageFitConfig, load_point_stage_config
 
     assert load_point_stage_config().epochs >= 1  # the shipped block loads
     with pytest.raises(InputError, match="jitter_yaw_deg"):

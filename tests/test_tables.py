@@ -135,7 +135,7 @@ def test_tables_both_ways_from_one_measurement(capsys, tmp_path, data_root, monk
     """--ap-method both writes every table as ours (NAME.*) and as the paper's yardstick
     (NAME.per-frame.*), each labelled; a set is detected once for both; the per-frame rows are what
     asg.objective scores per frame over the same detections."""
-    from asg.workflows import evaluate as evaluate_mod
+    from asg import evaluation as evaluate_mod
 
     calls = []
     real = evaluate_mod.evaluate

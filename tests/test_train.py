@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from asg.workflows.train import train
-from asg.perception.train_config import TrainConfig
+from asg.training.train import train
+from asg.training.config import TrainConfig
 from asg.scene.from_log import ExtractParams, extract_scenes
 from asg.scene.neighbours import with_nearest_collaborators
 
@@ -136,7 +136,7 @@ def test_init_from_single_weights(tmp_path):
     from dataclasses import replace
 
     from asg.perception.model import AttFuse, PointPillars
-    from asg.workflows.train import init_from_weights
+    from asg.training.loop import init_from_weights
     from asg.perception.weights_io import save_state
     from sumo_scenarios.errors import InputError
 
@@ -195,7 +195,7 @@ def test_train_init_from_starts_a_new_sequence(sumo_log, tmp_path):
 
 def test_resumed_onecycle_follows_the_configured_length():
     """A chunk resumed with another configured length anneals on that length (peak and end move)."""
-    from asg.workflows.train import _keep_configured_length, make_scheduler
+    from asg.training.loop import keep_configured_length, make_scheduler
 
     def lrs(sched, n):
         out = []
@@ -213,7 +213,7 @@ def test_resumed_onecycle_follows_the_configured_length():
     lrs(long, 10)  # a checkpoint of a 40-step chunk at step 10 ...
     resumed = fresh(30)
     resumed.load_state_dict(long.state_dict())
-    _keep_configured_length(resumed, TrainConfig(dataset="x", steps=30, schedule="onecycle", lr=0.001), 30)
+    keep_configured_length(resumed, TrainConfig(dataset="x", steps=30, schedule="onecycle", lr=0.001), 30)
     short = fresh(30)
     lrs(short, 10)
     tail = lrs(resumed, 20)
@@ -227,8 +227,8 @@ def test_branch_fit_changes_the_branches_alone_and_resumes(sumo_log, tmp_path, m
     detector's steps, an interruption after the collection resumes from the cached candidates to
     the same weights, and the same seed gives the same weights. Weights made before the branches
     existed get them."""
-    from asg.perception import branch_fit
-    from asg.perception.branch_fit import CACHE_NAME, BranchFitConfig
+    from asg.training import branch_fit
+    from asg.training.branch_fit import CACHE_NAME, BranchFitConfig
     from asg.perception.model import PointPillars
     from sumo_scenarios.errors import InputError
 
@@ -268,13 +268,13 @@ def test_branch_fit_changes_the_branches_alone_and_resumes(sumo_log, tmp_path, m
     def crash(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("asg.workflows.train.fit_branches", crash)
+    monkeypatch.setattr("asg.training.train.fit_branches", crash)
     with pytest.raises(KeyboardInterrupt):
         train("early", out_dir=tmp_path / "run-b", weights_dir=weights_dir("b"), **kw)
     assert (tmp_path / "run-b" / CACHE_NAME).is_file()
-    monkeypatch.setattr("asg.workflows.train.fit_branches", real_fit)
+    monkeypatch.setattr("asg.training.train.fit_branches", real_fit)
     collected = []
-    monkeypatch.setattr("asg.perception.branch_fit.collect", lambda *a, **k: collected.append(1))
+    monkeypatch.setattr("asg.training.branch_fit.collect", lambda *a, **k: collected.append(1))
     resumed = torch.load(train("early", out_dir=tmp_path / "run-b", weights_dir=tmp_path / "weights-b", **kw),
                          weights_only=True)
     assert not collected and all(torch.equal(after[k], resumed[k]) for k in after)
@@ -310,7 +310,7 @@ def test_whole_network_chunk_trains_the_branches_alongside(sumo_log, tmp_path):
 
 
 def test_candidates_are_matched_with_their_own_views_ground_truth():
-    from asg.perception.branch_fit import Candidates
+    from asg.training.branch_fit import Candidates
 
     box = np.array([[0.0, 0, 0, 4, 2, 1.5, 0]])
     far = box + [[10, 0, 0, 0, 0, 0, 0]]  # view 0's only vehicle
@@ -326,7 +326,7 @@ def test_candidates_are_matched_with_their_own_views_ground_truth():
 def test_branch_fit_settings_are_checked(tmp_path):
     from sumo_scenarios.errors import InputError
 
-    from asg.perception.train_config import load_branch_config
+    from asg.training.config import load_branch_config
 
     assert load_branch_config().epochs >= 1  # the shipped block loads
     bad = tmp_path / "train.yaml"

@@ -278,7 +278,7 @@ def _challenging(model: str, split: str, run: TableRun) -> dict:
 def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
     """{"ap": AP by threshold ranked by ``run.ap_method``, "frames"} of ``model`` on ``set_name``
     (detected once per measurement: see TableRun.scored)."""
-    from ..workflows.evaluate import evaluate
+    from ..evaluation import evaluate
 
     key = (model, set_name)
     if key not in run.scored:

@@ -53,7 +53,7 @@ def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threa
     from ..perception.data import make_sample
     from ..perception.model import AttFuse
     from ..perception.feeds import AGENT_CLOUDS
-    from ..workflows.train import BRANCH_KEYS, Batches, PhaseTimer, train_step
+    from ..training.loop import BRANCH_KEYS, Batches, PhaseTimer, train_step
     from ..perception.weights_io import WEIGHTS_DIR, load_state
     from ..sensors import load_lidar_spec
 

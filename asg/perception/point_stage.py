@@ -12,7 +12,7 @@ box, across it and up (m), log ratios of length, width and height, the yaw offse
 [-pi/2, pi/2) (a box's IoU does not see its heading; the detector's direction is kept).
 
 Its weights are a file of their own beside the detector's (``NAME.stage.pt``), trained by
-``asg train --fusion F --point-stage`` on the frozen detector (asg.workflows.point_stage_fit).
+``asg train --fusion F --point-stage`` on the frozen detector (asg.training.point_stage_fit).
 """
 from __future__ import annotations
 

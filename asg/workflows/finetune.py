@@ -36,11 +36,11 @@ from ..datasets import iter_frames
 from ..io.curves import LOSS_CURVE, LossCurve
 from ..io.run_record import claim
 from ..sensors import load_lidar_spec
-from ..perception.checkpoint import load_checkpoint
+from ..training.checkpoint import load_checkpoint
 from ..perception.data import Augmentation, make_sample
-from .train import BRANCH_KEYS, Batches, Steps, augment_record, corner_record, make_scheduler, draw_examples, run_steps
+from ..training.loop import BRANCH_KEYS, Batches, Steps, augment_record, corner_record, make_scheduler, draw_examples, run_steps
 from ..perception.fusion import build_network, detector_config_of, feed_of
-from ..perception.train_config import FinetuneConfig, load_finetune_config, weights_for
+from ..training.config import FinetuneConfig, load_finetune_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, load_state
 
 
@@ -199,7 +199,7 @@ def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, fcfg: Fine
     """{set: {"before": AP, "after": AP, "frames": N}} on each eval set and the original model's
     challenging val set (built if missing); each result cached in ``cache``."""
     from .challenging import own_val_set
-    from .evaluate import evaluate
+    from ..evaluation import evaluate
 
     own_val = own_val_set(fusion, executor, log)
     table = {}

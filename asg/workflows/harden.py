@@ -43,7 +43,7 @@ from ..cli_args import executor_from_args, fusion_arg, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
 from ..io.run_record import claim
 from ..objective.ap import AP_KEYS
-from ..perception.train_config import FinetuneConfig, train_block, check_train_config, weights_for
+from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
 from ..perception.weights_io import WEIGHTS_DIR
 from ..scene import Scene, load_scene
 
@@ -296,7 +296,7 @@ def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, e
     """{set: {"0.3", "0.5", "0.7": AP, "frames": N}} of ``weights`` on the fixed evaluation sets,
     each result cached in ``cache``."""
     from .challenging import own_val_set
-    from .evaluate import evaluate
+    from ..evaluation import evaluate
 
     own_val = own_val_set(fusion, executor, log)
     sets = {s: s for s in (*cfg.eval_sets, own_val)}

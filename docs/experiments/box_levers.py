@@ -27,8 +27,9 @@ from asg.perception.config import load_detector_config
 from asg.perception.data import Augmentation
 from asg.perception.fusion.single import NoFusion
 from asg.perception.weights_io import WEIGHTS_DIR
-from asg.workflows.evaluate import evaluate_detector
-from asg.workflows.train import TrainConfig, train
+from asg.evaluation import evaluate_detector
+from asg.training.config import TrainConfig
+from asg.training.train import train
 
 from miss_stages import STAGES, rows_of  # this folder's
 

@@ -32,7 +32,7 @@ from asg.perception.nms import select_boxes  # noqa: E402
 from asg.perception.data import augment, in_range  # noqa: E402
 from asg.perception.head import REFINE_SCALE  # noqa: E402
 from asg.perception.fusion import feed_of  # noqa: E402
-from asg.workflows.train import Batches, render_samples  # noqa: E402
+from asg.training.loop import Batches, render_samples  # noqa: E402
 from asg.perception.weights_io import weights_path  # noqa: E402
 
 PATCH = 3

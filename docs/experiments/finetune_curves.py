@@ -22,7 +22,7 @@ from asg.perception.data import make_sample
 from asg.workflows.finetune import mixed_sources
 from asg.perception.model import AttFuse
 from asg.perception.feeds import AGENT_CLOUDS
-from asg.workflows.train import BRANCH_KEYS, Batches, make_scheduler, train_step
+from asg.training.loop import BRANCH_KEYS, Batches, make_scheduler, train_step
 from asg.perception.weights_io import WEIGHTS_DIR, load_state
 from asg.scene import load_scene
 from asg.sensors import load_lidar_spec

@@ -9,7 +9,7 @@ the PATCH x PATCH cells around it, the class score, the decoded box and its best
 ground truth. Then it fits an MLP (HIDDEN units) to those IoUs on the training views, EPOCHS passes,
 and reports AP on normal-val and `normal` for rescoring powers 0 (the class score alone) to 1 (the
 predicted IoU alone), rescoring before NMS as the package does. Caches go to runs/exp-iou/.
-`asg train --iou-branch` now fits the package's branches this way (asg/perception/branch_fit.py).
+`asg train --iou-branch` now fits the package's branches this way (asg/training/branch_fit.py).
 """
 from __future__ import annotations
 
@@ -25,13 +25,13 @@ from asg.datasets import iter_frames
 from asg.objective.ap import ap_at
 from asg.objective.iou import bev_iou_matrix
 from asg.perception.nms import select_boxes
-from asg.perception.branch_fit import BranchFitConfig, fit_minibatches, view_candidates
+from asg.training.branch_fit import BranchFitConfig, fit_minibatches, view_candidates
 from asg.perception.config import load_detector_config
 from asg.perception.data import Sample, augment, in_range
 from asg.perception.inference import fold_batch_norms
 from asg.perception.model import AttFuse, PointPillars
 from asg.perception.fusion import feed_of
-from asg.workflows.train import BRANCH_KEYS, Batches, render_samples
+from asg.training.loop import BRANCH_KEYS, Batches, render_samples
 from asg.perception.weights_io import load_state, weights_path
 from asg.sensors import load_lidar_spec, simulate_frame
 
@@ -106,7 +106,7 @@ def fit(data: dict, hidden: int, epochs: int, slots: int) -> nn.Module:
 def fit_loop(net: nn.Module, n: int, epochs: int, loss_of) -> nn.Module:
     """Adam + one-cycle (peak 3e-3) over EPOCHS passes of N examples, batches of 256 drawn with a
     seeded generator; ``loss_of(idx)`` is the loss of the examples ``idx`` (256,): the package's
-    branch fit (asg.perception.branch_fit.fit_minibatches) with its default settings, seed 0."""
+    branch fit (asg.training.branch_fit.fit_minibatches) with its default settings, seed 0."""
     fit_minibatches(net, n, BranchFitConfig(epochs=epochs), loss_of, 0, lambda _: None, "")
     return net
 

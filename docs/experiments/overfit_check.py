@@ -34,9 +34,9 @@ from asg.perception.weights_io import WEIGHTS_DIR, load_state
 from asg.perception.fusion import build_detector
 from asg.scene import load_scene
 from asg.sensors import load_lidar_spec
-from asg.perception.train_config import FinetuneConfig
+from asg.training.config import FinetuneConfig
 from asg.perception.feeds import AGENT_CLOUDS
-from asg.workflows.train import BRANCH_KEYS, Batches, Steps, make_scheduler, run_steps
+from asg.training.loop import BRANCH_KEYS, Batches, Steps, make_scheduler, run_steps
 
 THRESHOLDS = (0.3, 0.5, 0.7)
 

@@ -17,8 +17,8 @@ from asg.datasets import scenes_of
 from asg.perception import build_detector
 from asg.perception.data import Sample
 from asg.sensors import load_lidar_spec, simulate_frame
-from asg.workflows.evaluate import scored
-from asg.workflows.point_stage_fit import mean_iou
+from asg.evaluation import scored
+from asg.training.point_stage_fit import mean_iou
 
 MODELS = ("none", "late", "early", "attfuse", "attfuse-ft", "fcooper")
 

@@ -35,7 +35,7 @@ def main(card_path: str, k: str, command: str) -> None:
         earlier = previous.get("earlier", []) + [{"trained": previous["trained"], "command": previous["command"]}]
     elif start != file_digest(WEIGHTS_DIR / "attfuse.pt"):
         raise SystemExit("the run did not start from the shipped attfuse or attfuse-ft weights")
-    from asg.workflows.evaluate import evaluate
+    from asg.evaluation import evaluate
     from asg.workflows.harden import noisy_val_set
 
     evaluation = {}

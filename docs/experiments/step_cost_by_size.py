@@ -14,7 +14,7 @@ import numpy as np, torch
 from asg.perception.config import load_detector_config
 from asg.perception.data import make_sample
 from asg.perception.fusion import build_network
-from asg.workflows.train import Batches, train_step
+from asg.training.loop import Batches, train_step
 from asg.perception.feeds import OWN_CLOUD, AGENT_CLOUDS
 from asg.datasets import iter_frames
 from asg.sensors import load_lidar_spec

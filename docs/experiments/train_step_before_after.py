@@ -33,7 +33,10 @@ from asg.perception.head import detection_loss
 from asg.perception.model import AttFuse
 try:  # the feeds since they exist
     from asg.perception.feeds import AGENT_CLOUDS
-    from asg.workflows.train import BRANCH_KEYS, Batches, branch_losses as _branch_losses
+    try:
+        from asg.training.loop import BRANCH_KEYS, Batches, branch_losses as _branch_losses
+    except ImportError:  # the loop's home before the training wing
+        from asg.workflows.train import BRANCH_KEYS, Batches, branch_losses as _branch_losses
 
     def attfuse_batches(samples, views):
         return Batches(AGENT_CLOUDS, samples, views)

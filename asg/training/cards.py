@@ -40,7 +40,7 @@ def card_validation(name: str, log: Callable[[str], None] = print, set_name: str
                     weights_dir: Path = WEIGHTS_DIR) -> dict:
     """Evaluate the ``name`` weights in ``weights_dir`` (default the shipped ones) on ``set_name``
     (every fusion that uses them) and record the APs in that folder's model card."""
-    from .evaluate import evaluate
+    from ..evaluation import evaluate
 
     card_path = weights_dir / f"{name}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {"weights": f"{name}.pt"}

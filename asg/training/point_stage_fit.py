@@ -35,7 +35,7 @@ from ..perception.data import Sample
 from ..perception.branch_boxes import best_match
 from ..perception.point_stage import (MIN_IOU, PointStage, box_features, box_points, refine, residual_targets,
                                       stage_loss)
-from ..perception.train_config import train_block, weights_for
+from .config import train_block, weights_for
 from ..perception.weights_io import WEIGHTS_DIR, stage_path_of
 from ..sensors import load_lidar_spec, simulate_frame
 

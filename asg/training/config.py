@@ -10,12 +10,12 @@ from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import from_mapping, read_yaml
 
 from .branch_fit import BranchFitConfig
-from .data import Augmentation
+from ..perception.data import Augmentation
 
 def weights_for(fusion: str) -> str:
     """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError for a
     plugin or an unknown name (asg.perception.fusion.shipped_model)."""
-    from .fusion import shipped_model
+    from ..perception.fusion import shipped_model
 
     return shipped_model(fusion).weights
 

@@ -35,12 +35,12 @@ from torch import nn
 from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
 
-from .boxes import decode_with_direction, top_candidates
-from .branch_boxes import REFINE_MIN_IOU, best_match, refine_boxes, refinement_residuals
-from .data import augment
-from .feeds import Feed
-from .head import iou_loss, patch_features, refine_loss
-from .inference import fold_batch_norms
+from ..perception.boxes import decode_with_direction, top_candidates
+from ..perception.branch_boxes import REFINE_MIN_IOU, best_match, refine_boxes, refinement_residuals
+from ..perception.data import augment
+from ..perception.feeds import Feed
+from ..perception.head import iou_loss, patch_features, refine_loss
+from ..perception.inference import fold_batch_norms
 
 CACHE_NAME = "branch-candidates.npz"
 

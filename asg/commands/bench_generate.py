@@ -1,0 +1,20 @@
+"""``asg bench generate``: seconds per scene of AttFuse + ACS-A + BO, and BO's overhead a suggestion."""
+from __future__ import annotations
+
+import argparse
+
+from ..cli_args import COUNT
+from ..progress import print_result
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenes", type=COUNT, default=5)
+    p.add_argument("--budget", type=COUNT, default=50)
+    p.add_argument("--json", action="store_true", help="print JSON only")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..benchmarks.generate import bench_generate
+
+    print_result("asg bench generate", bench_generate(scenes=args.scenes, budget=args.budget), args.json)
+    return 0

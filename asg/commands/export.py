@@ -1,0 +1,27 @@
+"""``asg export``: scenes for other tools: OPV2V (OpenCOOD), KITTI (OpenPCDet), OpenSCENARIO 1.2 +
+OpenDRIVE, SUMO routes."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..io.export import FORMATS
+from ..progress import console, progress_bar
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", help="a run folder of 'asg generate', a data set (name or folder) or a folder of scene yaml")
+    p.add_argument("--format", required=True, choices=FORMATS)
+    p.add_argument("--out", type=Path, required=True, help="folder to write (nothing is written outside it)")
+    p.add_argument("--net", type=Path, default=None,
+                   help="openscenario, sumo: the SUMO net of scenes from a net that is not a bundled town")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..io.export import export
+
+    with progress_bar() as bar:
+        task = bar.add_task(f"exporting {args.format}", total=None)
+        n = export(args.source, args.format, args.out, net=args.net, progress=lambda i: bar.update(task, completed=i))
+    console.print(f"wrote {n} scenes as {args.format} to {args.out}")
+    return 0

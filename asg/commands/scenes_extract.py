@@ -1,0 +1,42 @@
+"""``asg scenes extract``: every N-th frame of a traffic log as a scene yaml."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.log import NEAR_RADIUS_M
+
+from ..cli_args import COUNT, whole
+from ..progress import console
+from ..scene.from_log import EGO_KINDS, ExtractParams, extract_scenes
+from ..scene.scene import save_scene
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", type=Path, help="log folder written by 'asg simulate'")
+    p.add_argument("--every", type=COUNT, default=10, help="take every N-th recorded frame (default 10)")
+    p.add_argument("--ego", choices=EGO_KINDS, default="rsu", help="ego agent kind (default rsu: V2I)")
+    p.add_argument("--radius", type=float, default=120.0, help="keep agents within this many metres of the ego")
+    p.add_argument("--min-vehicles", type=whole(0, 10_000, "--min-vehicles"), default=1, help=f"skip frames with fewer vehicles within {NEAR_RADIUS_M:g} m of the ego")
+    p.add_argument("--collaborators", type=whole(0, 16, "--collaborators"), default=None,
+                   help="sensing vehicles drawn at random within communication range of the ego, as the "
+                        "data sets draw them (default: the generator's sensing_agents - 1, i.e. 2)")
+    p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..generator.config import GenerateConfig
+
+    k = GenerateConfig().sensing_agents - 1 if args.collaborators is None else args.collaborators
+    params = ExtractParams(every=args.every, radius_m=args.radius, ego=args.ego, min_vehicles=args.min_vehicles,
+                           collaborators=k)
+    n = 0
+    for scene in extract_scenes(args.log, params):
+        save_scene(scene, Path(args.out) / f"{scene.scene_id}.yaml")
+        n += 1
+    if n == 0:
+        raise InputError(f"{args.log}: no frame had an ego with {args.min_vehicles}+ vehicles within {NEAR_RADIUS_M:g} m; "
+                         "lower --min-vehicles")
+    console.print(f"wrote {n} scenes to {args.out}")
+    return 0
