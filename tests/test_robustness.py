@@ -455,15 +455,17 @@ def _holds_int_and_term(pid: int) -> bool:
 
 @pytest.mark.parametrize("command, moment", [("generate", 0.0), ("generate", 0.3), ("generate", 1.0),
                                              ("generate", "workers starting"), ("dataset build", 0.0),
-                                             ("dataset build", 2.0), ("harden", 0.0), ("harden", 2.0)])
+                                             ("dataset build", 2.0), ("dataset build", "first log"),
+                                             ("harden", 0.0), ("harden", 2.0)])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment, sig):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or SIGTERM at the start of
     a two-worker ``asg generate``, ``asg dataset build`` or ``asg harden``: while the command imports (trimesh
     swallowed a KeyboardInterrupt there and the run went on to exit 0; ``moment`` seconds after
-    asg's start holds the signals, or later when the imports are done) or while its workers import:
-    exit 130 / 143 within seconds (no summary written), one line, no traceback from any process of
-    the group, none left."""
+    asg's start holds the signals, or later when the imports are done), while its workers import,
+    or (``dataset build``) once a worker has simulated a log: exit 130 / 143 within seconds (no
+    summary written), one line, no traceback from any process of the group, none left, and no
+    temporary folder (the simulated logs beside the set included)."""
     psutil = pytest.importorskip("psutil")
     scenes = tmp_path / "scenes"
     for i in range(2):
@@ -489,6 +491,8 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment
                             preexec_fn=foreground, env=env)
     if moment == "workers starting":
         _wait_for(lambda: len(psutil.Process(proc.pid).children()) >= 2, "worker processes", proc)
+    elif moment == "first log":  # a worker has simulated a log (beside the set), the others run on
+        _wait_for(lambda: any((out / ".work-heuristic").glob("*/*")), "a simulated log", proc)
     else:  # somewhere in asg's start (the interpreter's own start is before it); every moment must end the same way
         _wait_for(lambda: _holds_int_and_term(proc.pid), "asg's start", proc)
         time.sleep(moment)
