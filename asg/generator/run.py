@@ -165,6 +165,7 @@ def run_scenes(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed:
     started = time.perf_counter() - (previous_wall_s(out) if entries else 0.0)  # a resumed run adds its time
     order = [s.scene_id for s in scenes]
     in_order = lambda: [entries[i] for i in order if i in entries]
+    matches: dict = {}  # each finished scene's matched detections, for the summary written after every scene
     skipped: list[tuple[str, str]] = []
     # the evaluation callback reaches the generator only where it runs in this process
     job = Job(_worker_setup, _worker_run,
@@ -175,7 +176,7 @@ def run_scenes(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed:
                 skipped.append((item["scene_id"], value))
             else:
                 entries[item["scene_id"]] = value
-                write_summary(out, in_order(), config, time.perf_counter() - started)
+                write_summary(out, in_order(), config, time.perf_counter() - started, matches)
             if on_scene:
                 on_scene(n, len(todo), item["scene_id"])
     except BaseException:  # interrupted, or a worker lost: the workers are stopped; what they half-wrote goes
@@ -185,7 +186,7 @@ def run_scenes(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed:
         reasons = "; ".join(f"{sid}: {why}" for sid, why in skipped[:2])
         raise InputError(f"no scene could be generated ({reasons})")
     skipped.sort(key=lambda s: order.index(s[0]))
-    summary = write_summary(out, in_order(), config, time.perf_counter() - started)
+    summary = write_summary(out, in_order(), config, time.perf_counter() - started, matches)
     return GenerateRun(out, summary, tuple(skipped))
 
 

@@ -23,6 +23,10 @@ from .iou import bev_iou_matrix
 
 Frame = tuple[np.ndarray, np.ndarray, np.ndarray]  # pred_boxes (N, 7), pred_scores (N,), gt_boxes (M, 7)
 
+#: the IoU thresholds every table reports (AP@0.3/0.5/0.7, the paper's), and their keys in results
+REPORTED_THRESHOLDS = (0.3, 0.5, 0.7)
+AP_KEYS = tuple(f"{t:g}" for t in REPORTED_THRESHOLDS)
+
 
 def match_frame(pred_boxes: np.ndarray, pred_scores: np.ndarray, gt_boxes: np.ndarray,
                 iou_threshold: float) -> np.ndarray:
@@ -36,11 +40,17 @@ def greedy_match(pred_boxes: np.ndarray, pred_scores: np.ndarray, gt_boxes: np.n
     found (index into ``gt_boxes``), -1 for a false positive."""
     pred_boxes = np.asarray(pred_boxes, dtype=float).reshape(-1, 7)
     gt_boxes = np.asarray(gt_boxes, dtype=float).reshape(-1, 7)
-    found = np.full(len(pred_boxes), -1, dtype=int)
     if not len(pred_boxes) or not len(gt_boxes):
+        return np.full(len(pred_boxes), -1, dtype=int)
+    return greedy_match_iou(bev_iou_matrix(pred_boxes, gt_boxes), pred_scores, iou_threshold)
+
+
+def greedy_match_iou(iou: np.ndarray, pred_scores: np.ndarray, iou_threshold: float) -> np.ndarray:
+    """:func:`greedy_match` from the BEV IoU matrix (N, M) of the detections against the ground truth."""
+    found = np.full(iou.shape[0], -1, dtype=int)
+    if not iou.size:
         return found
-    iou = bev_iou_matrix(pred_boxes, gt_boxes)
-    taken = np.zeros(len(gt_boxes), dtype=bool)
+    taken = np.zeros(iou.shape[1], dtype=bool)
     for i in np.argsort(-np.asarray(pred_scores), kind="stable"):
         cand = np.where(taken, -1.0, iou[i])
         j = int(np.argmax(cand))
@@ -50,12 +60,26 @@ def greedy_match(pred_boxes: np.ndarray, pred_scores: np.ndarray, gt_boxes: np.n
     return found
 
 
+#: one frame matched at several thresholds: {threshold: (scores (N,), true-positive flags (N,), ground-truth count)}
+FrameMatches = dict[float, tuple[np.ndarray, np.ndarray, int]]
+
+
+def frame_matches(frame: Frame, thresholds: Sequence[float] = REPORTED_THRESHOLDS) -> FrameMatches:
+    """A frame's detections matched at each threshold, its IoU matrix computed once (what AP over
+    many frames needs of it; see :func:`ap_by_method_from_matches`)."""
+    pred_boxes, pred_scores, gt_boxes = frame
+    pred = np.asarray(pred_boxes, dtype=float).reshape(-1, 7)
+    gt = np.asarray(gt_boxes, dtype=float).reshape(-1, 7)
+    scores = np.asarray(pred_scores, dtype=float).reshape(-1)
+    iou = bev_iou_matrix(pred, gt) if len(pred) and len(gt) else np.zeros((len(pred), len(gt)))
+    return {t: (scores, greedy_match_iou(iou, scores, t) >= 0, len(gt)) for t in thresholds}
+
+
 def voc_ap(recall: np.ndarray, precision: np.ndarray) -> float:
     """VOC all-point interpolation: area under the monotone precision envelope."""
     mrec = np.concatenate([[0.0], recall, [1.0]])
     mpre = np.concatenate([[0.0], precision, [0.0]])
-    for i in range(len(mpre) - 2, -1, -1):
-        mpre[i] = max(mpre[i], mpre[i + 1])
+    mpre = np.maximum.accumulate(mpre[::-1])[::-1]  # each point's precision: the best at any higher recall
     idx = np.nonzero(mrec[1:] != mrec[:-1])[0]
     return float(np.sum((mrec[idx + 1] - mrec[idx]) * mpre[idx + 1]))
 
@@ -120,11 +144,6 @@ def ap_from_matches(scores: Sequence[np.ndarray], tps: Sequence[np.ndarray], n_g
     return voc_ap(recall, precision)
 
 
-#: the IoU thresholds every table reports (AP@0.3/0.5/0.7, the paper's), and their keys in results
-REPORTED_THRESHOLDS = (0.3, 0.5, 0.7)
-AP_KEYS = tuple(f"{t:g}" for t in REPORTED_THRESHOLDS)
-
-
 def ap_text(ap, scale: float = 100.0, digits: int = 1, missing: str = "-", keys: Sequence[str] = AP_KEYS) -> str:
     """AP@0.3 / 0.5 / 0.7 (or at ``keys``) of a result mapping as text, e.g. "90.2 / 87.2 / 73.3"
     (``scale`` 100: percent; 1: fractions); ``missing`` for None."""
@@ -142,11 +161,18 @@ def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESH
 
 def ap_by_method(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS) -> dict[str, dict[str, float]]:
     """{method: {"0.3": AP, ...}} for every method of AP_METHODS over the same frames (each frame
-    matched once per threshold)."""
-    frames = list(frames)
+    matched once per threshold, its IoU matrix computed once)."""
+    return ap_by_method_from_matches([frame_matches(f, thresholds) for f in frames], thresholds)
+
+
+def ap_by_method_from_matches(matches: Sequence[FrameMatches],
+                              thresholds: Sequence[float] = REPORTED_THRESHOLDS) -> dict[str, dict[str, float]]:
+    """:func:`ap_by_method` from frames already matched (:func:`frame_matches`, frames in order)."""
     out: dict[str, dict[str, float]] = {m: {} for m in AP_METHODS}
     for t in thresholds:
-        matched = _matched(frames, t)
-        for m in AP_METHODS:
-            out[m][f"{t:g}"] = ap_from_matches(*matched, method=m)
+        scores = [m[t][0] for m in matches]
+        tps = [m[t][1] for m in matches]
+        n_gt = sum(m[t][2] for m in matches)
+        for method in AP_METHODS:
+            out[method][f"{t:g}"] = ap_from_matches(scores, tps, n_gt, method=method)
     return out
