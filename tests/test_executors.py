@@ -3,6 +3,10 @@ executor settings one line (exit 2). The fake detector keeps it fast."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -14,6 +18,8 @@ from asg.generator.pipeline import GenerateConfig
 from asg.search import SpaceConfig
 
 from test_cli import assert_one_line_error, run
+
+ROOT = Path(__file__).resolve().parent.parent
 from test_robustness import _scene_dict, _write
 
 CFG = GenerateConfig(fusion="none", search="bo", acs="attention", budget=4, space=SpaceConfig(n_q=100))
@@ -247,3 +253,29 @@ def test_processes_spawned_inside_the_block_are_born_ignoring_ctrl_c():
     finally:
         signal.signal(signal.SIGINT, inherited)
     assert (inside, outside) == ("ignored", "handled")
+
+
+def test_a_sigterm_taken_inside_a_finaliser_still_ends_the_busy_worker_silently():
+    """A worker's SIGTERM handler raising inside a finaliser (the garbage collector's weakref
+    callbacks, seen once in the suite) was swallowed: "Exception ignored in ..." and a traceback on
+    stderr, and the item went on. The worker now exits at once with 143 and prints nothing."""
+    code = textwrap.dedent("""
+        import os, signal, sys
+        from asg.executors import local
+        sys.unraisablehook = local._unraisable_in_worker
+        signal.signal(signal.SIGTERM, local._exit_on_sigterm)
+        local._BUSY = True
+
+        class Finalised:
+            def __del__(self):
+                os.kill(os.getpid(), signal.SIGTERM)
+                sum(range(1000))  # the handler runs here, inside the finaliser
+
+        obj = Finalised()
+        del obj
+        print("the item went on")
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert proc.returncode == 143, proc.stderr
+    assert proc.stdout == "" and proc.stderr == ""

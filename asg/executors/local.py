@@ -44,6 +44,7 @@ def _worker_init(threads: int, job: Job, parent_pid: int) -> None:
     global _STATE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    sys.unraisablehook = _unraisable_in_worker
     quiet_third_party_warnings()
     die_with_parent(parent_pid)
     apply_threads(threads)
@@ -67,6 +68,17 @@ def _exit_on_sigterm(signum, frame) -> None:
     if _BUSY:
         raise _WorkerTerminated()
     _exit_now(143)  # starting or idle: nothing to clean up, and no traceback from the pool's machinery
+
+
+def _unraisable_in_worker(unraisable) -> None:
+    """A SIGTERM that arrived while a finaliser or a weakref callback ran (the garbage collector's):
+    Python swallows the handler's _WorkerTerminated there and prints "Exception ignored in ..."
+    with a traceback, and the item would go on. Exit at once instead, silently: the parent, which
+    sent the signal, removes what the item half-wrote once its workers are gone. Anything else goes
+    to Python's own hook."""
+    if isinstance(unraisable.exc_value, _WorkerTerminated):
+        _exit_now(143)
+    sys.__unraisablehook__(unraisable)
 
 
 def _worker_run(job: Job, item: Any) -> Any:
