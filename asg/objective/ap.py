@@ -100,15 +100,13 @@ def check_ap_method(method: str) -> str:
 
 def _matched(frames: Iterable[Frame], iou_threshold: float) -> tuple[list[np.ndarray], list[np.ndarray], int]:
     """Per frame the detections' scores (N_i,) and true-positive flags (N_i,), and the ground-truth count."""
-    scores, tps = [], []
-    n_gt = 0
-    for pred_boxes, pred_scores, gt_boxes in frames:
-        gt = np.asarray(gt_boxes, dtype=float).reshape(-1, 7)
-        n_gt += len(gt)
-        s = np.asarray(pred_scores, dtype=float).reshape(-1)
-        scores.append(s)
-        tps.append(match_frame(pred_boxes, s, gt, iou_threshold))
-    return scores, tps, n_gt
+    return _gathered([frame_matches(f, (iou_threshold,)) for f in frames], iou_threshold)
+
+
+def _gathered(matches: Sequence[FrameMatches], iou_threshold: float) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+    """:func:`_matched` of frames already matched (:func:`frame_matches`) at ``iou_threshold``."""
+    return ([m[iou_threshold][0] for m in matches], [m[iou_threshold][1] for m in matches],
+            sum(m[iou_threshold][2] for m in matches))
 
 
 def average_precision(frames: Iterable[Frame], iou_threshold: float, method: str = DEFAULT_AP_METHOD) -> float:
@@ -170,9 +168,7 @@ def ap_by_method_from_matches(matches: Sequence[FrameMatches],
     """:func:`ap_by_method` from frames already matched (:func:`frame_matches`, frames in order)."""
     out: dict[str, dict[str, float]] = {m: {} for m in AP_METHODS}
     for t in thresholds:
-        scores = [m[t][0] for m in matches]
-        tps = [m[t][1] for m in matches]
-        n_gt = sum(m[t][2] for m in matches)
+        gathered = _gathered(matches, t)
         for method in AP_METHODS:
-            out[method][f"{t:g}"] = ap_from_matches(scores, tps, n_gt, method=method)
+            out[method][f"{t:g}"] = ap_from_matches(*gathered, method=method)
     return out
