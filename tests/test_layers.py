@@ -50,8 +50,9 @@ def _part(module: str) -> str:
     return parts[1] if len(parts) > 1 else "__init__"
 
 
-def _imports(path: Path) -> set[str]:
-    """The asg modules that ``path`` imports (absolute names), anywhere in the file."""
+def _imports(path: Path, packages_read: bool = False) -> set[str]:
+    """The asg modules that ``path`` imports (absolute names), anywhere in the file; with
+    ``packages_read`` also the package a ``from . import x`` reads ``x`` from."""
     package = path.relative_to(ROOT.parent).with_suffix("").parts[:-1]  # a module's package, or the package itself
     out = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
@@ -62,6 +63,8 @@ def _imports(path: Path) -> set[str]:
                 base = list(package[:len(package) - (node.level - 1)])
                 target = ".".join(base + ([node.module] if node.module else []))
                 out |= {target} if node.module else {f"{target}.{a.name}" for a in node.names}
+                if packages_read and not node.module:
+                    out.add(target)
             elif node.module:
                 out.add(node.module)
     return {m for m in out if m == "asg" or m.startswith("asg.")}
@@ -92,3 +95,63 @@ def test_the_checker_resolves_relative_imports_inside_functions(tmp_path):
     """The checker itself: a function-level ``from ..x import y`` two packages down is resolved."""
     assert "asg.dataset_spec" in _imports(ROOT / "scene" / "history.py")
     assert {"asg.io.run_record", "asg.executors", "asg.generator.config"} <= _imports(ROOT / "generator" / "run.py")
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """{module: the asg modules it imports}, every file of the package; an imported name that is
+    not a module (``from .space import SpaceConfig`` resolved to ``asg.search.space.SpaceConfig``)
+    counts as its module."""
+    def name_of(path: Path) -> str:
+        parts = ("asg",) + path.relative_to(ROOT).with_suffix("").parts
+        return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+    modules = {name_of(p): p for p in ROOT.rglob("*.py")}
+
+    def module_of(name: str) -> str | None:
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    return {m: {t for t in map(module_of, _imports(p, packages_read=True)) if t and t != m}
+            for m, p in modules.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle through each strongly connected group of more than one module (Tarjan's)."""
+    index, low, stack, on_stack, groups = {}, {}, [], set(), []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return groups
+
+
+def test_no_import_cycle_even_inside_a_folder():
+    """Modules of one folder may import each other, but never round in a circle (asg.search ->
+    search.loop -> search.space -> asg.search, through a ``from . import spaces``, was one)."""
+    assert _cycles(_module_graph()) == []
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]

@@ -69,9 +69,7 @@ class SpaceConfig:
         return any(lookup("space", k).needs_movers for k in self.kinds)
 
     def __post_init__(self) -> None:
-        from . import spaces as _  # noqa: F401  (the registry)
-
-        known = names("space")
+        known = names("space")  # filled by importing .spaces above
         if not self.kinds:
             raise InputError(f"space.kinds is empty; name at least one of {', '.join(known)}")
         for k in self.kinds:
