@@ -1,11 +1,17 @@
 """Fusion methods, registered by name: none, late, early, attfuse, attfuse-ft, fcooper; and any detector
 plugin of the ``asg.detectors`` entry point group (see asg.perception.plugins)."""
+import importlib
+import pkgutil
 from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
-from . import attfuse, early, fcooper, single  # noqa: F401  (fill the registry)
 from .base import Detections, V2XDetector
+
+# every module of this package registers its detectors when imported: a new shipped model is its
+# module here, with no import line to add (docs/extending.md)
+for _module in pkgutil.iter_modules(__path__):
+    importlib.import_module(f"{__name__}.{_module.name}")
 
 __all__ = ["Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
            "card_settings_of", "detector_config_of", "feed_of", "fusions_of", "has_own_attention", "shipped_model", "shipped_weights_of", "weights_names"]
