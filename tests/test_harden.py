@@ -53,6 +53,9 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     for row in card["rounds"]:
         assert set(row["evaluation"]) == {"normal-val", "challenging-attfuse-val"}
         assert all(0.0 <= row["evaluation"][s]["0.7"] <= 1.0 for s in row["evaluation"])
+        # the paper's yardstick recorded beside ours (one frame a set: the same ranking, the same AP)
+        assert all(row["evaluation"][s]["per_frame"] == {t: row["evaluation"][s][t] for t in ("0.3", "0.5", "0.7")}
+                   for s in row["evaluation"])
     r1, r2 = card["rounds"][1:]
     assert r1["data"]["kind"] == "adversarial" and r1["data"]["scenes"] == 1
     assert r2["trained"]["examples"] == {"round-1": 3, "round-2": 3, "normal": 6}  # keep_previous, 3 views a scene
@@ -176,6 +179,12 @@ def test_the_finetune_table_gains_a_row_per_round_of_each_kind_of_data(tmp_path,
         row = next(r for r in added if r["model"] == f"harden-{data}-r1" and r["set"] == "normal-val")
         assert row["ap"] == {t: card["rounds"][1]["evaluation"]["normal-val"][t] for t in ("0.3", "0.5", "0.7")}
     assert "harden-random-r1" in (tmp_path / "tables" / "finetune.md").read_text()
+    # the paper's yardstick: the same runs (resumed, nothing run again), the rows from each card's per-frame AP
+    per_frame = run_table("finetune", replace(run, ap_method="per-frame"), log=_quiet)["rows"]
+    card = json.loads((tmp_path / "tables" / "harden" / "adversarial" / "card.json").read_text())
+    row = next(r for r in per_frame if r["model"] == "harden-adversarial-r1" and r["set"] == "own-attack-val")
+    assert row["ap"] == card["rounds"][1]["reattack"]["per_frame"]["challenging"]
+    assert (tmp_path / "tables" / "finetune.per-frame.md").is_file()
 
 
 def test_harden_rounds_need_the_finetune_table(capsys):

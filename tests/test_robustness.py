@@ -534,6 +534,77 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment
     assert not [p for p in out.rglob("*") if p.name.startswith(".")]
 
 
+_HARDEN_TINY = """harden:
+  steps: 30
+  batch_size: 1
+  checkpoint_every: 1
+  mix_with: [normal]
+  eval_sets: [normal-val]
+  scenes_per_round: 1
+  pool: [normal]
+  noisy: false
+  reattack: false
+"""
+
+
+@pytest.mark.parametrize("moment, sig", [  # each phase and each signal by default, the other pairs slow
+    pytest.param("attack", signal.SIGINT, id="SIGINT-attack"),
+    pytest.param("attack", signal.SIGTERM, id="SIGTERM-attack", marks=pytest.mark.slow),
+    pytest.param("fine-tuning", signal.SIGINT, id="SIGINT-fine-tuning", marks=pytest.mark.slow),
+    pytest.param("fine-tuning", signal.SIGTERM, id="SIGTERM-fine-tuning")])
+def test_a_signal_to_a_hardening_run_past_its_start_ends_it_and_it_resumes(tmp_path, monkeypatch, moment, sig):
+    """Ctrl-C (SIGINT to the group) or SIGTERM to a two-worker ``asg harden`` (the real AttFuse, on
+    a tiny synthetic data root) while its round attacks on the workers, or while it fine-tunes
+    (a checkpoint written): exit 130 / 143 within seconds, one line, no process of the group left,
+    no temporary file; the same command then resumes and finishes the round (from the attack's
+    finished scenes, or from the fine-tuning's checkpoint)."""
+    psutil = pytest.importorskip("psutil")
+    from asg.workflows.challenging import build_challenging
+    from test_tables import write_set
+
+    root = tmp_path / "data"
+    write_set(root, "normal", {"train": ["n0", "n1"], "val": ["n2"]})
+    monkeypatch.setenv("ASG_DATA", str(root))
+    build_challenging("attfuse", "val", detector_factory="fakes:oracle_factory")  # round 0 evaluates on it
+    config = tmp_path / "harden.yaml"
+    config.write_text(_HARDEN_TINY)
+    out = tmp_path / "harden"
+    argv = [sys.executable, "-m", "asg", "harden", "--fusion", "attfuse", "--rounds", "1", "--workers", "2",
+            "--config", str(config), "--out", str(out)]
+    env = dict(os.environ, ASG_DATA=str(root))
+
+    def foreground():  # its own group, Ctrl-C not ignored (see test_a_signal_to_the_group_while_it_starts_ends_it)
+        os.setpgrp()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=ROOT,
+                            preexec_fn=foreground, env=env)
+    if moment == "attack":  # round 1's attack folder claimed and the pool's workers up
+        _wait_for(lambda: (out / "round-1" / "attack").is_dir() and len(psutil.Process(proc.pid).children()) >= 2,
+                  "the round's attack on its workers", proc)
+    else:  # the fine-tuning has written a checkpoint (one a step) and goes on
+        _wait_for(lambda: (out / "round-1" / "last.pt").is_file(), "a fine-tuning checkpoint", proc)
+    family = psutil.Process(proc.pid).children(recursive=True)
+    os.killpg(proc.pid, sig)
+    sent = time.time()
+    _, err = proc.communicate(timeout=60)
+    code, word = (143, "terminated") if sig == signal.SIGTERM else (130, "interrupted")
+    assert proc.returncode in (code, -sig), err
+    assert time.time() - sent < 15.0, err
+    lines = [l for l in err.splitlines() if l.strip()]  # harden's log of its steps, then the one line
+    assert word in lines[-1] and "Traceback" not in err and sum(l.startswith("asg:") for l in lines) == 1, err
+    _, alive = psutil.wait_procs(family, timeout=10)
+    assert not alive, alive
+    assert not [p for p in out.rglob("*") if p.name.startswith(".") and p.name != ".complete"]  # no temporary file
+    assert not (out / "round-1" / "weights.pt").exists()
+    resumed = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=ROOT, timeout=900)
+    assert resumed.returncode == 0, resumed.stderr
+    if moment == "fine-tuning":
+        assert "resumed fine-tuning at step" in resumed.stdout + resumed.stderr
+    card = json.loads((out / "card.json").read_text())
+    assert [r["round"] for r in card["rounds"]] == [0, 1] and (out / "round-1" / "weights.pt").is_file()
+
+
 def test_workers_end_when_their_parent_is_killed(tmp_path):
     """kill -9 of the parent: its workers end too (Linux's parent-death signal), none writes later."""
     psutil = pytest.importorskip("psutil")

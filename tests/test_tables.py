@@ -4,11 +4,13 @@ import csv
 import gzip
 import io
 import json
+from dataclasses import replace
 
 import pytest
 
 from asg.benchmarks.tables import TABLES
 from asg.cli import main
+from sumo_scenarios.errors import InputError
 
 from test_cli import assert_one_line_error, run
 from test_robustness import _scene_dict
@@ -160,8 +162,16 @@ def test_tables_both_ways_from_one_measurement(capsys, tmp_path, data_root, monk
     assert row["challenging"] == pooled_ap(per_scene, "final", "per-frame")
 
 
-def test_per_frame_with_harden_rounds_is_refused(capsys, tmp_path, data_root):
-    code, err = run(capsys, "bench", "paper", "--table", "finetune", "--harden-rounds", "1", "--ap-method", "per-frame",
-                    "--out", str(tmp_path / "o"))
-    assert code == 2
-    assert_one_line_error(err, "--harden-rounds")
+def test_per_frame_harden_rows_from_a_card_before_the_yardstick_are_refused(tmp_path, monkeypatch):
+    """The harden run resumed in the table's folder has a card from before the paper's yardstick
+    was recorded: per-frame rows are refused in one line, global ones still read it."""
+    from asg.benchmarks.tables import TableRun, harden_rows
+    from asg.workflows import harden as harden_module
+
+    old_row = {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7, "frames": 3}
+    card = {"rounds": [{"round": k, "evaluation": {"normal-val": old_row}} for k in (0, 1)]}
+    monkeypatch.setattr(harden_module, "harden", lambda *a, **k: card)
+    run = TableRun(out=tmp_path / "o", harden_rounds=1)
+    assert len(harden_rows(run)) == 3  # a row for each kind of data
+    with pytest.raises(InputError, match="before asg harden recorded the paper's yardstick"):
+        harden_rows(replace(run, ap_method="per-frame"))

@@ -66,9 +66,6 @@ def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None]
     if unknown:
         raise InputError(f"unknown table '{unknown[0]}'; choose {', '.join(TABLES)} or all")
     methods = tuple(check_ap_method(m) for m in (ap_methods or (run.ap_method,)))
-    if run.harden_rounds and methods != (DEFAULT_AP_METHOD,):
-        raise InputError("--harden-rounds rows are scored with the global AP only (asg harden's cards); "
-                         "leave out --ap-method or --harden-rounds")
     run.out.mkdir(parents=True, exist_ok=True)
     return {table_stem(name, m): run_table(name, replace(run, ap_method=m), log) for name in names for m in methods}
 
@@ -151,13 +148,19 @@ def harden_rows(run: TableRun) -> list[dict]:
                       executor=run.executor, detector_factory=run.detector_factory, log=lambda *_: None)
         for row in card["rounds"][1:]:
             model = f"harden-{data}-r{row['round']}"
+            if run.ap_method != DEFAULT_AP_METHOD and not all(
+                    "per_frame" in ev for ev in [*row["evaluation"].values(), *([row["reattack"]] if row.get("reattack") else [])]):
+                raise InputError(f"{run.out / 'harden' / data / 'card.json'} was written before asg harden recorded "
+                                 "the paper's yardstick; give another --out, or leave out --ap-method")
             for set_, ev in row["evaluation"].items():
                 key = "challenging-val" if set_.startswith("challenging-") else set_
+                ap = ev if run.ap_method == DEFAULT_AP_METHOD else ev["per_frame"]
                 rows.append({"model": model, "set": key, "scenes_from": set_, "frames": ev["frames"],
-                             "ap": {t: ev[t] for t in THRESHOLDS}, "paper": None})
+                             "ap": {t: ap[t] for t in THRESHOLDS}, "paper": None})
             if row.get("reattack"):
+                re_ = row["reattack"] if run.ap_method == DEFAULT_AP_METHOD else row["reattack"]["per_frame"]
                 rows.append({"model": model, "set": "own-attack-val", "scenes_from": f"harden/{data}/round-{row['round']}/reattack", "frames": row["reattack"]["frames"],
-                             "ap": row["reattack"]["challenging"], "paper": None})
+                             "ap": re_["challenging"], "paper": None})
     return rows
 
 

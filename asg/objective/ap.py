@@ -150,6 +150,12 @@ def ap_text(ap, scale: float = 100.0, digits: int = 1, missing: str = "-", keys:
     return " / ".join(f"{scale * ap[k]:.{digits}f}" for k in keys)
 
 
+def both_yardsticks(ours, per_frame, key: str = "0.7", missing: str = "-") -> str:
+    """AP at ``key`` in % by both yardsticks, "ours / per frame" (e.g. "84.5 / 74.0"), from two
+    result mappings; ``missing`` for one that is None (a result from before it was recorded)."""
+    return f"{ap_text(ours, keys=(key,), missing=missing)} / {ap_text(per_frame, keys=(key,), missing=missing)}"
+
+
 def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS,
           method: str = DEFAULT_AP_METHOD) -> dict[str, float]:
     """{"0.3": AP, "0.5": AP, "0.7": AP} over the same frames, ranked by ``method``."""

@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..objective import ap_text  # noqa: E402
+from ..objective import ap_text, both_yardsticks  # noqa: E402
 from ..io.curves import LOSS_CURVE, read_loss_curve  # noqa: E402
 
 #: the files that make a folder a training run
@@ -54,10 +54,14 @@ def _harden(folder: Path, img: Callable, table: Callable) -> str:
     rows = []
     for r in rounds:
         ev, re_ = r.get("evaluation", {}), r.get("reattack")
-        reattacked = f"{_pct(re_['normal'])} -> {_pct(re_['challenging'])}" if re_ else "-"
+        reattacked = "-"
+        if re_:
+            per_frame = re_.get("per_frame") or {}
+            reattacked = (f"{both_yardsticks(re_['normal'], per_frame.get('normal'))} -> "
+                          f"{both_yardsticks(re_['challenging'], per_frame.get('challenging'))}")
         trained = r.get("trained") or {}
         rows.append([str(int(r["round"])), str((r.get("data") or {}).get("kind", "start weights")),
-                     str(trained.get("steps", "-")), *[_pct(ev.get(s)) for s in sets], reattacked])
+                     str(trained.get("steps", "-")), *[_both(ev.get(s)) for s in sets], reattacked])
     fig, (ax_ap, ax_loss) = plt.subplots(1, 2, figsize=(12, 3.6), dpi=80)
     ks = [int(r["round"]) for r in rounds]
     for s in sets:
@@ -78,19 +82,26 @@ def _harden(folder: Path, img: Callable, table: Callable) -> str:
         ax_loss.text(0.5, 0.5, "no training curve recorded", ha="center", va="center", transform=ax_loss.transAxes)
     fig.tight_layout()
     return (f"<section><h2>{html.escape(folder.name)}: asg harden --fusion {html.escape(str(card.get('fusion')))} "
-            f"({html.escape(str(card.get('data')))} scenes)</h2><p>AP@0.7 (%) a round on the fixed evaluation sets; "
-            f"round 0 is the start weights; re-attacked: normal-val -> the paper's attack against the round's weights.</p>"
+            f"({html.escape(str(card.get('data')))} scenes)</h2><p>AP@0.7 (%) a round on the fixed evaluation sets, "
+            f"ours (one sort across frames) / ranked per frame (the paper's yardstick; '-' where a card predates it); "
+            f"round 0 is the start weights; re-attacked: normal-val -> the paper's attack against the round's weights. "
+            f"The chart shows ours.</p>"
             + table(["round", "data", "steps", *sets, "re-attacked"], rows) + img(fig) + "</section>")
 
 
 def _finetune(folder: Path, img: Callable, table: Callable) -> str:
     name, card = _finetune_card(folder)
-    rows = [[s, str(v.get("frames", "-")), ap_text(v.get("before")), ap_text(v.get("after"))]
+    rows = [[s, str(v.get("frames", "-")), ap_text(v.get("before")), ap_text(v.get("after")),
+             both_yardsticks(v.get("before"), (v.get("per_frame") or {}).get("before")),
+             both_yardsticks(v.get("after"), (v.get("per_frame") or {}).get("after"))]
             for s, v in sorted((card.get("evaluation") or {}).items())]
     re_ = card.get("reattack")
     if re_:
-        rows.append(["re-attacked on normal-val", str(re_.get("frames", "-")), ap_text(re_.get("normal")),
-                     ap_text(re_.get("challenging"))])
+        mine = re_.get("finetuned") or re_  # a harden card keeps "normal" and "challenging" at the top
+        per_frame = mine.get("per_frame") or {}
+        rows.append(["re-attacked on normal-val", str(re_.get("frames", "-")), ap_text(mine.get("normal")),
+                     ap_text(mine.get("challenging")), both_yardsticks(mine.get("normal"), per_frame.get("ap_normal")),
+                     both_yardsticks(mine.get("challenging"), per_frame.get("ap_challenging"))])
     curve = read_loss_curve(folder / LOSS_CURVE)
     chart = ""
     if curve:
@@ -101,8 +112,9 @@ def _finetune(folder: Path, img: Callable, table: Callable) -> str:
         fig.tight_layout()
         chart = img(fig)
     return (f"<section><h2>{html.escape(folder.name)}: asg finetune ({html.escape(name)})</h2>"
-            "<p>AP@0.3 / 0.5 / 0.7 (%) before and after.</p>"
-            + table(["set", "frames", "before", "after"], rows) + chart + "</section>")
+            "<p>AP@0.3 / 0.5 / 0.7 (%) before and after, and AP@0.7 ours / ranked per frame (the paper's "
+            "yardstick; '-' where the card predates it).</p>"
+            + table(["set", "frames", "before", "after", "before @0.7", "after @0.7"], rows) + chart + "</section>")
 
 
 def _finetune_card(folder: Path) -> tuple[str, dict] | None:
@@ -127,5 +139,6 @@ def _num(ap) -> float:
     return 100 * float(ap["0.7"]) if ap else float("nan")
 
 
-def _pct(ap) -> str:
-    return ap_text(ap or None, keys=("0.7",))
+def _both(ap) -> str:
+    """AP@0.7 of an evaluation result, ours / per frame (its "per_frame"), or "-"."""
+    return both_yardsticks(ap, ap.get("per_frame")) if ap else "-"
