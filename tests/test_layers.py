@@ -50,10 +50,12 @@ def _part(module: str) -> str:
     return parts[1] if len(parts) > 1 else "__init__"
 
 
-def _imports(path: Path, packages_read: bool = False) -> set[str]:
-    """The asg modules that ``path`` imports (absolute names), anywhere in the file; with
-    ``packages_read`` also the package a ``from . import x`` reads ``x`` from."""
-    package = path.relative_to(ROOT.parent).with_suffix("").parts[:-1]  # a module's package, or the package itself
+def _imports(path: Path, packages_read: bool = False, packages: tuple[str, ...] = ("asg",)) -> set[str]:
+    """The modules of ``packages`` that ``path`` imports (absolute names), anywhere in the file,
+    also through ``importlib.import_module("name")`` with a literal name; with ``packages_read``
+    also the package a ``from . import x`` reads ``x`` from."""
+    # a module's package, or the package itself (none for a file outside the repository)
+    package = path.relative_to(ROOT.parent).with_suffix("").parts[:-1] if path.is_relative_to(ROOT.parent) else ()
     out = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
@@ -67,7 +69,11 @@ def _imports(path: Path, packages_read: bool = False) -> set[str]:
                     out.add(target)
             elif node.module:
                 out.add(node.module)
-    return {m for m in out if m == "asg" or m.startswith("asg.")}
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "import_module"
+              and node.args and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)
+              and not node.args[0].value.startswith(".")):
+            out.add(node.args[0].value)
+    return {m for m in out if m in packages or m.startswith(tuple(f"{p}." for p in packages))}
 
 
 def _part_of_file(path: Path) -> str:
@@ -97,22 +103,26 @@ def test_the_checker_resolves_relative_imports_inside_functions(tmp_path):
     assert {"asg.io.run_record", "asg.executors", "asg.generator.config"} <= _imports(ROOT / "generator" / "run.py")
 
 
+#: the traffic package asg builds on: it imports nothing of asg
+SUMO_ROOT = ROOT.parent / "sumo_scenarios"
+
+
 def _module_graph() -> dict[str, set[str]]:
-    """{module: the asg modules it imports}, every file of the package; an imported name that is
-    not a module (``from .space import SpaceConfig`` resolved to ``asg.search.space.SpaceConfig``)
-    counts as its module."""
+    """{module: the modules of asg and sumo_scenarios it imports}, every file of both packages; an
+    imported name that is not a module (``from .space import SpaceConfig`` resolved to
+    ``asg.search.space.SpaceConfig``) counts as its module."""
     def name_of(path: Path) -> str:
-        parts = ("asg",) + path.relative_to(ROOT).with_suffix("").parts
+        parts = path.relative_to(ROOT.parent).with_suffix("").parts
         return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
-    modules = {name_of(p): p for p in ROOT.rglob("*.py")}
+    modules = {name_of(p): p for root in (ROOT, SUMO_ROOT) for p in root.rglob("*.py")}
 
     def module_of(name: str) -> str | None:
         while name and name not in modules:
             name = name.rpartition(".")[0]
         return name or None
 
-    return {m: {t for t in map(module_of, _imports(p, packages_read=True)) if t and t != m}
+    return {m: {t for t in map(module_of, _imports(p, True, ("asg", "sumo_scenarios"))) if t and t != m}
             for m, p in modules.items()}
 
 
@@ -145,6 +155,25 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
         if v not in index:
             visit(v)
     return groups
+
+
+def test_sumo_scenarios_never_imports_asg():
+    """sumo_scenarios (SUMO, traffic logs, lanes, the checks every input goes through) sits below
+    every layer of asg."""
+    upward = [f"{p.relative_to(ROOT.parent)} imports {m}" for p in sorted(SUMO_ROOT.rglob("*.py")) for m in _imports(p)]
+    assert not upward, "\n".join(upward)
+
+
+def test_imports_through_importlib_are_checked_too(tmp_path):
+    """A literal ``importlib.import_module("asg.x")`` counts as an import; cli.py imports each
+    command's module by a name in COMMAND_MODULES, and each of those runs on a lower layer."""
+    from asg.cli import COMMAND_MODULES
+
+    probe = tmp_path / "probe.py"
+    probe.write_text('import importlib\nimportlib.import_module("asg.cli")\n')
+    assert _imports(probe) == {"asg.cli"}
+    upward = [module for _, module, _ in COMMAND_MODULES if LAYERS[_part(module)] >= LAYERS["cli"]]
+    assert not upward, upward
 
 
 def test_no_import_cycle_even_inside_a_folder():

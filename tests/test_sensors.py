@@ -164,14 +164,14 @@ def test_culled_render_equals_casting_every_ray(cross_map):
 
 def test_xy_distance_to_triangles():
     """The range cull of each sensor's static view: distance seen from above, 0 inside."""
-    from asg.sensors.world import _xy_distance_to_triangles
+    from asg.sensors.world import xy_distance_to_triangles
 
     tris = np.array([
         [[0, 0, 0], [10, 0, 0], [0, 10, 5]],      # the point (2, 2) lies inside it
         [[20, -5, 0], [20, 5, 0], [20, 5, 8]],    # a wall: a segment x = 20 seen from above
         [[5, 30, 3], [8, 34, 3], [5, 34, 3]],     # a corner nearest: (5, 30)
     ], dtype=float)
-    d = _xy_distance_to_triangles(tris, np.array([2.0, 2.0]))
+    d = xy_distance_to_triangles(tris, np.array([2.0, 2.0]))
     assert d == pytest.approx([0.0, 18.0, math.hypot(3.0, 28.0)])
 
 

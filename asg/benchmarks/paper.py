@@ -36,7 +36,7 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "at
     _refuse_other_scenes(out, scene_dir, [run_dir for run_dir, _, _ in todo])
     pick_scenes(scene_dir, scenes)
     for run_dir, acs, search in todo:
-        _run_config(run_dir, scene_dir, acs, search, scenes, budget, fusion, seed, executor)
+        run_config(run_dir, scene_dir, acs, search, scenes, budget, fusion, seed, executor)
     table = {}
     for run_dir, acs, search in todo:
         agg = json.loads((run_dir / "summary.json").read_text())["aggregate"]
@@ -77,7 +77,7 @@ def pick_scenes(scene_dir: Path, count: int, set_name: str = "normal") -> Path:
     return scene_dir
 
 
-def _run_config(run_dir: Path, scene_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str,
+def run_config(run_dir: Path, scene_dir: Path, acs: str, search: str, scenes: int, budget: int, fusion: str,
                 seed: int, executor: Executor | None = None) -> None:
     """One configuration as an ``asg generate`` run into ``run_dir`` (resumes a partial one)."""
     from ..generator.run import SceneSource, open_run

@@ -274,7 +274,7 @@ class World:
             origin = self._rays(sensor_id).pose.origin
             tris = self._static_tris
             facing = np.einsum("ij,ij->i", self._static_v0 - origin, self._static_normals) < 0.0
-            near = _xy_distance_to_triangles(tris, origin[:2]) <= self.spec.range_m + 1.0
+            near = xy_distance_to_triangles(tris, origin[:2]) <= self.spec.range_m + 1.0
             own = self._static_index.get(sensor_id, -1)
             keep = np.flatnonzero(facing & near & (self._static_owner != own))
             self._view_cache[sensor_id] = _StaticView(
@@ -432,7 +432,7 @@ def _run_on_two_threads(tasks: list) -> None:
             future.result()
 
 
-def _xy_distance_to_triangles(tris: np.ndarray, xy: np.ndarray) -> np.ndarray:
+def xy_distance_to_triangles(tris: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """(F,) horizontal distance (m) from the point ``xy`` (2,) to each triangle (F, 3, 3) seen from
     above: 0 inside its outline, else the distance to its nearest edge (walls seen from above
     are segments, which the edge distance covers)."""

@@ -13,7 +13,7 @@ from asg.benchmarks.lidar import dense_scene
 from asg.scene.neighbours import with_nearest_collaborators
 from asg.sensors import load_lidar_spec
 from asg.sensors.raycast import EmbreeCaster
-from asg.sensors.world import World, _xy_distance_to_triangles
+from asg.sensors.world import World, xy_distance_to_triangles
 
 
 def main(rounds: int) -> None:
@@ -25,7 +25,7 @@ def main(rounds: int) -> None:
         rays = world._rays(sid)
         own = world._static_index.get(sid, -1)
         facing = np.einsum("ij,ij->i", world._static_v0 - rays.pose.origin, world._static_normals) < 0.0
-        near = _xy_distance_to_triangles(world._static_tris, rays.pose.origin[:2]) <= spec.range_m + 1.0
+        near = xy_distance_to_triangles(world._static_tris, rays.pose.origin[:2]) <= spec.range_m + 1.0
         tris = world._static_tris[facing & near & (world._static_owner != own)]
         cand = world._candidates(rays, None if own < 0 else own)
         starts, dirs, far = rays.starts32[cand], rays.dirs32[cand], rays.far32[cand]

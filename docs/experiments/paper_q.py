@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import shapely
 from asg.scene import feasibility, recheck
-from asg.benchmarks.paper import _run_config
+from asg.benchmarks.paper import run_config
 
 feasibility.FeasibilityChecker.on_road = lambda self, agents: np.ones(len(agents), dtype=bool)
 recheck._drivable = lambda scene: shapely.box(-1e7, -1e7, 1e7, 1e7)  # everywhere counts as road
 acs, search = (sys.argv[3], sys.argv[4]) if len(sys.argv) > 4 else ("attention", "bo")
-_run_config(Path(sys.argv[2]), Path(sys.argv[1]), acs, search, 30, 50, "attfuse", 1, threads=2)
+run_config(Path(sys.argv[2]), Path(sys.argv[1]), acs, search, 30, 50, "attfuse", 1)
