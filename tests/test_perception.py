@@ -222,7 +222,7 @@ def test_folding_batch_norms_keeps_the_function(where):
 def test_registry_lists_all_fusions():
     from asg import perception  # noqa: F401
 
-    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper"}
+    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm"}
     with pytest.raises(InputError, match="unknown fusion 'mid'.*attfuse"):
         perception.build_detector("mid")
 
@@ -553,3 +553,70 @@ def test_fcooper_fuses_by_maxout_and_is_single_with_one_agent():
         a = maxfuse([clouds, [clouds[0]]])[0]
         b = maxfuse([[clouds[0], clouds[2], clouds[1]], [clouds[0]]])[0]
     assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_where2comm_sends_the_cells_its_confidence_asks_for():
+    """Where2comm with AttFuse's weights: a threshold of 0 sends every cell (the network is AttFuse);
+    a threshold no confidence reaches sends none (the ego alone: AttFuse on the ego's cloud); in
+    between, what is sent is exactly the cells above the threshold of the collaborator's own
+    smoothed confidence; training sends each collaborator's top K cells, K drawn anew each pass."""
+    from dataclasses import replace
+
+    from asg.perception.fusion.where2comm import Where2CommFuse
+    from asg.perception.model import AttFuse
+
+    torch.manual_seed(0)
+    att = AttFuse(replace(TINY, attfuse_fusion="stage1"))
+    rng = np.random.default_rng(1)
+    clouds = [torch.from_numpy(np.c_[rng.uniform(-15, 15, (400, 2)), rng.uniform(-2, 1, (400, 1)),
+                                     rng.uniform(0, 1, (400, 1))].astype(np.float32)) for _ in range(3)]
+    att.eval()
+
+    def where2comm(threshold: float) -> Where2CommFuse:
+        w = Where2CommFuse(replace(TINY, comm_threshold=threshold))
+        missing = w.load_state_dict(att.state_dict(), strict=False)
+        assert not missing.missing_keys and not missing.unexpected_keys  # AttFuse's parameters, nothing more
+        return w.eval()
+
+    with torch.no_grad():
+        every, none_ = where2comm(0.0), where2comm(0.999)
+        assert torch.allclose(every([clouds])[0], att([clouds])[0], atol=1e-5) and every.last_comm_rate == 1.0
+        assert torch.allclose(none_([clouds])[0], att([clouds[:1]])[0], atol=1e-5) and none_.last_comm_rate == 0.0
+        flat, present = every.agents_of([clouds])
+        first = every.backbone.first_stage(every.encoder.encode(flat))
+        conf = every.confidence(first[1:])  # the collaborators' (2, h*w)
+        middle = float(conf.median())
+        some = where2comm(middle)
+        sent = some.cells_sent(first, present)
+        assert sent[0, 0].all() and torch.equal(sent[0, 1:], conf > middle)
+        assert 0.0 < some.last_comm_rate < 1.0
+    some.train()
+    stats = {k: v.clone() for k, v in some.state_dict().items() if "running" in k}
+    torch.manual_seed(5)
+    rates = []
+    for _ in range(3):
+        some.cells_sent(first, present)
+        rates.append(some.last_comm_rate)
+    torch.manual_seed(5)
+    some.cells_sent(first, present)
+    assert some.last_comm_rate == rates[0] and len(set(rates)) == 3  # the same seed, the same draw
+    # the single-agent confidence pass leaves batch norm's running statistics alone, also in training
+    assert all(torch.equal(v, some.state_dict()[k]) for k, v in stats.items()) and some.training
+
+
+def test_a_model_starts_from_another_models_weights_whole(tmp_path):
+    """``asg train --init-from attfuse`` for Where2comm: AttFuse's tensors all copied, its attention
+    kept (start_from_base, which resets attention, only runs when something is missing)."""
+    from asg.perception.fusion.where2comm import Where2CommFuse
+    from asg.perception.model import AttFuse
+    from asg.training.loop import init_from_weights
+
+    from dataclasses import replace
+
+    cfg = replace(TINY, attfuse_fusion="stage1")
+    torch.manual_seed(0)
+    att = AttFuse(cfg)
+    torch.save(att.state_dict(), tmp_path / "attfuse.pt")
+    w = Where2CommFuse(cfg)
+    init_from_weights(w, tmp_path / "attfuse.pt", AttFuse(cfg))
+    assert all(torch.equal(v, att.state_dict()[k]) for k, v in w.state_dict().items())

@@ -41,18 +41,17 @@ def scenes(tmp_path):
 def test_shipped_and_plugin_detectors_are_listed(installed):
     from asg.perception.plugins import plugin_names
 
-    shipped = {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper"}
+    shipped = {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm"}
     assert shipped <= set(plugin_names())  # the shipped models register through the same entry point group
     assert shipped | {"toy"} <= set(detector_names())
 
 
 def test_every_shipped_model_is_registered_in_each_place_it_needs():
     """A shipped model is its module in asg/perception/fusion/ (imported by the package without an
-    import line), its entry point and, unless its weights are a fine-tuning of another model's
-    (their card names the ``start``), its train.yaml block; this names what is missing."""
+    import line), its entry point and, unless its weights fine-tune another model's
+    (``fine_tuned_from``), its train.yaml block; this names what is missing."""
     import tomllib
 
-    from asg.perception.fusion import weights_names
     from asg.registry import lookup, names
     from asg.training.config import load_train_config
 
@@ -61,10 +60,8 @@ def test_every_shipped_model_is_registered_in_each_place_it_needs():
     for fusion in names("fusion"):
         cls = lookup("fusion", fusion)
         assert entry_points.get(fusion) == f"{cls.__module__}:{cls.__qualname__}", fusion
-    weights_dir = Path(__file__).parent.parent / "asg" / "perception" / "weights"
-    for weights in weights_names():
-        if "start" not in json.loads((weights_dir / f"{weights}.json").read_text()):
-            assert load_train_config(weights).steps > 0, weights
+        if not cls.fine_tuned_from:
+            assert load_train_config(cls.weights).steps > 0, fusion
 
 
 def test_a_plugin_is_evaluated_and_attacked_by_name(capsys, installed, scenes, tmp_path):

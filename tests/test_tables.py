@@ -175,3 +175,23 @@ def test_per_frame_harden_rows_from_a_card_before_the_yardstick_are_refused(tmp_
     assert len(harden_rows(run)) == 3  # a row for each kind of data
     with pytest.raises(InputError, match="before asg harden recorded the paper's yardstick"):
         harden_rows(replace(run, ap_method="per-frame"))
+
+
+def test_models_pick_the_rows_of_the_model_tables(capsys, tmp_path, data_root):
+    """``--models``: Table I's rows are those models, in that order; one the paper lacks has no
+    paper figures (empty cells in the markdown), one it has keeps them."""
+    out = tmp_path / "tables"
+    argv = ["bench", "paper", "--table", "main", "--models", "fcooper,attfuse", "--scenes", "2",
+            "--detector", "fakes:oracle_factory", "--workers", "1", "--out", str(out), "--json"]
+    assert main(argv) == 0
+    rows = json.loads((out / "main.json").read_text())["rows"]
+    assert [r["model"] for r in rows] == ["fcooper", "attfuse"]
+    assert rows[0]["paper"] is None and rows[1]["paper"]["challenging"]["0.7"] == 0.405
+    assert "| fcooper |" in (out / "main.md").read_text()
+
+
+@pytest.mark.parametrize("models", ["nope", "attfuse,attfuse", ","])
+def test_bad_models_are_one_line(capsys, tmp_path, models):
+    code, err = run(capsys, "bench", "paper", "--table", "main", "--models", models, "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "--models")

@@ -11,8 +11,13 @@ from ..scene.neighbours import with_nearest_collaborators
 from ..sensors import load_lidar_spec, simulate_frame
 
 
-#: a row per shipped network (attfuse-ft runs AttFuse's network)
-MODELS = ("none", "late", "early", "attfuse", "fcooper")
+def models() -> list[str]:
+    """A row per shipped model with a network of its own: every registered fusion but the
+    fine-tuned twins (attfuse-ft runs AttFuse's network, at AttFuse's cost)."""
+    from ..perception.fusion import shipped_model
+    from ..registry import names
+
+    return [n for n in names("fusion") if not shipped_model(n).fine_tuned_from]
 
 
 def bench_detect(frames: int = 10, repeats: int = 3) -> dict:
@@ -24,7 +29,7 @@ def bench_detect(frames: int = 10, repeats: int = 3) -> dict:
     coop = [simulate_frame(s, spec) for s in scenes]
     out = {"frames": len(coop), "agents_per_frame": round(statistics.mean(len(f.sensing_ids) for f in coop), 2),
            "threads": torch.get_num_threads()}
-    for name in MODELS:
+    for name in models():
         det = build_detector(name)
         det.detect(coop[0])  # warm-up
         times = []

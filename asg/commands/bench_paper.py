@@ -29,6 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     fusion_arg(p, "targets table only (default attfuse)")
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="tables: a factory standing in for every model (as 'asg generate --detector')")
+    p.add_argument("--models", default=None, metavar="NAME[,NAME]",
+                   help="main, transfer and acs tables: the shipped models with a row (default the paper's four: "
+                        "none, late, early, attfuse)")
     p.add_argument("--harden-rounds", type=whole(1, MAX_ROUNDS, "--harden-rounds"), default=None,
                    help="finetune table: also this many rounds of 'asg harden --fusion attfuse' with adversarial, "
                         "random and normal scenes (the controls), a row a round (OUT/harden/DATA, resumable)")
@@ -65,6 +68,7 @@ def _tables(args: argparse.Namespace) -> int:
     from ..benchmarks.tables import TableRun, run_tables
 
     names = _table_names(args)
+    models = _models(args.models)
     if args.budget is not None or args.fusion is not None:
         raise InputError("--budget and --fusion apply to the targets table; the paper's tables use "
                          "configs/generate.yaml and every model")
@@ -77,7 +81,8 @@ def _tables(args: argparse.Namespace) -> int:
     with executor_from_args(args, args.scenes or 10**6) as executor:
         results = run_tables(names, TableRun(out=Path(args.out), scenes=args.scenes, executor=executor,
                                              detector_factory=args.detector, command=command,
-                                             harden_rounds=args.harden_rounds or 0), log=console.print,
+                                             harden_rounds=args.harden_rounds or 0, models=models),
+                             log=console.print,
                              ap_methods=methods)
     for stem, result in results.items():
         if args.json:
@@ -88,14 +93,31 @@ def _tables(args: argparse.Namespace) -> int:
     return 0
 
 
+def _models(text: str | None) -> tuple[str, ...]:
+    """``--models``: shipped model names, comma-separated (default the paper's four); one line for
+    an unknown or repeated name."""
+    from ..benchmarks.tables import MODELS
+    from ..perception import fusion  # noqa: F401  (fills the registry)
+    from ..registry import names as registered
+
+    if text is None:
+        return MODELS
+    models = tuple(m.strip() for m in text.split(",") if m.strip())
+    shipped = registered("fusion")
+    unknown = [m for m in models if m not in shipped]
+    if not models or unknown or len(set(models)) != len(models):
+        raise InputError(f"--models takes distinct shipped models ({', '.join(shipped)}), got {text!r}")
+    return models
+
+
 def _targets(args: argparse.Namespace) -> int:
     """The generator's targets table: AttFuse (or --fusion) under each search on normal scenes."""
     from ..benchmarks.paper import bench_paper
     from ..generator.config import GenerateConfig
     from ..generator.run_folder import after_acs_ap
 
-    if args.detector:
-        raise InputError("--detector applies to --table runs; the targets table attacks the shipped --fusion")
+    if args.detector or args.models:
+        raise InputError("--detector and --models apply to --table runs; the targets table attacks the shipped --fusion")
     if args.ap_method == "both":
         raise InputError("--ap-method both applies to --table runs; the targets table takes global or per-frame")
     scenes = args.scenes or 30

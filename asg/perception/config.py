@@ -62,6 +62,9 @@ class DetectorConfig:
     #: IoU ** point_stage_rescore; off: the detector's boxes as they are (faster)
     point_stage: bool = True
     point_stage_rescore: float = 0.5
+    #: Where2comm (asg/perception/fusion/where2comm.py): a collaborator sends the BEV cells whose
+    #: smoothed confidence exceeds this (Where2comm's ``thre``); 0 sends every cell
+    comm_threshold: float = 0.01
 
     def __post_init__(self) -> None:
         checks = [("range_m", self.range_m > 0), ("pillar_m", self.pillar_m > 0),
@@ -71,7 +74,8 @@ class DetectorConfig:
                   ("iou_patch", self.iou_patch >= 1 and self.iou_patch % 2 == 1),
                   ("max_detections", self.max_detections >= 1),
                   ("attfuse_fusion", self.attfuse_fusion in ATTFUSE_FUSIONS),
-                  ("point_stage_rescore", 0 <= self.point_stage_rescore <= 1)]
+                  ("point_stage_rescore", 0 <= self.point_stage_rescore <= 1),
+                  ("comm_threshold", 0 <= self.comm_threshold < 1)]
         for name, ok in checks:
             if not ok:
                 raise InputError(f"detector config: {name} = {getattr(self, name)!r} is out of range; "

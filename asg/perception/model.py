@@ -64,15 +64,16 @@ class ScaledDotAttention(nn.Module):
         self.scale = 1.0 / math.sqrt(channels)
 
     def forward(self, feats: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """feats (B, N, C, H, W), mask (B, N) of present agents (the ego, index 0, always) → fused
-        ego features (B, C, H, W) (channels-last memory) and the ego row of attention (B, N, H, W).
+        """feats (B, N, C, H, W), mask (B, N) of present agents (the ego, index 0, always), or
+        (B, N, H*W) of the cells each agent contributes (Where2comm's; the ego's all) → fused ego
+        features (B, C, H, W) (channels-last memory) and the ego row of attention (B, N, H, W).
         Works cell-major: with channels-last ``feats`` (what the backbone gives) no copy is made."""
         b, n, c, h, w = feats.shape
         x = feats.permute(0, 1, 3, 4, 2).reshape(b, n, h * w, c)  # (B, N, HW, C)
         q = torch.addmm(self.q.bias, x[:, 0].reshape(-1, c), self.q.weight.t())  # (B*HW, C)
         qk = torch.matmul(q, self.k.weight).view(b, 1, h * w, c)  # rows: W_k^T q
         logits = (x * qk).sum(dim=3) * self.scale  # (B, N, HW)
-        logits = logits.masked_fill(~mask[:, :, None], float("-inf"))
+        logits = logits.masked_fill(~(mask if mask.dim() == 3 else mask[:, :, None]), float("-inf"))
         a = torch.softmax(logits, dim=1)
         ctx = (x * a[..., None]).sum(dim=1)  # (B, HW, C)
         out = torch.addmm(self.v.bias, ctx.view(-1, c), self.v.weight.t())  # (B*HW, C)
@@ -131,8 +132,10 @@ class AttFuse(nn.Module):
             att.v.bias.zero_()
             att.k.weight.mul_(0.1)
 
-    def forward(self, agent_clouds: list[list[torch.Tensor]]):
-        """``agent_clouds[b]`` lists sample b's clouds, ego first (at most 5 agents)."""
+    @staticmethod
+    def agents_of(agent_clouds: list[list[torch.Tensor]]) -> tuple[list[torch.Tensor], torch.Tensor]:
+        """The batch's clouds flat, B x N (sample by sample, ego first; an absent agent an empty
+        cloud), and the mask (B, N) of the agents present."""
         n = max(len(c) for c in agent_clouds)
         flat, mask = [], torch.zeros(len(agent_clouds), n, dtype=torch.bool)
         empty = torch.zeros(0, 4)
@@ -140,8 +143,13 @@ class AttFuse(nn.Module):
             for j in range(n):
                 flat.append(clouds[j] if j < len(clouds) else empty)
                 mask[b, j] = j < len(clouds)
+        return flat, mask
+
+    def forward(self, agent_clouds: list[list[torch.Tensor]]):
+        """``agent_clouds[b]`` lists sample b's clouds, ego first (at most 5 agents)."""
+        flat, mask = self.agents_of(agent_clouds)
         pillars = self.encoder.encode(flat)
-        per_sample = lambda f: f.view(len(agent_clouds), n, *f.shape[1:])
+        per_sample = lambda f: f.view(*mask.shape, *f.shape[1:])
         backbone = self.backbone
         if self.placement == "pillars":
             canvas, att = self.fusion(per_sample(pillars.canvas()), mask)

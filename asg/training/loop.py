@@ -175,21 +175,25 @@ def run_steps(model: torch.nn.Module, opt, sched, batches, rng: np.random.Genera
     return wall_s + time.perf_counter() - started
 
 
-def init_from_weights(model: torch.nn.Module, path: Path) -> None:
-    """Load a PointPillars state_dict (e.g. the single-agent weights) into ``model``.
+def init_from_weights(model: torch.nn.Module, path: Path, source: torch.nn.Module | None = None) -> None:
+    """Start ``model`` from the weights ``path`` of another network: ``source``, a fresh network of
+    the model those weights belong to (default PointPillars, e.g. the single-agent weights).
 
-    Every tensor must match; only the parts ``model`` adds to PointPillars (``parts_beyond_base``,
-    e.g. AttFuse's attention) may be missing, and ``model.start_from_base()`` initialises them.
+    Every tensor the two share is copied (what only ``source`` has, say AttFuse's attention for
+    F-Cooper, is left out); what only ``model`` has must be among the parts it adds to PointPillars
+    (``parts_beyond_base``, e.g. AttFuse's attention), and then ``model.start_from_base()``
+    initialises them. Where2comm starts from AttFuse's weights whole, attention included.
     """
     from ..perception.weights_io import load_state
 
-    base = PointPillars(model.cfg)
-    load_state(base, path, allow_missing=BRANCH_KEYS)  # one clear error for a missing, corrupt or mismatched file
-    missing = model.load_state_dict(base.state_dict(), strict=False).missing_keys
+    source = source if source is not None else PointPillars(model.cfg)
+    load_state(source, path, allow_missing=BRANCH_KEYS)  # one clear error for a missing, corrupt or mismatched file
+    missing = model.load_state_dict(source.state_dict(), strict=False).missing_keys
     beyond = tuple(getattr(model, "parts_beyond_base", ()))
     if any(not k.startswith(beyond) for k in missing):
         raise InputError(f"{path}: weights do not match this model (missing {next(k for k in missing if not k.startswith(beyond))})")
-    model.start_from_base()
+    if missing:
+        model.start_from_base()
 
 
 def branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.Tensor, labels: torch.Tensor,

@@ -78,7 +78,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     sched = make_scheduler(opt, tcfg, total)
     step, wall = 0, 0.0
     if init_from:
-        init_from_weights(model, weights_dir / f"{init_from}.pt")
+        init_from_weights(model, weights_dir / f"{init_from}.pt", build_network(init_from, cfg))
         model.train()
         log(f"starting {name} from the {init_from} weights ({previous['init_from']['steps']} steps)")
     elif previous.get("chunks") and state is None:

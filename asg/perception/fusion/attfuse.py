@@ -52,3 +52,4 @@ class AttFuseFinetunedDetector(AttFuseDetector):
     on, how, and its AP before and after are in its card, asg/perception/weights/attfuse-ft.json."""
 
     weights = "attfuse-ft"
+    fine_tuned_from = "attfuse"

@@ -40,6 +40,9 @@ class V2XDetector(ABC):
     #: how training feeds the network (asg.perception.feeds): the examples of a frame, and how a
     #: batch of them enters the network; None for a detector asg does not train (a plugin)
     feed: "Feed | None" = None
+    #: the shipped model whose network and weights these weights fine-tune ("" for a model trained
+    #: by ``asg train``, with its block in train.yaml)
+    fine_tuned_from: str = ""
 
     def __init__(self, cfg: DetectorConfig | None = None, weights_file: str | None = None, load: bool = True):
         self.cfg = cfg or self.detector_config()
