@@ -222,7 +222,7 @@ def test_folding_batch_norms_keeps_the_function(where):
 def test_registry_lists_all_fusions():
     from asg import perception  # noqa: F401
 
-    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm"}
+    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit"}
     with pytest.raises(InputError, match="unknown fusion 'mid'.*attfuse"):
         perception.build_detector("mid")
 
@@ -620,3 +620,87 @@ def test_a_model_starts_from_another_models_weights_whole(tmp_path):
     w = Where2CommFuse(cfg)
     init_from_weights(w, tmp_path / "attfuse.pt", AttFuse(cfg))
     assert all(torch.equal(v, att.state_dict()[k]) for k, v in w.state_dict().items())
+
+
+def _random_clouds(seed: int, n: int = 3) -> list[torch.Tensor]:
+    rng = np.random.default_rng(seed)
+    return [torch.from_numpy(np.c_[rng.uniform(-15, 15, (400, 2)), rng.uniform(-2, 1, (400, 1)),
+                                   rng.uniform(0, 1, (400, 1))].astype(np.float32)) for _ in range(n)]
+
+
+def test_v2xvit_starts_as_attfuse_and_then_tells_rsus_from_vehicles(tmp_path):
+    """``asg train --fusion v2xvit --init-from attfuse``: AttFuse's tensors copied, the rest started so
+    that the network computes AttFuse's function exactly, whatever the agents' kinds; once the RSU
+    projections differ, an RSU collaborator's features are read through them (a vehicle's are not)."""
+    from asg.perception.feeds import KindedClouds
+    from asg.perception.fusion.v2xvit import V2XViTFuse
+    from asg.training.loop import init_from_weights
+
+    cfg = replace(TINY, attfuse_fusion="stage1")
+    torch.manual_seed(0)
+    att = AttFuse(cfg).eval()
+    torch.save(att.state_dict(), tmp_path / "attfuse.pt")
+    vit = V2XViTFuse(cfg)
+    init_from_weights(vit, tmp_path / "attfuse.pt", AttFuse(cfg))
+    vit.eval()
+    clouds = _random_clouds(1)
+    with torch.no_grad():
+        expected, expected_att = att([clouds])[0], att.last_attention
+        for rsu in [(False, False, False), (True, False, True), (False, True, True)]:
+            assert torch.allclose(vit([KindedClouds(clouds, rsu)])[0], expected, atol=1e-5), rsu
+            assert torch.allclose(vit.last_attention, expected_att, atol=1e-6)
+        torch.nn.init.normal_(vit.fusion.k_rsu.weight)
+        torch.nn.init.normal_(vit.fusion.v_rsu.weight)
+        assert torch.allclose(vit([KindedClouds(clouds, (False, False, False))])[0], expected, atol=1e-5)
+        assert not torch.allclose(vit([KindedClouds(clouds, (False, True, False))])[0], expected, atol=1e-3)
+
+
+def test_v2xvit_window_attention_stays_inside_its_windows():
+    """MSwin with one window size: changing one cell's features changes the output of the cells of
+    its window only; on a map that is no whole number of windows the padding is never attended to
+    (a window cut by the map's edge gives what the same cells give on a map cut there)."""
+    from asg.perception.fusion.v2xvit import MultiScaleWindowAttention
+
+    torch.manual_seed(0)
+    mswin = MultiScaleWindowAttention(8, windows=(4,)).eval()
+    torch.nn.init.normal_(mswin.proj.weight)
+    torch.nn.init.normal_(mswin.bias[0])
+    fmap = torch.randn(1, 8, 12, 12)
+    touched = fmap.clone()
+    touched[0, :, 5, 6] += 3.0  # window rows 4-7, columns 4-7
+    with torch.no_grad():
+        changed = (mswin(touched) - mswin(fmap)).abs().amax(dim=1)[0] > 1e-6
+        inside = torch.zeros(12, 12, dtype=torch.bool)
+        inside[4:8, 4:8] = True
+        assert changed[inside].any() and not changed[~inside].any()
+        cut = mswin(fmap[:, :, :10, :10])  # the last row and column of windows cut to 2 cells
+        assert torch.isfinite(cut).all()
+        corner = MultiScaleWindowAttention(8, windows=(4,)).eval()
+        corner.load_state_dict(mswin.state_dict())
+        assert torch.allclose(cut[:, :, 8:, 8:], corner(fmap[:, :, 8:10, 8:10]), atol=1e-5)
+
+
+def test_kinded_agent_clouds_give_each_cloud_its_agents_kind(cross_map):
+    """The V2X-ViT feed: per detecting agent, the kinds of its clouds in their order (its own first),
+    the same clouds and labels as the plain agent-clouds feed; the network input says which are RSUs."""
+    from asg.perception.data import Sample
+    from asg.perception.feeds import AGENT_CLOUDS, KINDED_AGENT_CLOUDS
+    from asg.sensors import simulate_frame
+    from asg.sensors.lidar_spec import LidarSpec
+
+    spec = LidarSpec(name="t", channels=8, points_per_s=8 * 90 * 10, rotation_hz=10.0)
+    scene = make_scene(cross_map, [rsu("r", 8.0, 8.0), car("a", -10.0, -1.6), car("b", 15.0, 1.6, np.pi)],
+                       collaborators=["a"])
+    sample = Sample(scene.scene_id, simulate_frame(scene, spec))
+    assert sample.frame.agent_kinds == {"r": "rsu", "a": "vehicle"}
+    kinded = KINDED_AGENT_CLOUDS.examples(sample, "all")
+    plain = AGENT_CLOUDS.examples(sample, "all")
+    assert [e.kinds for e in kinded] == [("rsu", "vehicle"), ("vehicle", "rsu")]
+    for k, p in zip(kinded, plain):
+        assert all(np.array_equal(a, b) for a, b in zip(k.clouds, p.clouds)) and np.array_equal(k.boxes, p.boxes)
+    assert KINDED_AGENT_CLOUDS.examples(sample, "ego")[0].kinds == ("rsu", "vehicle")
+    tensors = [[torch.from_numpy(c) for c in e.clouds] for e in kinded]
+    batch = KINDED_AGENT_CLOUDS.network_input(tensors, [e.kinds for e in kinded])
+    assert [b.rsu for b in batch] == [(True, False), (False, True)]
+    with pytest.raises(ValueError):
+        KINDED_AGENT_CLOUDS.network_input(tensors, [])

@@ -2,20 +2,35 @@
 forward pass. A shipped detector declares its feed (``V2XDetector.feed``); training, fine-tuning,
 hardening and the branch fit read it and never ask which model they have.
 
-An example is ``(clouds, boxes)``: the clouds the detecting agent's network is given, each (N, 4)
-float32 x, y, z, intensity in that agent's sensor frame, and its labels, boxes (M, 7) x, y, z, l,
-w, h, yaw in the same frame (metres, radians).
+An example (:class:`Example`) is the clouds the detecting agent's network is given, each (N, 4)
+float32 x, y, z, intensity in that agent's sensor frame, its labels, boxes (M, 7) x, y, z, l, w, h,
+yaw in the same frame (metres, radians), and, for the feeds that need it, the kind of each cloud's
+agent.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 import torch
 
 from .data import Sample
 
-Example = tuple[list[np.ndarray], np.ndarray]
+
+class Example(NamedTuple):
+    clouds: list[np.ndarray]
+    boxes: np.ndarray
+    #: the kind ("vehicle" or "rsu") of each cloud's agent, in the clouds' order; empty for the
+    #: feeds whose networks do not read it
+    kinds: tuple[str, ...] = ()
+
+
+class KindedClouds(NamedTuple):
+    """One sample as V2X-ViT's network takes it: every agent's cloud tensor (N_i, 4) in the
+    detecting agent's frame (its own first) and, per cloud, whether its agent is an RSU."""
+
+    clouds: list[torch.Tensor]
+    rsu: tuple[bool, ...]
 
 
 class Feed:
@@ -29,8 +44,9 @@ class Feed:
         "all" (each sensing agent's view in turn), for feeds that fuse agents."""
         raise NotImplementedError
 
-    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]]) -> list:
-        """A batch's clouds (per example, the list of its clouds' tensors) as the network takes them."""
+    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = ()) -> list:
+        """A batch's clouds (per example, the list of its clouds' tensors; ``kinds``: per example,
+        its :attr:`Example.kinds`) as the network takes them."""
         return [c[0] for c in clouds]
 
 
@@ -42,7 +58,7 @@ class OwnCloud(Feed):
     name = "own-cloud"
 
     def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
-        return [([cloud], boxes) for cloud, boxes in sample.own_views()]
+        return [Example([cloud], boxes) for cloud, boxes in sample.own_views()]
 
 
 class FusedCloud(Feed):
@@ -52,7 +68,7 @@ class FusedCloud(Feed):
     name = "fused-cloud"
 
     def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
-        return [([np.vstack(clouds)], boxes) for clouds, boxes in sample.fused_views(views)]
+        return [Example([np.vstack(clouds)], boxes) for clouds, boxes in sample.fused_views(views)]
 
 
 class AgentClouds(Feed):
@@ -62,10 +78,28 @@ class AgentClouds(Feed):
     name = "agent-clouds"
 
     def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
-        return sample.fused_views(views)
+        return [Example(clouds, boxes) for clouds, boxes in sample.fused_views(views)]
 
-    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]]) -> list:
+    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = ()) -> list:
         return [list(c) for c in clouds]
 
 
-OWN_CLOUD, FUSED_CLOUD, AGENT_CLOUDS = OwnCloud(), FusedCloud(), AgentClouds()
+class KindedAgentClouds(AgentClouds):
+    """:class:`AgentClouds` with each cloud's agent kind (vehicle or RSU), for the networks that
+    treat the two apart (V2X-ViT); the network takes a :class:`KindedClouds` per example."""
+
+    name = "kinded-agent-clouds"
+
+    def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
+        frame = sample.frame
+        detecting = [frame.ego_id] if views == "ego" else list(frame.sensing_ids)
+        return [Example(clouds, boxes, frame.kinds_in_frame_of(a))
+                for a, (clouds, boxes) in zip(detecting, sample.fused_views(views))]
+
+    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = ()) -> list:
+        if len(kinds) != len(clouds):
+            raise ValueError(f"{self.name}: {len(clouds)} examples but {len(kinds)} lists of agent kinds")
+        return [KindedClouds(list(c), tuple(k == "rsu" for k in ks)) for c, ks in zip(clouds, kinds)]
+
+
+OWN_CLOUD, FUSED_CLOUD, AGENT_CLOUDS, KINDED_AGENT_CLOUDS = OwnCloud(), FusedCloud(), AgentClouds(), KindedAgentClouds()

@@ -8,7 +8,7 @@ yaw with (x, y, z) the box centre; ``boxes_in(agent)`` gives them in that agent'
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -33,6 +33,8 @@ class CooperativeFrame:
     gt_boxes_world: np.ndarray
     #: the ego's own box if the ego is a vehicle (collaborators should detect it), else None
     ego_box_world: np.ndarray | None = None
+    #: each sensing agent's kind, "vehicle" or "rsu" (an agent not listed counts as a vehicle)
+    agent_kinds: Mapping[str, str] = field(default_factory=dict)
 
     def boxes_in(self, agent_id: str) -> np.ndarray:
         """Ground-truth boxes (M, 7) in ``agent_id``'s sensor frame."""
@@ -51,6 +53,11 @@ class CooperativeFrame:
         first (untouched), then the others in sensing order (for the ego: sensing order)."""
         others = [a for a in self.sensing_ids if a != frame_of]
         return [self.clouds[frame_of]] + [self.cloud_in(a, frame_of) for a in others]
+
+    def kinds_in_frame_of(self, frame_of: str) -> tuple[str, ...]:
+        """The kind ("vehicle" or "rsu") of each cloud :meth:`clouds_in_frame_of` gives, in its order."""
+        others = [a for a in self.sensing_ids if a != frame_of]
+        return tuple(self.agent_kinds.get(a, "vehicle") for a in [frame_of] + others)
 
     def points_in_boxes(self) -> dict[str, np.ndarray]:
         """Points inside each ground-truth box, per sensing agent and ``"fused"`` (their sum): (M,) int."""
@@ -135,8 +142,9 @@ def render_frame(world: World, sensing_ids: Sequence[str] | None = None, moved: 
     clouds = world.render_many(ids, moved, seed)
     gt_ids, gt = ground_truth(scene, moved)
     ego_box = scene.ego.box7() if scene.ego.is_vehicle else None
+    kinds = {a.agent_id: a.kind for a in scene.agents if a.agent_id in ids}
     frame = CooperativeFrame(scene.scene_id, scene.ego_id, ids, {a: world.sensor_pose(a) for a in ids}, clouds, gt_ids,
-                             gt, ego_box)
+                             gt, ego_box, kinds)
     if not scene.link:
         return frame
     return apply_link(frame, scene.link, lambda aid, state: delayed_view(scene, aid, state, world.spec, seed))

@@ -129,19 +129,21 @@ def view_candidates(model: nn.Module, sample: list | torch.Tensor, min_score: fl
 
 def collect(model: nn.Module, feed: Feed, items: list, fcfg: BranchFitConfig,
             progress: Callable[[int, int], None] | None = None) -> Candidates:
-    """Run the frozen ``model`` over ``items`` (per view: (clouds, gt boxes (M, 7)), the clouds
-    given to the network as ``feed`` says) ``fcfg.passes`` times."""
+    """Run the frozen ``model`` over ``items`` (per view, an asg.perception.feeds.Example: its clouds
+    given to the network as ``feed`` says, its boxes (M, 7) the ground truth) ``fcfg.passes`` times."""
     model = fold_batch_norms(copy.deepcopy(model).eval())  # the caller's model keeps its layers
     rng = np.random.default_rng([fcfg.seed, 1])
     parts: dict[str, list] = {"features": [], "slot": [], "boxes": [], "view": []}
     gts, view = [], 0
     total = fcfg.passes * len(items)
     for p in range(fcfg.passes):
-        for clouds, gt in items:
+        for example in items:
+            clouds, gt = example.clouds, example.boxes
             if p:
                 clouds, gt = augment(clouds, gt, rng)
             tensors = [torch.from_numpy(c) for c in clouds]
-            features, slot, _, boxes = view_candidates(model, feed.network_input([tensors])[0], fcfg.min_score, fcfg.top_k)
+            sample = feed.network_input([tensors], [example.kinds])[0]
+            features, slot, _, boxes = view_candidates(model, sample, fcfg.min_score, fcfg.top_k)
             parts["features"].append(features)
             parts["slot"].append(slot.astype(np.int16))
             parts["boxes"].append(boxes)

@@ -57,12 +57,14 @@ class Batches:
 
 def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray, cfg, feed: Feed,
                   timer: "PhaseTimer | None" = None, augmentation: Augmentation = Augmentation()):
-    """A batch of (clouds, boxes) examples, each transformed by a draw of ``augmentation`` from
+    """A batch of examples (asg.perception.feeds.Example), each transformed by a draw of ``augmentation`` from
     ``rng``, the clouds given to the network as ``feed`` says: see :meth:`Batches.draw`.
     ``timer``: where the augmentation ("draw") and the target assignment ("targets") are timed."""
     timer = timer or PhaseTimer(enabled=False)
-    clouds, labels, targets, dirs, gt = [], [], [], [], []
-    for cl, boxes in examples:
+    clouds, kinds, labels, targets, dirs, gt = [], [], [], [], [], []
+    for example in examples:
+        cl, boxes = example.clouds, example.boxes
+        kinds.append(example.kinds)
         with timer.phase("draw"):
             cl, boxes = augment(cl, boxes, rng, augmentation)
         with timer.phase("targets"):
@@ -72,7 +74,7 @@ def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray,
         targets.append(res)
         dirs.append(d)
         gt.append(boxes)
-    return (feed.network_input(clouds), torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
+    return (feed.network_input(clouds, kinds), torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
             torch.from_numpy(np.stack(dirs)), gt)
 
 

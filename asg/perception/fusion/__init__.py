@@ -1,5 +1,6 @@
-"""Fusion methods, registered by name: none, late, early, attfuse, attfuse-ft, fcooper; and any detector
-plugin of the ``asg.detectors`` entry point group (see asg.perception.plugins)."""
+"""Fusion methods, registered by name (one module of this package each: none, late, early, attfuse,
+attfuse-ft, fcooper, where2comm, v2xvit); and any detector plugin of the ``asg.detectors`` entry
+point group (see asg.perception.plugins)."""
 import importlib
 import pkgutil
 from pathlib import Path

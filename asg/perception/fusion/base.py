@@ -113,8 +113,12 @@ class AgentCloudsDetector(V2XDetector):
     def _clouds(self, frame: CooperativeFrame) -> list[torch.Tensor]:
         return [torch.from_numpy(c) for c in frame.clouds_in_frame_of(frame.ego_id)]
 
+    def _sample(self, frame: CooperativeFrame, clouds: list[torch.Tensor]):
+        """The frame as the network takes one sample, made by the detector's feed as in training."""
+        return self.feed.network_input([clouds], [frame.kinds_in_frame_of(frame.ego_id)])[0]
+
     @torch.no_grad()
     def detect(self, frame: CooperativeFrame) -> Detections:
         clouds = self._clouds(frame)
-        boxes, scores = postprocess(self.model([clouds]), self.model, self.cfg)[0]
+        boxes, scores = postprocess(self.model([self._sample(frame, clouds)]), self.model, self.cfg)[0]
         return self._clip(*self.refined(boxes, scores, torch.cat(clouds).numpy()))
