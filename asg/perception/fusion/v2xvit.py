@@ -7,7 +7,7 @@ as in AttFuse. Then, per BEV cell, V2X-ViT's heterogeneous multi-agent self-atte
 or RSU), the attention and the message each pass through a matrix of the edge's kinds (ego kind,
 agent kind), and the result through a dense layer of the ego's kind. Then V2X-ViT's multi-scale
 window attention (MSwin, :class:`MultiScaleWindowAttention`) on the fused map: self-attention
-within windows of 4, 8 and 16 cells (2, 4 and 8 m), one head per size with a relative-position
+within windows of 4, 8 and 16 cells (4, 8 and 16 m), one head per size with a relative-position
 bias, the sizes' outputs projected together and added to the map. The rest of the backbone and the
 head run on the result. The kinds come with the frame (``CooperativeFrame.agent_kinds``); training
 feeds them through :data:`asg.perception.feeds.KINDED_AGENT_CLOUDS`.
