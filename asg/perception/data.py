@@ -65,6 +65,12 @@ class Sample:
             out.append((f.clouds[a], b[in_range(b) & (n >= min_points)]))
         return out
 
+    def detecting_agents(self, detecting: str = "ego") -> list[str]:
+        """The detecting agent of each view :meth:`fused_views` gives, in its order."""
+        if detecting not in ("ego", "all"):
+            raise ValueError(f"detecting must be 'ego' or 'all', not {detecting!r}")
+        return [self.frame.ego_id] if detecting == "ego" else list(self.frame.sensing_ids)
+
     def fused_views(self, detecting: str = "ego", min_points: int = 1) -> list[tuple[list[np.ndarray], np.ndarray]]:
         """Training views for the fusion models: per detecting agent, (every sensing agent's cloud
         in its frame, its own first; the boxes in its frame in range with ``min_points`` fused
@@ -72,12 +78,11 @@ class Sample:
         in turn: the same frame seen from 3 centres, 3 times the distinct examples). A detecting
         agent's own body is never a label (the ego's is not at inference either)."""
         f = self.frame
-        if detecting not in ("ego", "all"):
-            raise ValueError(f"detecting must be 'ego' or 'all', not {detecting!r}")
+        agents = self.detecting_agents(detecting)
         if detecting == "ego":
             return [(self.clouds_in_ego(), self.gt_visible_ego(min_points))]
         out = []
-        for a in f.sensing_ids:
+        for a in agents:
             clouds = f.clouds_in_frame_of(a)
             boxes = f.boxes_in(a)
             if a != f.ego_id:  # its own body out, the ego vehicle in

@@ -91,10 +91,8 @@ class KindedAgentClouds(AgentClouds):
     name = "kinded-agent-clouds"
 
     def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
-        frame = sample.frame
-        detecting = [frame.ego_id] if views == "ego" else list(frame.sensing_ids)
-        return [Example(clouds, boxes, frame.kinds_in_frame_of(a))
-                for a, (clouds, boxes) in zip(detecting, sample.fused_views(views))]
+        return [Example(clouds, boxes, sample.frame.kinds_in_frame_of(a))
+                for a, (clouds, boxes) in zip(sample.detecting_agents(views), sample.fused_views(views))]
 
     def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = ()) -> list:
         if len(kinds) != len(clouds):

@@ -51,13 +51,17 @@ class CooperativeFrame:
     def clouds_in_frame_of(self, frame_of: str) -> list[np.ndarray]:
         """Every sensing agent's cloud (N_i, 4) moved into ``frame_of``'s sensor frame, its own
         first (untouched), then the others in sensing order (for the ego: sensing order)."""
-        others = [a for a in self.sensing_ids if a != frame_of]
-        return [self.clouds[frame_of]] + [self.cloud_in(a, frame_of) for a in others]
+        own, *others = self.agents_from(frame_of)
+        return [self.clouds[own]] + [self.cloud_in(a, frame_of) for a in others]
+
+    def agents_from(self, frame_of: str) -> list[str]:
+        """``frame_of`` first, then the other sensing agents in sensing order: the order of
+        :meth:`clouds_in_frame_of` and :meth:`kinds_in_frame_of`."""
+        return [frame_of] + [a for a in self.sensing_ids if a != frame_of]
 
     def kinds_in_frame_of(self, frame_of: str) -> tuple[str, ...]:
         """The kind ("vehicle" or "rsu") of each cloud :meth:`clouds_in_frame_of` gives, in its order."""
-        others = [a for a in self.sensing_ids if a != frame_of]
-        return tuple(self.agent_kinds.get(a, "vehicle") for a in [frame_of] + others)
+        return tuple(self.agent_kinds.get(a, "vehicle") for a in self.agents_from(frame_of))
 
     def points_in_boxes(self) -> dict[str, np.ndarray]:
         """Points inside each ground-truth box, per sensing agent and ``"fused"`` (their sum): (M,) int."""

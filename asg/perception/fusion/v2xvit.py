@@ -138,11 +138,11 @@ class MultiScaleWindowAttention(nn.Module):
     def forward(self, fmap: torch.Tensor) -> torch.Tensor:
         """fmap (B, C, H, W) → (B, C, H, W): fmap plus the projected window attention."""
         b, c, h, w = fmap.shape
-        x = self.norm(fmap.permute(0, 2, 3, 1))  # (B, H, W, C)
+        qkv_all = self.qkv(self.norm(fmap.permute(0, 2, 3, 1)))  # (B, H, W, 3 C S): every size's q, k, v
         outs = []
         for k, win in enumerate(self.windows):
             ph, pw = -h % win, -w % win
-            qkv = F.pad(self.qkv(x)[..., 3 * c * k: 3 * c * (k + 1)], (0, 0, 0, pw, 0, ph))
+            qkv = F.pad(qkv_all[..., 3 * c * k: 3 * c * (k + 1)], (0, 0, 0, pw, 0, ph))
             q, key, v = qkv.split(c, dim=-1)
             outs.append(self._attend(q, key, v, k, (h, w))[:, :h, :w])
         return fmap + self.proj(torch.cat(outs, dim=-1)).permute(0, 3, 1, 2)
