@@ -81,8 +81,8 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
     levels |= {("traffic", s) for s in ("poses", "insert", "union")}  # the spaces that place vehicles
     levels = {(p, s, 3) for p, s in levels} | {("paper", "union", 6)}  # and the union with six movers
     assert len(spaces) == len(levels) * 3
-    assert {(r["plausibility"], r["space"], r["movers"], r["search"]) for r in spaces} == {
-        (p, s, m, q) for p, s, m in levels for q in ("rs", "bo", "ng")}
+    assert {(r["model"], r["plausibility"], r["space"], r["movers"], r["search"]) for r in spaces} == {
+        ("attfuse", p, s, m, q) for p, s, m in levels for q in ("rs", "bo", "ng")}
     for r in spaces:  # the synthetic scenes have no traffic log: latency (alone or in the union) says so
         if "latency" in r["kinds"]:
             assert "SUMO log" in r["error"]
@@ -94,6 +94,31 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
     capsys.readouterr()
     again = {name: json.loads((out / f"{name}.json").read_text())["rows"] for name in TABLES}
     assert again == tables
+
+
+def test_the_spaces_table_with_a_row_per_model_and_chosen_searches(capsys, tmp_path, data_root):
+    """--models gives the spaces table a block of rows per model, --searches the searches compared;
+    each model's rows are its own generator runs (the runs of one model are not reused for another)."""
+    out = tmp_path / "tables"
+    argv = ["bench", "paper", "--table", "spaces", "--models", "late,fcooper", "--searches", "bo", "--scenes", "1",
+            "--detector", "fakes:oracle_factory", "--workers", "1", "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    rows = json.loads((out / "spaces.json").read_text())["rows"]
+    per_model = {m: {(r["plausibility"], r["space"], r["movers"]) for r in rows if r["model"] == m}
+                 for m in ("late", "fcooper")}
+    assert per_model["late"] == per_model["fcooper"] and len(per_model["late"]) == 10
+    assert {r["search"] for r in rows} == {"bo"} and len(rows) == 20
+    runs = sorted(p.name for p in (out / "runs").iterdir())
+    measured = sum("error" not in r for r in rows if r["model"] == "late")  # latency needs a SUMO log
+    assert measured == 6 and sum("-late-" in n for n in runs) == sum("-fcooper-" in n for n in runs) == measured
+    md = (out / "spaces.md").read_text()
+    assert "| model | space |" in md and "| fcooper | union |" in md
+    code, err = run(capsys, "bench", "paper", "--table", "main", "--searches", "bo", "--out", str(tmp_path / "o"))
+    assert code == 2 and "--table spaces" in err
+    code, err = run(capsys, "bench", "paper", "--table", "spaces", "--searches", "bo,bo", "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "--searches takes distinct searches")
 
 
 def test_the_own_attack_row_is_scored_by_todays_detector(tmp_path, data_root):

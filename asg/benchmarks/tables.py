@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
 import os
 import platform
@@ -53,9 +54,12 @@ class TableRun:
     #: how AP ranks the detections of several frames (asg.objective.ap.AP_METHODS): global (ours)
     #: or per-frame (the paper's yardstick)
     ap_method: str = DEFAULT_AP_METHOD
-    #: the models of Table I (main), Table III (transfer) and Table IV (acs): the paper's four by
-    #: default, or any shipped models (rows without the paper's figures for the ones it lacks)
-    models: tuple[str, ...] = MODELS
+    #: the models with rows in Table I (main), Table III (transfer), Table IV (acs) and the spaces
+    #: table: any shipped models (rows without the paper's figures for the ones it lacks); None:
+    #: each table's own (the paper's four; AttFuse alone in the spaces table)
+    models: tuple[str, ...] | None = None
+    #: the searches the spaces table compares (None: SPACE_SEARCHES)
+    searches: tuple[str, ...] | None = None
     #: detector evaluations already scored in this measurement, {(model, set): result}: a table
     #: written with a second AP method rescores them instead of detecting again
     scored: dict = field(default_factory=dict, compare=False, repr=False)
@@ -96,7 +100,7 @@ def run_table(name: str, run: TableRun, log: Callable[[str], None] = print) -> d
 def main_table(run: TableRun) -> tuple[list[dict], int]:
     """Table I: each model on normal (train split) and on its own challenging scenes."""
     rows, counts = [], set()
-    for model in run.models:
+    for model in run.models or MODELS:
         ap = _challenging(model, "train", run)
         counts.add(ap["scenes"])
         rows.append({"model": model, "normal": ap["normal"], "challenging": ap["challenging"],
@@ -171,12 +175,13 @@ def transfer_table(run: TableRun) -> tuple[list[dict], int]:
     """Table III: each model scored on the challenging scenes generated against each model (train
     split), and on the normal scenes they came from."""
     rows, counts = [], set()
-    for source in run.models:
+    models = run.models or MODELS
+    for source in models:
         _challenging(source, "train", run)
-    for target in run.models:
+    for target in models:
         normal = _evaluate(target, "normal", run)
         rows.append({"source": "normal", "target": target, "ap": normal["ap"], "paper": None})
-        for source in run.models:
+        for source in models:
             res = _evaluate(target, f"challenging-{source}-train", run)
             counts.add(res["frames"])
             rows.append({"source": source, "target": target, "ap": res["ap"],
@@ -187,7 +192,7 @@ def transfer_table(run: TableRun) -> tuple[list[dict], int]:
 def acs_table(run: TableRun) -> tuple[list[dict], int]:
     """Table IV: collaborator search alone (no perturbation): random (ACS-R) against attention (ACS-A)."""
     rows, counts = [], set()
-    for model in run.models:
+    for model in run.models or MODELS:
         random_ = _generator_run(run, model, acs="random", search="bo", aps=False)
         attention = _generator_run(run, model, acs="attention", search="bo", aps=False)
         counts.add(attention["scenes"])
@@ -238,11 +243,13 @@ BENCHMARK_SCENES = 30
 
 
 def spaces_table(run: TableRun) -> tuple[list[dict], int]:
-    """Beyond the paper: AttFuse with ACS-A, then each perturbation space alone and all of them
-    together, searched by random search, BO and nevergrad at the same budget, on the generator
-    benchmark's scenes (``run.scenes`` of them, default 30), at the config's plausibility level;
-    the spaces that place vehicles (TRAFFIC_SPACES) also at the ``traffic`` level, and the union
-    with WIDE_UNION_MOVERS moved vehicles. Drop = AP on the normal scenes minus AP after the search."""
+    """Beyond the paper: each model of ``run.models`` (default AttFuse alone) with ACS-A, then each
+    perturbation space alone and all of them together, searched by each of ``run.searches`` (default
+    random search, BO and nevergrad) at the same budget, on the generator benchmark's scenes
+    (``run.scenes`` of them, default 30), at the config's plausibility level; the spaces that place
+    vehicles (TRAFFIC_SPACES) also at the ``traffic`` level, and the union with WIDE_UNION_MOVERS
+    moved vehicles. Drop = AP on the normal scenes minus AP after the search. A model without
+    attention weights takes ACS-A's from AttFuse, as ``asg generate`` does."""
     from ..generator.config import load_generate_config
     from .paper import pick_scenes
 
@@ -251,11 +258,12 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
     rows, counts = [], set()
     runs = ([(kinds, None, None) for kinds in SPACES] + [(kinds, "traffic", None) for kinds in TRAFFIC_SPACES]
             + [(UNION, None, WIDE_UNION_MOVERS)])
-    for kinds, plausibility, movers in runs:
-        for search in SPACE_SEARCHES:
-            row = {"space": "union" if kinds == UNION else kinds, "kinds": kinds.split(","), "search": search}
+    for model, (kinds, plausibility, movers) in itertools.product(run.models or ("attfuse",), runs):
+        for search in run.searches or SPACE_SEARCHES:
+            row = {"model": model, "space": "union" if kinds == UNION else kinds, "kinds": kinds.split(","),
+                   "search": search}
             try:
-                res = _generator_run(run, "attfuse", acs="attention", search=search, aps=True, kinds=kinds,
+                res = _generator_run(run, model, acs="attention", search=search, aps=True, kinds=kinds,
                                      scenes=scene_dir, plausibility=plausibility, movers=movers)
             except InputError as exc:  # e.g. latency on scenes without a traffic log: say why, measure the rest
                 cfg = load_generate_config()
@@ -442,13 +450,14 @@ def _md_blackbox(rows):
 def _md_spaces(rows):
     return ("AP@0.3 / 0.5 / 0.7 after ACS-A and the search, drop of AP@0.7 from the normal scenes (points), mean "
             "final loss, median seconds a scene.\n\n" +
-            _md_table(["space", "movers", "plausibility", "search", "AP", "drop @0.7", "mean loss", "s / scene",
-                       "implausible"],
-                      [[r["space"], str(r["movers"]), r["plausibility"], r["search"], _triple(r["ap"]),
+            _md_table(["model", "space", "movers", "plausibility", "search", "AP", "drop @0.7", "mean loss",
+                       "s / scene", "implausible"],
+                      [[r["model"], r["space"], str(r["movers"]), r["plausibility"], r["search"], _triple(r["ap"]),
                         f"{100 * r['drop']['0.7']:.1f}", f"{r['mean_loss']:.3f}", f"{r['seconds_per_scene']:.1f}",
                         str(r["implausible_scenes"])]
                        if "error" not in r else
-                       [r["space"], str(r["movers"]), r["plausibility"], r["search"], f"not measured: {r['error']}",
+                       [r["model"], r["space"], str(r["movers"]), r["plausibility"], r["search"],
+                        f"not measured: {r['error']}",
                         "", "", "", ""]
                        for r in rows]))
 

@@ -30,8 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="tables: a factory standing in for every model (as 'asg generate --detector')")
     p.add_argument("--models", default=None, metavar="NAME[,NAME]",
-                   help="main, transfer and acs tables: the shipped models with a row (default the paper's four: "
-                        "none, late, early, attfuse)")
+                   help="main, transfer, acs and spaces tables: the shipped models with a row (default the paper's "
+                        "four: none, late, early, attfuse; attfuse alone in the spaces table)")
+    p.add_argument("--searches", default=None, metavar="NAME[,NAME]",
+                   help="spaces table: the searches it compares at the same budget (default rs,bo,ng)")
     p.add_argument("--harden-rounds", type=whole(1, MAX_ROUNDS, "--harden-rounds"), default=None,
                    help="finetune table: also this many rounds of 'asg harden --fusion attfuse' with adversarial, "
                         "random and normal scenes (the controls), a row a round (OUT/harden/DATA, resumable)")
@@ -47,6 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.harden_rounds and "finetune" not in _table_names(args):
         raise InputError("--harden-rounds adds rows to the finetune table; give --table finetune (or all)")
+    if args.searches is not None and "spaces" not in _table_names(args):
+        raise InputError("--searches chooses the searches of the spaces table; give --table spaces (or all)")
     if args.table is not None:
         return _tables(args)
     return _targets(args)
@@ -81,7 +85,8 @@ def _tables(args: argparse.Namespace) -> int:
     with executor_from_args(args, args.scenes or 10**6) as executor:
         results = run_tables(names, TableRun(out=Path(args.out), scenes=args.scenes, executor=executor,
                                              detector_factory=args.detector, command=command,
-                                             harden_rounds=args.harden_rounds or 0, models=models),
+                                             harden_rounds=args.harden_rounds or 0, models=models,
+                                             searches=_searches(args.searches)),
                              log=console.print,
                              ap_methods=methods)
     for stem, result in results.items():
@@ -93,21 +98,33 @@ def _tables(args: argparse.Namespace) -> int:
     return 0
 
 
-def _models(text: str | None) -> tuple[str, ...]:
-    """``--models``: shipped model names, comma-separated (default the paper's four); one line for
-    an unknown or repeated name."""
-    from ..benchmarks.tables import MODELS
+def _models(text: str | None) -> tuple[str, ...] | None:
+    """``--models``: shipped model names, comma-separated (None: each table's own); one line for an
+    unknown or repeated name."""
     from ..perception import fusion  # noqa: F401  (fills the registry)
+
+    return _distinct_names(text, "--models", "fusion", "shipped models")
+
+
+def _searches(text: str | None) -> tuple[str, ...] | None:
+    """``--searches``: search names, comma-separated (None: the spaces table's own)."""
+    from .. import search  # noqa: F401  (fills the registry)
+
+    return _distinct_names(text, "--searches", "search", "searches")
+
+
+def _distinct_names(text: str | None, flag: str, kind: str, what: str) -> tuple[str, ...] | None:
+    """The comma-separated names of ``text``, each registered as ``kind``, none twice (None: ``text``
+    is None); one line naming the known ones otherwise."""
     from ..registry import names as registered
 
     if text is None:
-        return MODELS
-    models = tuple(m.strip() for m in text.split(",") if m.strip())
-    shipped = registered("fusion")
-    unknown = [m for m in models if m not in shipped]
-    if not models or unknown or len(set(models)) != len(models):
-        raise InputError(f"--models takes distinct shipped models ({', '.join(shipped)}), got {text!r}")
-    return models
+        return None
+    chosen = tuple(m.strip() for m in text.split(",") if m.strip())
+    known = registered(kind)
+    if not chosen or any(m not in known for m in chosen) or len(set(chosen)) != len(chosen):
+        raise InputError(f"{flag} takes distinct {what} ({', '.join(known)}), got {text!r}")
+    return chosen
 
 
 def _targets(args: argparse.Namespace) -> int:
