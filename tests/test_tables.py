@@ -114,6 +114,10 @@ def test_the_spaces_table_with_a_row_per_model_and_chosen_searches(capsys, tmp_p
     assert measured == 6 and sum("-late-" in n for n in runs) == sum("-fcooper-" in n for n in runs) == measured
     md = (out / "spaces.md").read_text()
     assert "| model | space |" in md and "| fcooper | union |" in md
+    by_model = [line for line in md.splitlines() if line.startswith("| late |") or line.startswith("| fcooper |")]
+    assert by_model[0].count("|") == 2 + 1 + 10  # the summary: model, normal AP, a column a configuration
+    poses = next(r for r in rows if r["model"] == "late" and r["space"] == "poses" and r["plausibility"] == "paper")
+    assert by_model[0].split("|")[3].strip() == f"{100 * poses['drop']['0.7']:.1f}"
     code, err = run(capsys, "bench", "paper", "--table", "main", "--searches", "bo", "--out", str(tmp_path / "o"))
     assert code == 2 and "--table spaces" in err
     code, err = run(capsys, "bench", "paper", "--table", "spaces", "--searches", "bo,bo", "--out", str(tmp_path / "o"))

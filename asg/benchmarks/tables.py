@@ -448,7 +448,8 @@ def _md_blackbox(rows):
 
 
 def _md_spaces(rows):
-    return ("AP@0.3 / 0.5 / 0.7 after ACS-A and the search, drop of AP@0.7 from the normal scenes (points), mean "
+    return (_md_spaces_by_model(rows) +
+            "AP@0.3 / 0.5 / 0.7 after ACS-A and the search, drop of AP@0.7 from the normal scenes (points), mean "
             "final loss, median seconds a scene.\n\n" +
             _md_table(["model", "space", "movers", "plausibility", "search", "AP", "drop @0.7", "mean loss",
                        "s / scene", "implausible"],
@@ -460,6 +461,35 @@ def _md_spaces(rows):
                         f"not measured: {r['error']}",
                         "", "", "", ""]
                        for r in rows]))
+
+
+def _md_spaces_by_model(rows) -> str:
+    """With more than one model: a model's AP@0.7 on the normal scenes and its drop (points) under
+    each space (a column per space, plausibility level and movers; one figure per search, " / "
+    between them), above the full table. Empty for one model."""
+    models = list(dict.fromkeys(r["model"] for r in rows))
+    if len(models) < 2:
+        return ""
+
+    def column(r):
+        return r["space"] + ("" if r["plausibility"] == "paper" else f" ({r['plausibility']})") + \
+            (f", {r['movers']} movers" if r["movers"] != 3 else "")
+
+    columns = list(dict.fromkeys(column(r) for r in rows))
+    searches = list(dict.fromkeys(r["search"] for r in rows))
+    cells = {(r["model"], column(r), r["search"]): r for r in rows}
+
+    def cell(model, col):
+        found = [cells.get((model, col, s)) for s in searches]
+        return " / ".join("" if r is None or "error" in r else f"{100 * r['drop']['0.7']:.1f}" for r in found)
+
+    def normal(model):
+        measured = [r for r in rows if r["model"] == model and "error" not in r]
+        return _pct(measured[0]["normal"]) if measured else ""
+
+    return (f"Drop of AP@0.7 (points) from the normal scenes under each space, search {' / '.join(searches)}:\n\n" +
+            _md_table(["model", "normal AP@0.7", *columns],
+                      [[m, normal(m), *(cell(m, c) for c in columns)] for m in models]) + "\n\n")
 
 
 @dataclass(frozen=True)
