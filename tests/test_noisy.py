@@ -7,7 +7,7 @@ import pytest
 
 from asg.scene.from_log import ExtractParams, extract_scenes
 from asg.scene.neighbours import with_nearest_collaborators
-from asg.workflows.noisy import STANDARD, noisy_scene, write_noisy_set
+from asg.scene.noisy import STANDARD, noisy_scene, write_noisy_set
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,8 @@ hardening and the branch fit read it and never ask which model they have.
 
 An example (:class:`Example`) is the clouds the detecting agent's network is given, each (N, 4)
 float32 x, y, z, intensity in that agent's sensor frame, its labels, boxes (M, 7) x, y, z, l, w, h,
-yaw in the same frame (metres, radians), and, for the feeds that need it, the kind of each cloud's
-agent.
+yaw in the same frame (metres, radians), and, for the feeds that need them, the kind of each
+cloud's agent and the cloud's age (its message's delay).
 """
 from __future__ import annotations
 
@@ -23,14 +23,19 @@ class Example(NamedTuple):
     #: the kind ("vehicle" or "rsu") of each cloud's agent, in the clouds' order; empty for the
     #: feeds whose networks do not read it
     kinds: tuple[str, ...] = ()
+    #: the age of each cloud (s: how long before the labels' instant it was captured), in the
+    #: clouds' order; empty for the feeds whose networks do not read it
+    delays_s: tuple[float, ...] = ()
 
 
 class KindedClouds(NamedTuple):
     """One sample as V2X-ViT's network takes it: every agent's cloud tensor (N_i, 4) in the
-    detecting agent's frame (its own first) and, per cloud, whether its agent is an RSU."""
+    detecting agent's frame (its own first) and, per cloud, whether its agent is an RSU and how old
+    the cloud is (s; empty: all current)."""
 
     clouds: list[torch.Tensor]
     rsu: tuple[bool, ...]
+    delays_s: tuple[float, ...] = ()
 
 
 class Feed:
@@ -44,9 +49,10 @@ class Feed:
         "all" (each sensing agent's view in turn), for feeds that fuse agents."""
         raise NotImplementedError
 
-    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = ()) -> list:
-        """A batch's clouds (per example, the list of its clouds' tensors; ``kinds``: per example,
-        its :attr:`Example.kinds`) as the network takes them."""
+    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = (),
+                      delays_s: Sequence[Sequence[float]] = ()) -> list:
+        """A batch's clouds (per example, the list of its clouds' tensors; ``kinds`` and ``delays_s``:
+        per example, its :attr:`Example.kinds` and :attr:`Example.delays_s`) as the network takes them."""
         return [c[0] for c in clouds]
 
 
@@ -80,24 +86,31 @@ class AgentClouds(Feed):
     def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
         return [Example(clouds, boxes) for clouds, boxes in sample.fused_views(views)]
 
-    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = ()) -> list:
+    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = (),
+                      delays_s: Sequence[Sequence[float]] = ()) -> list:
         return [list(c) for c in clouds]
 
 
 class KindedAgentClouds(AgentClouds):
-    """:class:`AgentClouds` with each cloud's agent kind (vehicle or RSU), for the networks that
-    treat the two apart (V2X-ViT); the network takes a :class:`KindedClouds` per example."""
+    """:class:`AgentClouds` with each cloud's agent kind (vehicle or RSU) and age, for the networks
+    that treat the kinds apart and read the delay (V2X-ViT); the network takes a
+    :class:`KindedClouds` per example."""
 
     name = "kinded-agent-clouds"
 
     def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
-        return [Example(clouds, boxes, sample.frame.kinds_in_frame_of(a))
+        frame = sample.frame
+        return [Example(clouds, boxes, frame.kinds_in_frame_of(a), frame.delays_in_frame_of(a))
                 for a, (clouds, boxes) in zip(sample.detecting_agents(views), sample.fused_views(views))]
 
-    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = ()) -> list:
-        if len(kinds) != len(clouds):
-            raise ValueError(f"{self.name}: {len(clouds)} examples but {len(kinds)} lists of agent kinds")
-        return [KindedClouds(list(c), tuple(k == "rsu" for k in ks)) for c, ks in zip(clouds, kinds)]
+    def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = (),
+                      delays_s: Sequence[Sequence[float]] = ()) -> list:
+        delays_s = delays_s or [()] * len(clouds)  # none given: every cloud current
+        if len(kinds) != len(clouds) or len(delays_s) != len(clouds):
+            raise ValueError(f"{self.name}: {len(clouds)} examples but {len(kinds)} lists of agent kinds "
+                             f"and {len(delays_s)} of delays")
+        return [KindedClouds(list(c), tuple(k == "rsu" for k in ks), tuple(float(d) for d in ds))
+                for c, ks, ds in zip(clouds, kinds, delays_s)]
 
 
 OWN_CLOUD, FUSED_CLOUD, AGENT_CLOUDS, KINDED_AGENT_CLOUDS = OwnCloud(), FusedCloud(), AgentClouds(), KindedAgentClouds()

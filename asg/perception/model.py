@@ -7,6 +7,7 @@ head's (cls, box, dir, features) tensors; ``postprocess`` turns them into numpy 
 from __future__ import annotations
 
 import math
+from typing import Collection
 
 import numpy as np
 import torch
@@ -42,8 +43,9 @@ class PointPillars(nn.Module):
     def forward(self, clouds: list[torch.Tensor]):
         return self.head(self.features(clouds))
 
-    def start_from_base(self) -> None:
-        """After PointPillars weights were loaded: nothing more to set."""
+    def start_from_base(self, missing: Collection[str] = ()) -> None:
+        """After PointPillars weights were loaded (``missing``: the tensors they lacked): nothing
+        more to set."""
 
 
 class ScaledDotAttention(nn.Module):
@@ -123,7 +125,7 @@ class AttFuse(nn.Module):
         return list(self.fusion) if isinstance(self.fusion, nn.ModuleList) else [self.fusion]
 
     @torch.no_grad()
-    def start_from_base(self) -> None:
+    def start_from_base(self, missing: Collection[str] = ()) -> None:
         """After PointPillars weights were loaded: the attention starts as (nearly) a plain average
         of the agents' features: v = identity, k scaled by 0.1 so the first attention is close to
         uniform while q and k still get gradients."""

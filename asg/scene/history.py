@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.log import META_NAME
 
@@ -123,3 +125,22 @@ def _data_set_request(scene: Scene, max_delay_s: float):
                                                  duration_s=spec.duration_s + margin, warmup_s=base.warmup_s - margin,
                                                  step_s=base.step_s, record_period_s=base.step_s)
     return None
+
+
+#: agents kept in a delayed message's world: within this of the collaborator then (m), the LiDAR's reach
+EARLIER_RADIUS_M = 120.0
+
+
+def earlier_agents(scene: Scene, history: History, agent_id: str, steps: int) -> tuple[Agent, ...]:
+    """The agents around ``agent_id`` ``steps`` periods of ``history`` before ``scene`` (the log's
+    vehicles then, the scene's RSUs), the world a message delayed that long was sensed in; () for
+    no delay. InputError if the agent was not on the road then."""
+    if steps == 0:
+        return ()
+    vehicles = history.frames[steps - 1]
+    me = next((a for a in vehicles if a.agent_id == agent_id), None)
+    if me is None:
+        raise InputError(f"scene {scene.scene_id}: {agent_id} was not on the road {steps * history.period_s:g} s "
+                         "earlier; no delay can be rendered")
+    rsus = [a for a in scene.agents if not a.is_vehicle]
+    return tuple(a for a in rsus + list(vehicles) if np.hypot(a.x_m - me.x_m, a.y_m - me.y_m) <= EARLIER_RADIUS_M)

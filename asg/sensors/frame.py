@@ -35,6 +35,9 @@ class CooperativeFrame:
     ego_box_world: np.ndarray | None = None
     #: each sensing agent's kind, "vehicle" or "rsu" (an agent not listed counts as a vehicle)
     agent_kinds: Mapping[str, str] = field(default_factory=dict)
+    #: how old each delayed agent's cloud is at the frame's instant (s; the link's message delay,
+    #: known to the receiver from the message's time stamp); an agent not listed: 0, current
+    agent_delays_s: Mapping[str, float] = field(default_factory=dict)
 
     def boxes_in(self, agent_id: str) -> np.ndarray:
         """Ground-truth boxes (M, 7) in ``agent_id``'s sensor frame."""
@@ -62,6 +65,10 @@ class CooperativeFrame:
     def kinds_in_frame_of(self, frame_of: str) -> tuple[str, ...]:
         """The kind ("vehicle" or "rsu") of each cloud :meth:`clouds_in_frame_of` gives, in its order."""
         return tuple(self.agent_kinds.get(a, "vehicle") for a in self.agents_from(frame_of))
+
+    def delays_in_frame_of(self, frame_of: str) -> tuple[float, ...]:
+        """The age (s) of each cloud :meth:`clouds_in_frame_of` gives, in its order."""
+        return tuple(float(self.agent_delays_s.get(a, 0.0)) for a in self.agents_from(frame_of))
 
     def points_in_boxes(self) -> dict[str, np.ndarray]:
         """Points inside each ground-truth box, per sensing agent and ``"fused"`` (their sum): (M,) int."""
@@ -170,8 +177,9 @@ def delayed_view(scene: Scene, agent_id: str, state: LinkState, spec: LidarSpec,
 def apply_link(frame: CooperativeFrame, link: Mapping[str, LinkState], delayed: DelayedView) -> CooperativeFrame:
     """The frame as the ego receives it over a V2X link (see asg.scene.link): a delayed
     collaborator's cloud and pose replaced by ``delayed(id, state)``, a pose error added to the
-    shared pose, a dropped message removed. Ground truth and the ego are untouched."""
-    ids, poses, clouds = [], dict(frame.poses), dict(frame.clouds)
+    shared pose, a dropped message removed, each delay recorded (``agent_delays_s``). Ground truth
+    and the ego are untouched."""
+    ids, poses, clouds, delays_s = [], dict(frame.poses), dict(frame.clouds), dict(frame.agent_delays_s)
     for aid in frame.sensing_ids:
         state = link.get(aid) if aid != frame.ego_id else None
         if state is None or state.is_perfect:
@@ -183,11 +191,13 @@ def apply_link(frame: CooperativeFrame, link: Mapping[str, LinkState], delayed: 
             continue
         if state.delay_s > 0:
             clouds[aid], poses[aid] = delayed(aid, state)
+            delays_s[aid] = float(state.delay_s)
         p = poses[aid]
         poses[aid] = SensorPose(p.x_m + state.dx_m, p.y_m + state.dy_m, p.z_m,
                                 wrap_rad(p.yaw_rad + state.dyaw_rad))
         ids.append(aid)
-    return replace(frame, sensing_ids=tuple(ids), poses=poses, clouds=clouds)
+    return replace(frame, sensing_ids=tuple(ids), poses=poses, clouds=clouds,
+                   agent_delays_s={a: d for a, d in delays_s.items() if a in ids})
 
 
 def simulate_frame(scene: Scene, spec: LidarSpec, seed: int = 0) -> CooperativeFrame:

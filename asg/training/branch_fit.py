@@ -142,7 +142,7 @@ def collect(model: nn.Module, feed: Feed, items: list, fcfg: BranchFitConfig,
             if p:
                 clouds, gt = augment(clouds, gt, rng)
             tensors = [torch.from_numpy(c) for c in clouds]
-            sample = feed.network_input([tensors], [example.kinds])[0]
+            sample = feed.network_input([tensors], [example.kinds], [example.delays_s])[0]
             features, slot, _, boxes = view_candidates(model, sample, fcfg.min_score, fcfg.top_k)
             parts["features"].append(features)
             parts["slot"].append(slot.astype(np.int16))

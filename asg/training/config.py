@@ -42,6 +42,10 @@ class TrainConfig:
     augment: Augmentation = Augmentation()
     #: weight of the orientation-aware corner loss (asg.perception.head.corner_loss; 0: off)
     corner_loss: float = 0.0
+    #: also every frame of ``dataset`` as its ego receives it in the standard noisy V2X setting
+    #: (asg.scene.noisy: each collaborator's pose off, its message 100 ms late), one example a
+    #: frame (the ego's view: a collaborator's own view of a noisy frame would mislabel it)
+    noisy_links: bool = False
 
 
 @dataclass(frozen=True)

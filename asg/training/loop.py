@@ -18,6 +18,7 @@ import torch
 from sumo_scenarios.errors import InputError
 
 from ..datasets import iter_frames
+from ..scene.noisy import noise_rng, noisy_scene
 from ..perception.boxes import assign_targets
 from ..perception.branch_boxes import branch_targets
 from ..perception.data import Augmentation, Sample, augment, make_sample
@@ -29,10 +30,16 @@ from .checkpoint import save_checkpoint
 from .config import TrainConfig
 
 
-def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None) -> list[Sample]:
+def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None,
+                   noise_seed: int | None = None) -> list[Sample]:
+    """Every frame of ``dataset``'s ``split`` rendered; with ``noise_seed``, each as its ego receives
+    it in the standard noisy V2X setting (asg.scene.noisy), the noise drawn from the seed and the
+    frame's id."""
     spec = load_lidar_spec()
     out = []
     for i, scene in enumerate(iter_frames(dataset, split)):
+        if noise_seed is not None:
+            scene = noisy_scene(scene, noise_rng(noise_seed, scene.scene_id))
         out.append(make_sample(scene, spec))
         if progress:
             progress(i + 1)
@@ -45,7 +52,12 @@ class Batches:
     def __init__(self, feed: Feed, samples: list[Sample], views: str = "ego", augmentation: Augmentation = Augmentation()):
         self.feed = feed
         self.augmentation = augmentation
-        self.items = [example for s in samples for example in feed.examples(s, views)]
+        self.items = []
+        self.add(samples, views)
+
+    def add(self, samples: list[Sample], views: str = "ego") -> None:
+        """Draw from the examples of ``samples`` (as ``views`` says) too."""
+        self.items += [example for s in samples for example in self.feed.examples(s, views)]
 
     def draw(self, rng: np.random.Generator, batch: int, anchors: np.ndarray, cfg, timer: "PhaseTimer | None" = None):
         """A batch: the network's input (the feed's ``network_input`` of each example's clouds),
@@ -61,10 +73,11 @@ def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray,
     ``rng``, the clouds given to the network as ``feed`` says: see :meth:`Batches.draw`.
     ``timer``: where the augmentation ("draw") and the target assignment ("targets") are timed."""
     timer = timer or PhaseTimer(enabled=False)
-    clouds, kinds, labels, targets, dirs, gt = [], [], [], [], [], []
+    clouds, kinds, delays_s, labels, targets, dirs, gt = [], [], [], [], [], [], []
     for example in examples:
         cl, boxes = example.clouds, example.boxes
         kinds.append(example.kinds)
+        delays_s.append(example.delays_s)
         with timer.phase("draw"):
             cl, boxes = augment(cl, boxes, rng, augmentation)
         with timer.phase("targets"):
@@ -74,7 +87,7 @@ def draw_examples(examples: list, rng: np.random.Generator, anchors: np.ndarray,
         targets.append(res)
         dirs.append(d)
         gt.append(boxes)
-    return (feed.network_input(clouds, kinds), torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
+    return (feed.network_input(clouds, kinds, delays_s), torch.from_numpy(np.stack(labels)), torch.from_numpy(np.stack(targets)),
             torch.from_numpy(np.stack(dirs)), gt)
 
 
@@ -183,7 +196,7 @@ def init_from_weights(model: torch.nn.Module, path: Path, source: torch.nn.Modul
 
     Every tensor the two share is copied (what only ``source`` has, say AttFuse's attention for
     F-Cooper, is left out); what only ``model`` has must be among the parts it adds to PointPillars
-    (``parts_beyond_base``, e.g. AttFuse's attention), and then ``model.start_from_base()``
+    (``parts_beyond_base``, e.g. AttFuse's attention), and then ``model.start_from_base(missing)``
     initialises them. Where2comm starts from AttFuse's weights whole, attention included.
     """
     from ..perception.weights_io import load_state
@@ -195,7 +208,7 @@ def init_from_weights(model: torch.nn.Module, path: Path, source: torch.nn.Modul
     if any(not k.startswith(beyond) for k in missing):
         raise InputError(f"{path}: weights do not match this model (missing {next(k for k in missing if not k.startswith(beyond))})")
     if missing:
-        model.start_from_base()
+        model.start_from_base(missing)
 
 
 def branch_losses(model, cls: torch.Tensor, box: torch.Tensor, features: torch.Tensor, labels: torch.Tensor,

@@ -100,6 +100,9 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     log(f"rendering {tcfg.dataset} ...")
     samples = render_samples(tcfg.dataset, "train")
     batches = Batches(feed_of(name), samples, tcfg.views, tcfg.augment)
+    if tcfg.noisy_links:
+        log(f"rendering {tcfg.dataset} over noisy links ...")
+        batches.add(render_samples(tcfg.dataset, "train", noise_seed=tcfg.seed), "ego")
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     steps_at = Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every, tcfg.corner_loss)
     wall = run_steps(model, opt, sched, batches, rng, steps_at, cfg, ckpt, wall, previous, log, progress)
@@ -108,6 +111,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         torch.save(model.state_dict(), tmp)
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
+                                            **({"noisy_links": True} if tcfg.noisy_links else {}),
                                             **augment_record(tcfg.augment), **corner_record(tcfg),
                                             "wall_s": round(wall, 1), "part": "all"}]
     write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,

@@ -16,7 +16,7 @@ of ``OUT/card.json`` and is never run again):
    forgetting), train.yaml's ``harden`` block; writes ``round-k/weights.pt``;
 4. **evaluate** on fixed sets: ``eval_sets``, ``challenging-F-val`` (the val split attacked against
    the original model) and, with ``noisy``, normal-val under the standard noisy V2X setting
-   (asg.workflows.noisy); with ``reattack``, the paper's protocol run on normal-val against the
+   (asg.scene.noisy); with ``reattack``, the paper's protocol run on normal-val against the
    round's weights (the original's own attack is challenging-F-val).
 
 Round 0 of the card is the start weights on the same evaluation. ``OUT/run.json`` records the
@@ -328,7 +328,7 @@ def noisy_val_set() -> Path:
     """normal-val under the standard noisy V2X setting (built once under the data root)."""
     from ..datasets import data_root
     from ..datasets import scenes_of
-    from .noisy import write_noisy_set
+    from ..scene.noisy import write_noisy_set
 
     return write_noisy_set(scenes_of("normal-val"), data_root() / NOISY_SET, seed=ATTACK_SEED)
 

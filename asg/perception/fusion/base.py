@@ -115,7 +115,8 @@ class AgentCloudsDetector(V2XDetector):
 
     def _sample(self, frame: CooperativeFrame, clouds: list[torch.Tensor]):
         """The frame as the network takes one sample, made by the detector's feed as in training."""
-        return self.feed.network_input([clouds], [frame.kinds_in_frame_of(frame.ego_id)])[0]
+        return self.feed.network_input([clouds], [frame.kinds_in_frame_of(frame.ego_id)],
+                                       [frame.delays_in_frame_of(frame.ego_id)])[0]
 
     @torch.no_grad()
     def detect(self, frame: CooperativeFrame) -> Detections:

@@ -12,12 +12,19 @@ bias, the sizes' outputs projected together and added to the map. The rest of th
 head run on the result. The kinds come with the frame (``CooperativeFrame.agent_kinds``); training
 feeds them through :data:`asg.perception.feeds.KINDED_AGENT_CLOUDS`.
 
+``v2xvit-noisy`` adds V2X-ViT's delay-aware positional encoding (:class:`DelayEncoding`: each
+agent's first-stage features plus a learnt projection of a sinusoidal code of its message's delay,
+``CooperativeFrame.agent_delays_s``, which the receiver knows from the message's time stamp) and
+is trained on every frame twice: as sent over a perfect link and in the standard noisy setting
+(asg.scene.noisy: pose error and a 100 ms delay), the way V2X-ViT learns from delayed messages.
+
 Kept from V2X-ViT: HMSA's kind-specific projections and edge matrices, MSwin's window sizes in
-cells (its 4/8/16 windows) with relative-position bias. Reduced: one encoder layer (V2X-ViT stacks
-3), one head per attention (it uses 8), no feed-forward blocks, at AttFuse's place (the first
-stage's 32 channels) rather than on a 256-channel map; no delay-aware positional encoding and no
-spatial-temporal correction module: those learn from delayed messages, and our training frames
-are perfect links (every shipped model trains on them), so a delay term would only ever see 0.
+cells (its 4/8/16 windows) with relative-position bias; in ``v2xvit-noisy`` its delay encoding.
+Reduced: one encoder layer (V2X-ViT stacks 3), one head per attention (it uses 8), no feed-forward
+blocks, at AttFuse's place (the first stage's 32 channels) rather than on a 256-channel map; no
+spatial-temporal correction module (V2X-ViT's learnt warp of a delayed agent's map); ``v2xvit``
+itself has no delay encoding either: it trains on perfect links, as every other shipped model,
+where a delay term would only ever see 0.
 At the start (``start_from_base`` after AttFuse's weights) the network computes AttFuse's
 function exactly: the RSU projections are copies of the vehicle ones, the edge and dense matrices
 identities and the window attention's projection zero.
@@ -25,6 +32,7 @@ identities and the window attention's projection zero.
 from __future__ import annotations
 
 import math
+from typing import Collection
 
 import torch
 from torch import nn
@@ -38,6 +46,8 @@ from .attfuse import AttFuseDetector
 
 #: MSwin's window sizes (BEV cells of the fused map; 0.5 m pillars at stride 2: 1 m a cell)
 WINDOWS_CELLS = (4, 8, 16)
+#: the delay encoding counts a delay in steps of this (s): 0.1 s is 10 steps
+DELAY_STEP_S = 0.01
 
 
 def _kind_linear(vehicle: nn.Linear, rsu: nn.Linear, x: torch.Tensor, is_rsu: torch.Tensor) -> torch.Tensor:
@@ -86,6 +96,30 @@ class HeteroAttention(nn.Module):
         kind = ego_rsu.long()
         out = torch.einsum("bde,bpe->bpd", self.out[kind], ctx) + self.out_bias[kind][:, None]
         return out.view(b, h, w, c).permute(0, 3, 1, 2), a.view(b, n, h, w)
+
+
+class DelayEncoding(nn.Module):
+    """V2X-ViT's delay-aware positional encoding: agent i's features plus W p(t_i), where p is the
+    transformer's sinusoidal code of its delay t_i in DELAY_STEP_S steps (p_2c = sin(t / 10000^(2c/C)),
+    p_2c+1 = cos of the same) and W a learnt C x C projection, broadcast over the BEV cells. W
+    starts at zero: the network then computes what it computed without the encoding."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.proj = nn.Linear(channels, channels)
+        nn.init.zeros_(self.proj.weight)
+        nn.init.zeros_(self.proj.bias)
+        half = torch.arange(0, channels, 2, dtype=torch.float32) / channels
+        self.register_buffer("frequency", 1.0 / 10000.0 ** half, persistent=False)
+
+    def code(self, delays_s: torch.Tensor) -> torch.Tensor:
+        """delays_s (B, N) → the sinusoidal code (B, N, C)."""
+        angle = (delays_s / DELAY_STEP_S)[..., None] * self.frequency  # (B, N, C/2)
+        return torch.stack([angle.sin(), angle.cos()], dim=-1).flatten(-2)
+
+    def forward(self, feats: torch.Tensor, delays_s: torch.Tensor) -> torch.Tensor:
+        """feats (B, N, C, H, W), delays_s (B, N) → feats with each agent's encoding added."""
+        return feats + self.proj(self.code(delays_s))[..., None, None]
 
 
 def relative_position_index(window: int) -> torch.Tensor:
@@ -152,11 +186,12 @@ class V2XViTFuse(AttFuse):
     """See the module docstring. Parameters: AttFuse's, the RSU projections and edge matrices of
     :class:`HeteroAttention`, and :class:`MultiScaleWindowAttention` (``window``)."""
 
-    parts_beyond_base = ("fusion.", "window.")
+    parts_beyond_base = ("fusion.", "window.", "delay.")
 
-    def __init__(self, cfg: DetectorConfig):
+    def __init__(self, cfg: DetectorConfig, delay_encoding: bool = False):
         super().__init__(cfg)
         self.window = MultiScaleWindowAttention(self.backbone.stage_channels[0])
+        self.delay = DelayEncoding(self.backbone.stage_channels[0]) if delay_encoding else None
 
     @staticmethod
     def fusion_placement(cfg: DetectorConfig) -> str:
@@ -166,19 +201,28 @@ class V2XViTFuse(AttFuse):
         return HeteroAttention(self.backbone.stage_channels[0])
 
     @torch.no_grad()
-    def start_from_base(self) -> None:
+    def start_from_base(self, missing: Collection[str] = ()) -> None:
         """After AttFuse's weights were loaded: both kinds start with AttFuse's projections (the
-        edge and dense matrices and the window projection start as built: identities and zero)."""
-        self.fusion.start_from_vehicle()
+        edge and dense matrices, the window projection and the delay encoding start as built:
+        identities and zero). After V2X-ViT's weights (``missing``: the delay encoding alone), the
+        RSU projections are V2X-ViT's and stay."""
+        if not missing or any(k.startswith("fusion.") for k in missing):
+            self.fusion.start_from_vehicle()
 
     def forward(self, samples: list[KindedClouds]):
-        """``samples[b]``: sample b's clouds, ego first (at most 5 agents), and which are RSUs."""
+        """``samples[b]``: sample b's clouds, ego first (at most 5 agents), which are RSUs and (read
+        with the delay encoding) how old each is."""
         flat, present = self.agents_of([s.clouds for s in samples])
         rsu = torch.zeros_like(present)
+        delays_s = torch.zeros(present.shape)
         for b, s in enumerate(samples):
             rsu[b, : len(s.rsu)] = torch.tensor(s.rsu, dtype=torch.bool)
+            delays_s[b, : len(s.delays_s)] = torch.tensor(s.delays_s, dtype=torch.float32)
         first = self.backbone.first_stage(self.encoder.encode(flat))  # (B*N, C, h, w)
-        fused, att = self.fusion(first.view(*present.shape, *first.shape[1:]), present, rsu)
+        feats = first.view(*present.shape, *first.shape[1:])
+        if self.delay is not None:
+            feats = self.delay(feats, delays_s)
+        fused, att = self.fusion(feats, present, rsu)
         self.last_attention = att.detach()
         return self.head(self.backbone.after_first_stage(self.window(fused)))
 
@@ -198,3 +242,19 @@ class V2XViTDetector(AttFuseDetector):
     @classmethod
     def new_network(cls, cfg) -> nn.Module:
         return V2XViTFuse(cfg)
+
+
+@register("fusion", "v2xvit-noisy")
+class V2XViTNoisyDetector(V2XViTDetector):
+    """V2X-ViT with its delay-aware positional encoding, trained on perfect and noisy links (see the
+    module docstring); started from the shipped V2X-ViT."""
+
+    weights = "v2xvit-noisy"
+
+    @classmethod
+    def card_settings(cls, cfg) -> dict:
+        return super().card_settings(cfg) | {"delay_encoding_step_s": DELAY_STEP_S}
+
+    @classmethod
+    def new_network(cls, cfg) -> nn.Module:
+        return V2XViTFuse(cfg, delay_encoding=True)

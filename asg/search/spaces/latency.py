@@ -16,13 +16,9 @@ from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 
 from ...registry import register
-from ...scene.history import HISTORY_MARGIN_S, History, scene_history
+from ...scene.history import HISTORY_MARGIN_S, History, earlier_agents, scene_history
 from ...scene.link import MAX_DELAY_S
 from .base import PerturbationSpace, SpaceContext, collaborators
-
-#: agents kept in a delayed message's world: within this of the collaborator then (m), the LiDAR's reach
-EARLIER_RADIUS_M = 120.0
-
 
 @dataclass(frozen=True)
 class LatencyConfig:
@@ -77,15 +73,8 @@ class LatencySpace(PerturbationSpace):
         return steps
 
     def earlier_agents(self, agent_id: str, steps: int) -> tuple:
-        """The agents around ``agent_id`` ``steps`` periods earlier (vehicles of the log, the scene's
-        RSUs), or () for no delay."""
-        if steps == 0:
-            return ()
-        vehicles = self.history.frames[steps - 1]
-        me = next(a for a in vehicles if a.agent_id == agent_id)
-        rsus = [a for a in self.ctx.scene.agents if not a.is_vehicle]
-        return tuple(a for a in rsus + list(vehicles)
-                     if np.hypot(a.x_m - me.x_m, a.y_m - me.y_m) <= EARLIER_RADIUS_M)
+        """The agents around ``agent_id`` ``steps`` periods earlier (asg.scene.history.earlier_agents)."""
+        return earlier_agents(self.ctx.scene, self.history, agent_id, steps)
 
     def link_columns(self) -> list[str]:
         return [f"{c}_delay_s" for c in collaborators(self.ctx)]

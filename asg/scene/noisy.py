@@ -14,8 +14,9 @@ import numpy as np
 
 from sumo_scenarios.errors import InputError
 
-from ..scene import Scene, save_scene
-from ..scene.link import LinkState
+from .history import earlier_agents, scene_history
+from .link import LinkState
+from .scene import Scene, save_scene
 
 
 @dataclass(frozen=True)
@@ -35,30 +36,29 @@ def noisy_scene(scene: Scene, rng: np.random.Generator, noise: NoisyLink = STAND
     """``scene`` with each collaborator's message delayed and its shared pose off (drawn from
     ``rng``); the ego's own cloud and pose are exact. A scene whose log cannot give the earlier
     frame raises InputError (see asg.scene.history)."""
-    from ..generator.config import load_generate_config
-    from ..search.spaces.base import SpaceContext
-    from ..search.spaces.latency import LatencySpace
-
-    cfg = load_generate_config().space
     link = {}
-    latency = None
-    if noise.delay_s > 0 and scene.collaborators:
-        latency = LatencySpace(SpaceContext(scene, ()), cfg)
+    history = scene_history(scene, 1_000, noise.delay_s) if noise.delay_s > 0 and scene.collaborators else None
     for cid in scene.collaborators:
         earlier: tuple = ()
         delay_s = 0.0
-        if latency is not None:
-            steps = max(1, int(round(noise.delay_s / latency.history.period_s)))
-            if abs(steps * latency.history.period_s - noise.delay_s) > 1e-6:
-                raise InputError(f"scene {scene.scene_id}: its log records every {latency.history.period_s:g} s; "
+        if history is not None:
+            steps = max(1, int(round(noise.delay_s / history.period_s)))
+            if abs(steps * history.period_s - noise.delay_s) > 1e-6:
+                raise InputError(f"scene {scene.scene_id}: its log records every {history.period_s:g} s; "
                                  f"a {noise.delay_s:g} s delay needs a log recorded every {noise.delay_s:g} s or "
                                  "a divisor of it (asg simulate --record-period)")
-            earlier = latency.earlier_agents(cid, steps)
-            delay_s = round(steps * latency.history.period_s, 6)
+            earlier = earlier_agents(scene, history, cid, steps)
+            delay_s = round(steps * history.period_s, 6)
         dx, dy = rng.normal(0.0, noise.sigma_xy_m, size=2)
         dyaw = math.radians(float(rng.normal(0.0, noise.sigma_yaw_deg)))
         link[cid] = LinkState(dx_m=float(dx), dy_m=float(dy), dyaw_rad=dyaw, delay_s=delay_s, earlier_agents=earlier)
     return scene.with_link(link)
+
+
+def noise_rng(seed: int, scene_id: str) -> np.random.Generator:
+    """The generator of one scene's noise: from ``seed`` and the scene's id, so that a scene's noise
+    does not depend on the other scenes drawn with it."""
+    return np.random.default_rng([seed, *(ord(ch) for ch in scene_id)])
 
 
 def write_noisy_set(scenes: Iterable[Scene], out: Path, seed: int, noise: NoisyLink = STANDARD) -> Path:
@@ -71,7 +71,6 @@ def write_noisy_set(scenes: Iterable[Scene], out: Path, seed: int, noise: NoisyL
         return out
     with atomic_dir(out) as work:
         for scene in scenes:
-            rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id)])
-            save_scene(noisy_scene(scene, rng, noise), work / f"{scene.scene_id}.yaml")
+            save_scene(noisy_scene(scene, noise_rng(seed, scene.scene_id), noise), work / f"{scene.scene_id}.yaml")
         (work / ".complete").write_text("")
     return out
