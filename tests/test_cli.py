@@ -295,5 +295,5 @@ def test_every_fusion_option_lists_every_installed_detector(command, capsys):
         main([*command.split(), "--help"])
     assert done.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
-    assert {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit"} <= set(detector_entry_names())
+    assert {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit", "v2xvit-noisy"} <= set(detector_entry_names())
     assert ", ".join(detector_entry_names()) in text

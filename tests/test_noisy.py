@@ -56,3 +56,35 @@ def test_the_noisy_set_is_seeded_per_scene(scenes, tmp_path):
     for scene in scenes:
         assert (a / f"{scene.scene_id}.yaml").read_text() == (b / f"{scene.scene_id}.yaml").read_text()
     assert (a / ".complete").is_file()
+
+
+def test_training_over_noisy_links_adds_each_frames_late_ego_view(scenes, tmp_path):
+    """train.yaml's ``noisy_links``: each frame of the data set once more as its ego receives it over
+    the standard noisy link (the noise of the seed and the frame's id), one example a frame, each
+    collaborator's cloud 0.1 s old; the perfect frames keep their views."""
+    import gzip
+    import json
+
+    from asg.perception.feeds import KINDED_AGENT_CLOUDS
+    from asg.scene.noisy import noise_rng
+    from asg.training.loop import Batches, render_samples
+
+    folder = tmp_path / "set"
+    folder.mkdir()
+    with gzip.open(folder / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
+        for scene in scenes[:2]:
+            fh.write(json.dumps(scene.to_dict()) + "\n")
+    (folder / "index.json").write_text(json.dumps({"name": "set", "frames": 2,
+                                                   "splits": {"train": [s.scene_id for s in scenes[:2]]}}))
+    batches = Batches(KINDED_AGENT_CLOUDS, render_samples(str(folder), "train"), "all")
+    assert len(batches.items) == 6 and all(e.delays_s == (0.0, 0.0, 0.0) for e in batches.items)
+    noisy = render_samples(str(folder), "train", noise_seed=3)
+    perfect = render_samples(str(folder), "train")
+    for sample, clean, scene in zip(noisy, perfect, scenes):
+        expected = noisy_scene(scene, noise_rng(3, scene.scene_id)).link
+        assert dict(sample.frame.agent_delays_s) == {c: s.delay_s for c, s in expected.items()}
+        assert sample.frame.poses[scene.ego_id] == clean.frame.poses[scene.ego_id]  # the ego's own is exact
+        assert all(sample.frame.poses[c] != clean.frame.poses[c] for c in scene.collaborators)
+    batches.add(noisy, "ego")
+    assert len(batches.items) == 8
+    assert [e.delays_s for e in batches.items[6:]] == [(0.0, STANDARD.delay_s, STANDARD.delay_s)] * 2

@@ -222,7 +222,8 @@ def test_folding_batch_norms_keeps_the_function(where):
 def test_registry_lists_all_fusions():
     from asg import perception  # noqa: F401
 
-    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit"}
+    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit",
+                                  "v2xvit-noisy"}
     with pytest.raises(InputError, match="unknown fusion 'mid'.*attfuse"):
         perception.build_detector("mid")
 
@@ -704,3 +705,60 @@ def test_kinded_agent_clouds_give_each_cloud_its_agents_kind(cross_map):
     assert [b.rsu for b in batch] == [(True, False), (False, True)]
     with pytest.raises(ValueError):
         KINDED_AGENT_CLOUDS.network_input(tensors, [])
+    assert [b.delays_s for b in batch] == [(), ()]  # no delays given: every cloud current
+
+
+def test_the_kinded_feed_gives_each_cloud_its_delay_over_a_late_link(cross_map):
+    """A collaborator's late message (the link's delay) makes the frame record how old its cloud is;
+    the V2X-ViT feed gives that age with each cloud, in the clouds' order, from the ego's view and
+    from the collaborator's; a dropped message leaves no delay behind."""
+    from asg.perception.data import Sample
+    from asg.perception.feeds import KINDED_AGENT_CLOUDS
+    from asg.scene.link import LinkState
+    from asg.sensors import simulate_frame
+    from asg.sensors.lidar_spec import LidarSpec
+
+    spec = LidarSpec(name="t", channels=8, points_per_s=8 * 90 * 10, rotation_hz=10.0)
+    a, b = car("a", -10.0, -1.6), car("b", 15.0, 1.6, np.pi)
+    scene = make_scene(cross_map, [rsu("r", 8.0, 8.0), a, b], collaborators=["a", "b"])
+    earlier_a = replace(a, x_m=a.x_m - 1.0)
+    late = scene.with_link({"a": LinkState(delay_s=0.2, earlier_agents=(earlier_a, b))})
+    sample = Sample(late.scene_id, simulate_frame(late, spec))
+    assert sample.frame.agent_delays_s == {"a": 0.2}
+    examples = KINDED_AGENT_CLOUDS.examples(sample, "all")
+    assert [e.delays_s for e in examples] == [(0.0, 0.2, 0.0), (0.2, 0.0, 0.0), (0.0, 0.0, 0.2)]
+    tensors = [[torch.from_numpy(c) for c in e.clouds] for e in examples]
+    batch = KINDED_AGENT_CLOUDS.network_input(tensors, [e.kinds for e in examples], [e.delays_s for e in examples])
+    assert batch[0].delays_s == (0.0, 0.2, 0.0) and batch[0].rsu == (True, False, False)
+    dropped = Sample(late.scene_id, simulate_frame(late.with_link({"a": LinkState(dropped=True)}), spec))
+    assert dropped.frame.agent_delays_s == {} and dropped.frame.sensing_ids == ("r", "b")
+
+
+def test_v2xvit_noisy_starts_as_v2xvit_and_then_reads_the_delay(tmp_path):
+    """``asg train --fusion v2xvit-noisy --init-from v2xvit``: V2X-ViT's tensors copied (its RSU
+    projections kept, not reset to the vehicle ones), the delay encoding at zero, so the network
+    computes V2X-ViT's function for any delays; once the encoding is non-zero, a delayed cloud is
+    read otherwise than a current one."""
+    from asg.perception.feeds import KindedClouds
+    from asg.perception.fusion.v2xvit import V2XViTFuse
+    from asg.training.loop import init_from_weights
+
+    cfg = replace(TINY, attfuse_fusion="stage1")
+    torch.manual_seed(0)
+    vit = V2XViTFuse(cfg).eval()
+    torch.nn.init.normal_(vit.fusion.q_rsu.weight)  # trained RSU projections, unlike the vehicle ones
+    torch.save(vit.state_dict(), tmp_path / "v2xvit.pt")
+    noisy = V2XViTFuse(cfg, delay_encoding=True)
+    init_from_weights(noisy, tmp_path / "v2xvit.pt", V2XViTFuse(cfg))
+    noisy.eval()
+    assert torch.equal(noisy.fusion.q_rsu.weight, vit.fusion.q_rsu.weight)
+    clouds = _random_clouds(2)
+    with torch.no_grad():
+        expected = vit([KindedClouds(clouds, (True, False, False))])[0]
+        for delays_s in [(), (0.0, 0.1, 0.3), (0.0, 0.0, 0.0)]:
+            assert torch.allclose(noisy([KindedClouds(clouds, (True, False, False), delays_s)])[0], expected, atol=1e-6)
+        torch.nn.init.normal_(noisy.delay.proj.weight, std=0.1)
+        current = noisy([KindedClouds(clouds, (True, False, False), (0.0, 0.0, 0.0))])[0]
+        late = noisy([KindedClouds(clouds, (True, False, False), (0.0, 0.1, 0.0))])[0]
+        assert not torch.allclose(current, late, atol=1e-4)
+        assert torch.allclose(noisy([KindedClouds(clouds, (True, False, False), ())])[0], current)  # () = all current
