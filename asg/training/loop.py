@@ -18,13 +18,13 @@ import torch
 from sumo_scenarios.errors import InputError
 
 from ..datasets import iter_frames
-from ..scene.noisy import noise_rng, noisy_scene
 from ..perception.boxes import assign_targets
 from ..perception.branch_boxes import branch_targets
 from ..perception.data import Augmentation, Sample, augment, make_sample
 from ..perception.feeds import Feed
 from ..perception.head import detection_loss, iou_loss, refine_loss
 from ..perception.model import PointPillars
+from ..scene.noisy import noise_rng, noisy_scene
 from ..sensors import load_lidar_spec
 from .checkpoint import save_checkpoint
 from .config import TrainConfig

@@ -20,6 +20,7 @@ from ...scene.history import HISTORY_MARGIN_S, History, earlier_agents, scene_hi
 from ...scene.link import MAX_DELAY_S
 from .base import PerturbationSpace, SpaceContext, collaborators
 
+
 @dataclass(frozen=True)
 class LatencyConfig:
     max_delay_s: float = 0.4
