@@ -214,13 +214,14 @@ class V2XViTFuse(AttFuse):
         with the delay encoding) how old each is."""
         flat, present = self.agents_of([s.clouds for s in samples])
         rsu = torch.zeros_like(present)
-        delays_s = torch.zeros(present.shape)
         for b, s in enumerate(samples):
             rsu[b, : len(s.rsu)] = torch.tensor(s.rsu, dtype=torch.bool)
-            delays_s[b, : len(s.delays_s)] = torch.tensor(s.delays_s, dtype=torch.float32)
         first = self.backbone.first_stage(self.encoder.encode(flat))  # (B*N, C, h, w)
         feats = first.view(*present.shape, *first.shape[1:])
         if self.delay is not None:
+            delays_s = torch.zeros(present.shape)  # (B, N): 0 for the current clouds and the padding
+            for b, s in enumerate(samples):
+                delays_s[b, : len(s.delays_s)] = torch.tensor(s.delays_s, dtype=torch.float32)
             feats = self.delay(feats, delays_s)
         fused, att = self.fusion(feats, present, rsu)
         self.last_attention = att.detach()
