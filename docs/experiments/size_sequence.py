@@ -1,0 +1,114 @@
+"""Does a wider backbone lift AP@0.7 once trained to the end? Two single-agent networks (No Fusion)
+trained from scratch by the same sequence of chunks (the same seeds and batches): the shipped size
+and the wide one (filters 64/128/256, upsampling 128: box_levers.py's "wide", the paper's widths; a
+step costs about 2.1x the shipped one's). After 1,000 steps the wide one was further along
+(docs/results/detectors.md, "What sharpens the boxes"); this asks where each ends.
+
+Each call trains one size up to CHUNKS chunks of SEQUENCE (default: one more chunk) and scores it
+after every chunk. The weights and their card go to DIR/SIZE/ (single.pt, single.json): commit
+them and the next sitting continues from them alone, on an empty machine. An interrupted chunk
+resumes from runs/size-sequence/SIZE/last.pt on the same machine. Scores: DIR/SIZE/chunk-K.json,
+AP@0.3/0.5/0.7 on normal-val and heuristic under both yardsticks (ours: global sort; the paper's: per
+frame), with the shared point stage and without it, and the share of the visible vehicles (10+
+fused points) whose best candidate fits at IoU 0.5-0.7 only (miss_stages.py's near misses).
+
+    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
+    .venv/bin/python docs/experiments/size_sequence.py DIR --table
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+
+from asg.datasets import scenes_of
+from asg.evaluation import evaluate_detector
+from asg.perception.config import load_detector_config
+from asg.perception.fusion.single import NoFusion
+from asg.training.config import load_train_config
+from asg.training.train import train
+
+from miss_stages import STAGES, rows_of  # this folder's
+
+BASE = load_detector_config()
+SIZES = {"shipped": BASE, "wide": replace(BASE, filters=(64, 128, 256), upsample_channels=128)}
+#: the chunks, each (steps, one-cycle peak lr): the shipped single's rates from its third chunk on
+#: (0.002, then 0.001, then 0.0005), its other settings (train.yaml's single block: data, batch, seed)
+SEQUENCE = ((3000, 0.002), (3000, 0.002), (3000, 0.001), (3000, 0.0005))
+SETS = ("normal-val", "heuristic")
+#: training threads (ASG_THREADS, default 2)
+THREADS = int(os.environ.get("ASG_THREADS", "2"))
+
+
+def chunks_done(weights_dir: Path) -> int:
+    card = weights_dir / "single.json"
+    return len(json.loads(card.read_text())["chunks"]) if card.is_file() else 0
+
+
+def train_chunk(out: Path, size: str, k: int) -> Path:
+    """Chunk ``k`` (0-based) of SEQUENCE for ``size``: weights and card in OUT/SIZE/."""
+    steps, lr = SEQUENCE[k]
+    tcfg = replace(load_train_config("single"), steps=steps, lr=lr, schedule="onecycle")
+    return train("none", out_dir=Path("runs") / "size-sequence" / size, train_config=tcfg,
+                 detector_config=SIZES[size], weights_dir=out / size, validate=False,
+                 threads=THREADS, log=lambda m: print(f"[{size}] {m}", flush=True))
+
+
+def score(out: Path, size: str, k: int) -> dict:
+    """The scores after chunk ``k`` (1-based count of chunks done), kept in OUT/SIZE/chunk-K.json."""
+    path = out / size / f"chunk-{k}.json"
+    if path.is_file():
+        return json.loads(path.read_text())
+    card = json.loads((out / size / "single.json").read_text())
+    # the card names the base settings file; the size's own settings are these
+    result = {"size": size, "detector": asdict(SIZES[size]), "chunks": k, "steps": card["steps"],
+              "train_wall_s": card["train_wall_s"], "sets": {}}
+    for stage in (True, False):
+        cfg = replace(SIZES[size], point_stage=stage)
+        detector = NoFusion(cfg=cfg, weights_file=str(out / size / "single.pt"))
+        for set_name in SETS:
+            t0 = time.perf_counter()
+            scores = evaluate_detector(detector, scenes_of(set_name))
+            entry = {"ap": scores["ap"], "ap_per_frame": scores["ap_per_frame"], "frames": scores["frames"]}
+            if stage:
+                rows = rows_of(set_name, detector, cfg)
+                entry["near_miss_pct"] = round(100 * float((rows[:, 1] == STAGES.index("best candidate 0.5-0.7")).mean()), 1)
+            entry["eval_s"] = round(time.perf_counter() - t0, 1)
+            result["sets"][f"{set_name}{'' if stage else ' (no stage)'}"] = entry
+            print(f"[{size}] chunk {k} {set_name} stage={stage}: {entry}", flush=True)
+    path.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def table(out: Path) -> None:
+    print("| size | chunks | steps | set | AP@0.5 / 0.7 | AP@0.7 per frame | no stage AP@0.7 | near misses (%) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for path in sorted(out.glob("*/chunk-*.json")):
+        r = json.loads(path.read_text())
+        for set_name in SETS:
+            s, n = r["sets"][set_name], r["sets"][f"{set_name} (no stage)"]
+            print(f"| {r['size']} | {r['chunks']} | {r['steps']} | {set_name} | {100 * s['ap']['0.5']:.1f} / "
+                  f"{100 * s['ap']['0.7']:.1f} | {100 * s['ap_per_frame']['0.7']:.1f} | {100 * n['ap']['0.7']:.1f} | "
+                  f"{s['near_miss_pct']} |")
+
+
+def main(out: Path, size: str, chunks: int | None) -> None:
+    if size not in SIZES:
+        sys.exit(f"size must be one of {', '.join(SIZES)}")
+    (out / size).mkdir(parents=True, exist_ok=True)
+    target = min(chunks if chunks is not None else chunks_done(out / size) + 1, len(SEQUENCE))
+    while chunks_done(out / size) < target:
+        train_chunk(out, size, chunks_done(out / size))
+        score(out, size, chunks_done(out / size))
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 3 and sys.argv[2] == "--table":
+        table(Path(sys.argv[1]))
+    elif len(sys.argv) in (3, 4):
+        main(Path(sys.argv[1]), sys.argv[2], int(sys.argv[3]) if len(sys.argv) == 4 else None)
+    else:
+        sys.exit(__doc__)
