@@ -35,8 +35,9 @@ from miss_stages import STAGES, rows_of  # this folder's
 
 BASE = load_detector_config()
 SIZES = {"shipped": BASE, "wide": replace(BASE, filters=(64, 128, 256), upsample_channels=128)}
-#: the chunks, each (steps, one-cycle peak lr): the shipped single's rates from its third chunk on
-#: (0.002, then 0.001, then 0.0005), its other settings (train.yaml's single block: data, batch, seed)
+#: the chunks, each (steps, one-cycle peak lr): the shipped single's one-cycle chunks (0.002, 0.001,
+#: 0.0005) after one more at 0.002 in place of its first two (a step schedule at 0.002); its other
+#: settings (train.yaml's single block: data, batch, seed)
 SEQUENCE = ((3000, 0.002), (3000, 0.002), (3000, 0.001), (3000, 0.0005))
 SETS = ("normal-val", "heuristic")
 #: training threads (ASG_THREADS, default 2)
