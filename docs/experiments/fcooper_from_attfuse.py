@@ -5,7 +5,7 @@ block otherwise: its seed, data and views), where the shipped F-Cooper is a sequ
 single-agent weights (4,000 steps). Writes OUT/fcooper.pt (and its card); resumable (OUT/run/last.pt).
 
     .venv/bin/python docs/experiments/fcooper_from_attfuse.py OUT
-    asg evaluate --fusion fcooper --weights OUT/fcooper.pt --set normal-val --ap-method both --json
+    asg evaluate --fusion fcooper --weights OUT/fcooper.pt --set normal-val --json    (both yardsticks)
 """
 from __future__ import annotations
 

@@ -26,15 +26,15 @@ from pathlib import Path
 
 from asg.datasets import scenes_of
 from asg.evaluation import evaluate_detector
-from asg.perception.config import load_detector_config
 from asg.perception.fusion.single import NoFusion
 from asg.training.config import load_train_config
 from asg.training.train import train
 
-from miss_stages import STAGES, rows_of  # this folder's
+from box_levers import SIZES as BOX_LEVER_SIZES  # this folder's
+from miss_stages import STAGES, rows_of
 
-BASE = load_detector_config()
-SIZES = {"shipped": BASE, "wide": replace(BASE, filters=(64, 128, 256), upsample_channels=128)}
+#: the two sizes compared, as box_levers.py defines them
+SIZES = {name: BOX_LEVER_SIZES[name] for name in ("shipped", "wide")}
 #: the chunks, each (steps, one-cycle peak lr): the shipped single's one-cycle chunks (0.002, 0.001,
 #: 0.0005) after one more at 0.002 in place of its first two (a step schedule at 0.002); its other
 #: settings (train.yaml's single block: data, batch, seed)
