@@ -12,7 +12,11 @@ AP@0.3/0.5/0.7 on normal-val and heuristic under both yardsticks (ours: global s
 frame), with the shared point stage and without it, and the share of the visible vehicles (10+
 fused points) whose best candidate fits at IoU 0.5-0.7 only (miss_stages.py's near misses).
 
+After the last chunk, ``--branches`` fits the IoU and refinement branches on the frozen network
+(train.yaml's iou_branch block, as the shipped single's were) and scores it again (DIR/SIZE/branches.json).
+
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
+    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --branches
     .venv/bin/python docs/experiments/size_sequence.py DIR --table
 """
 from __future__ import annotations
@@ -45,8 +49,15 @@ THREADS = int(os.environ.get("ASG_THREADS", "2"))
 
 
 def chunks_done(weights_dir: Path) -> int:
+    """The training chunks in the card (its branch fit, if any, is not one)."""
     card = weights_dir / "single.json"
-    return len(json.loads(card.read_text())["chunks"]) if card.is_file() else 0
+    chunks = json.loads(card.read_text())["chunks"] if card.is_file() else []
+    return sum(1 for c in chunks if c.get("part", "all") == "all")
+
+
+def branches_fitted(weights_dir: Path) -> bool:
+    card = weights_dir / "single.json"
+    return card.is_file() and any(c.get("part") == "branches" for c in json.loads(card.read_text())["chunks"])
 
 
 def train_chunk(out: Path, size: str, k: int) -> Path:
@@ -58,14 +69,23 @@ def train_chunk(out: Path, size: str, k: int) -> Path:
                  threads=THREADS, log=lambda m: print(f"[{size}] {m}", flush=True))
 
 
-def score(out: Path, size: str, k: int) -> dict:
-    """The scores after chunk ``k`` (1-based count of chunks done), kept in OUT/SIZE/chunk-K.json."""
-    path = out / size / f"chunk-{k}.json"
+def fit_branches(out: Path, size: str) -> Path:
+    """The IoU and refinement branches of OUT/SIZE/single.pt, fitted on the frozen network."""
+    return train("none", out_dir=Path("runs") / "size-sequence" / size, iou_branch=True,
+                 detector_config=SIZES[size], weights_dir=out / size, validate=False,
+                 threads=THREADS, log=lambda m: print(f"[{size}] {m}", flush=True))
+
+
+def score(out: Path, size: str, k: int, label: str | None = None) -> dict:
+    """The scores after chunk ``k`` (1-based count of chunks done), kept in OUT/SIZE/LABEL.json
+    (``label`` defaults to chunk-K; "branches" after the branch fit)."""
+    path = out / size / f"{label or f'chunk-{k}'}.json"
     if path.is_file():
         return json.loads(path.read_text())
     card = json.loads((out / size / "single.json").read_text())
     # the card names the base settings file; the size's own settings are these
-    result = {"size": size, "detector": asdict(SIZES[size]), "chunks": k, "steps": card["steps"],
+    result = {"size": size, "detector": asdict(SIZES[size]), "chunks": k, "branches": branches_fitted(out / size),
+              "steps": card["steps"],
               "train_wall_s": card["train_wall_s"], "sets": {}}
     for stage in (True, False):
         cfg = replace(SIZES[size], point_stage=stage)
@@ -87,13 +107,30 @@ def score(out: Path, size: str, k: int) -> dict:
 def table(out: Path) -> None:
     print("| size | chunks | steps | set | AP@0.5 / 0.7 | AP@0.7 per frame | no stage AP@0.7 | near misses (%) |")
     print("|---|---|---|---|---|---|---|---|")
-    for path in sorted(out.glob("*/chunk-*.json")):
-        r = json.loads(path.read_text())
-        for set_name in SETS:
-            s, n = r["sets"][set_name], r["sets"][f"{set_name} (no stage)"]
-            print(f"| {r['size']} | {r['chunks']} | {r['steps']} | {set_name} | {100 * s['ap']['0.5']:.1f} / "
-                  f"{100 * s['ap']['0.7']:.1f} | {100 * s['ap_per_frame']['0.7']:.1f} | {100 * n['ap']['0.7']:.1f} | "
-                  f"{s['near_miss_pct']} |")
+    for size_dir in sorted(p for p in out.iterdir() if p.is_dir()):
+        paths = sorted(size_dir.glob("chunk-*.json"), key=lambda p: int(p.stem.split("-")[1]))
+        for path in paths + ([size_dir / "branches.json"] if (size_dir / "branches.json").is_file() else []):
+            table_rows(json.loads(path.read_text()))
+
+
+def table_rows(r: dict) -> None:
+    chunks = f"{r['chunks']}{' + branches' if r.get('branches') else ''}"
+    for set_name in SETS:
+        s, n = r["sets"][set_name], r["sets"][f"{set_name} (no stage)"]
+        print(f"| {r['size']} | {chunks} | {r['steps']} | {set_name} | {100 * s['ap']['0.5']:.1f} / "
+              f"{100 * s['ap']['0.7']:.1f} | {100 * s['ap_per_frame']['0.7']:.1f} | {100 * n['ap']['0.7']:.1f} | "
+              f"{s['near_miss_pct']} |")
+
+
+def main_branches(out: Path, size: str) -> None:
+    if size not in SIZES:
+        sys.exit(f"size must be one of {', '.join(SIZES)}")
+    done = chunks_done(out / size)
+    if done < len(SEQUENCE):
+        sys.exit(f"{out / size}: {done} of {len(SEQUENCE)} chunks trained; the branches are fitted after the last")
+    if not branches_fitted(out / size):
+        fit_branches(out, size)
+    score(out, size, done, "branches")
 
 
 def main(out: Path, size: str, chunks: int | None) -> None:
@@ -109,6 +146,8 @@ def main(out: Path, size: str, chunks: int | None) -> None:
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[2] == "--table":
         table(Path(sys.argv[1]))
+    elif len(sys.argv) == 4 and sys.argv[3] == "--branches":
+        main_branches(Path(sys.argv[1]), sys.argv[2])
     elif len(sys.argv) in (3, 4):
         main(Path(sys.argv[1]), sys.argv[2], int(sys.argv[3]) if len(sys.argv) == 4 else None)
     else:
