@@ -18,6 +18,12 @@ After the last chunk, ``--branches`` fits the IoU and refinement branches on the
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --branches
     .venv/bin/python docs/experiments/size_sequence.py DIR --table
+    .venv/bin/python docs/experiments/size_sequence.py DIR --fusions
+
+``--fusions`` scores the two models that are the single network itself, No Fusion and Late Fusion,
+of each size with its branches and of the shipped weights, with the point stage, on normal-val,
+heuristic and that model's own challenging set (scenes attacked against its shipped model), both
+yardsticks: DIR/fusions.json, printed as a table.
 """
 from __future__ import annotations
 
@@ -30,7 +36,7 @@ from pathlib import Path
 
 from asg.datasets import scenes_of
 from asg.evaluation import evaluate_detector
-from asg.perception.fusion.single import NoFusion
+from asg.perception.fusion.single import LateFusion, NoFusion
 from asg.training.config import load_train_config
 from asg.training.train import train
 
@@ -44,6 +50,9 @@ SIZES = {name: BOX_LEVER_SIZES[name] for name in ("shipped", "wide")}
 #: settings (train.yaml's single block: data, batch, seed)
 SEQUENCE = ((3000, 0.002), (3000, 0.002), (3000, 0.001), (3000, 0.0005))
 SETS = ("normal-val", "heuristic")
+#: the models that are the single network itself, each with the sets --fusions scores it on
+FUSIONS = {"none": (NoFusion, (*SETS, "challenging-none-train")),
+           "late": (LateFusion, (*SETS, "challenging-late-train"))}
 #: training threads (ASG_THREADS, default 2)
 THREADS = int(os.environ.get("ASG_THREADS", "2"))
 
@@ -122,6 +131,38 @@ def table_rows(r: dict) -> None:
               f"{s['near_miss_pct']} |")
 
 
+def score_fusions(out: Path) -> dict:
+    """FUSIONS of each size whose branches are fitted and of the shipped weights (their own point
+    stage; the sizes here use the shipped single's), kept in OUT/fusions.json, one entry a time."""
+    path = out / "fusions.json"
+    result = json.loads(path.read_text()) if path.is_file() else {}
+    weights = {"shipped weights": (NoFusion.detector_config(), None)}
+    weights.update({size: (SIZES[size], str(out / size / "single.pt")) for size in SIZES if branches_fitted(out / size)})
+    for label, (cfg, weights_file) in weights.items():
+        for fusion, (model, sets) in FUSIONS.items():
+            detector = model(cfg=replace(cfg, point_stage=True), weights_file=weights_file)
+            for set_name in sets:
+                key = f"{label} / {fusion} / {set_name}"
+                if key in result:
+                    continue
+                t0 = time.perf_counter()
+                scores = evaluate_detector(detector, scenes_of(set_name))
+                result[key] = {"ap": scores["ap"], "ap_per_frame": scores["ap_per_frame"], "frames": scores["frames"],
+                               "eval_s": round(time.perf_counter() - t0, 1)}
+                print(f"{key}: {result[key]}", flush=True)
+                path.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def fusions_table(result: dict) -> None:
+    print("| weights | model | set | AP@0.5 / 0.7 | AP@0.5 / 0.7 per frame |")
+    print("|---|---|---|---|---|")
+    for key, r in result.items():
+        label, fusion, set_name = key.split(" / ")
+        print(f"| {label} | {fusion} | {set_name} | {100 * r['ap']['0.5']:.1f} / {100 * r['ap']['0.7']:.1f} | "
+              f"{100 * r['ap_per_frame']['0.5']:.1f} / {100 * r['ap_per_frame']['0.7']:.1f} |")
+
+
 def main_branches(out: Path, size: str) -> None:
     if size not in SIZES:
         sys.exit(f"size must be one of {', '.join(SIZES)}")
@@ -146,6 +187,8 @@ def main(out: Path, size: str, chunks: int | None) -> None:
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[2] == "--table":
         table(Path(sys.argv[1]))
+    elif len(sys.argv) == 3 and sys.argv[2] == "--fusions":
+        fusions_table(score_fusions(Path(sys.argv[1])))
     elif len(sys.argv) == 4 and sys.argv[3] == "--branches":
         main_branches(Path(sys.argv[1]), sys.argv[2])
     elif len(sys.argv) in (3, 4):
