@@ -39,9 +39,10 @@ def build_models(models) -> dict:
     return out
 
 
-def per_frame_flags(set_name: str, models=MODELS) -> dict:
+def per_frame_flags(set_name: str, models=MODELS, build=build_models) -> dict:
     """{(model, threshold): [(scores (N,), tp (N,) bool, n_gt), ...] one entry per frame}, frames
-    paired by scene id across the models' sets (``MODEL@SET``: that model on its own set)."""
+    paired by scene id across the models' sets (``MODEL@SET``: that model on its own set);
+    ``build(specs)``: {label: detector} (default: :func:`build_models`)."""
     spec = load_lidar_spec("v2xp")
     by_set: dict[str, list[str]] = {}
     for m in models:
@@ -49,7 +50,7 @@ def per_frame_flags(set_name: str, models=MODELS) -> dict:
         by_set.setdefault(own or set_name, []).append(spec_m)
     found: dict[tuple, dict] = {}
     for set_, specs in by_set.items():
-        detectors = build_models(specs)
+        detectors = build(specs)
         for scene in scenes_of(set_):
             sample = Sample(scene.scene_id, simulate_frame(scene, spec))
             gt = sample.gt_eval()
@@ -68,8 +69,8 @@ def ap_of(frames: list, idx: np.ndarray) -> float:
     return ap_from_matches([f[0] for f in picked], [f[1] for f in picked], sum(f[2] for f in picked))
 
 
-def main(set_name: str, resamples: int, models=MODELS) -> None:
-    flags = per_frame_flags(set_name, models)
+def main(set_name: str, resamples: int, models=MODELS, build=build_models) -> None:
+    flags = per_frame_flags(set_name, models, build)
     names = [m.partition("@")[0].partition("=")[0] for m in models]
     n = len(flags[names[0], THRESHOLDS[0]])
     rng = np.random.default_rng(0)

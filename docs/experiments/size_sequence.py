@@ -19,6 +19,16 @@ After the last chunk, ``--branches`` fits the IoU and refinement branches on the
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --branches
     .venv/bin/python docs/experiments/size_sequence.py DIR --table
     .venv/bin/python docs/experiments/size_sequence.py DIR --fusions
+    .venv/bin/python docs/experiments/size_sequence.py DIR --bootstrap SET [RESAMPLES]
+
+``--bootstrap`` gives the gaps between those models (No and Late Fusion of the shipped weights and
+of each size with its branches) on SET with their paired-bootstrap intervals (ap_bootstrap.py).
+
+``--attfuse [CHUNKS]`` trains AttFuse at that size from that size's single network (after its
+branch fit) by ATTFUSE_SEQUENCE, one more chunk (or up to CHUNKS), and scores it after each
+(DIR/SIZE/attfuse.pt, attfuse.json, attfuse-chunk-K.json; the same sets and figures as the single's).
+
+    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attfuse [CHUNKS]
 
 ``--fusions`` scores the two models that are the single network itself, No Fusion and Late Fusion,
 of each size with its branches and of the shipped weights, with the point stage, on normal-val,
@@ -36,6 +46,7 @@ from pathlib import Path
 
 from asg.datasets import scenes_of
 from asg.evaluation import evaluate_detector
+from asg.perception.fusion.attfuse import AttFuseDetector
 from asg.perception.fusion.single import LateFusion, NoFusion
 from asg.training.config import load_train_config
 from asg.training.train import train
@@ -49,6 +60,9 @@ SIZES = {name: BOX_LEVER_SIZES[name] for name in ("shipped", "wide")}
 #: 0.0005) after one more at 0.002 in place of its first two (a step schedule at 0.002); its other
 #: settings (train.yaml's single block: data, batch, seed)
 SEQUENCE = ((3000, 0.002), (3000, 0.002), (3000, 0.001), (3000, 0.0005))
+#: AttFuse's chunks from the single network (one-cycle; train.yaml's attfuse block otherwise: all
+#: views, batch 4): the shipped AttFuse's peaks (0.001, then 0.0005 and below), in longer chunks
+ATTFUSE_SEQUENCE = ((3000, 0.001), (3000, 0.001), (3000, 0.0005), (2000, 0.00025))
 SETS = ("normal-val", "heuristic")
 #: the models that are the single network itself, each with the sets --fusions scores it on
 FUSIONS = {"none": (NoFusion, (*SETS, "challenging-none-train")),
@@ -57,9 +71,9 @@ FUSIONS = {"none": (NoFusion, (*SETS, "challenging-none-train")),
 THREADS = int(os.environ.get("ASG_THREADS", "2"))
 
 
-def chunks_done(weights_dir: Path) -> int:
-    """The training chunks in the card (its branch fit, if any, is not one)."""
-    card = weights_dir / "single.json"
+def chunks_done(weights_dir: Path, name: str = "single") -> int:
+    """The training chunks in NAME's card (its branch fit, if any, is not one)."""
+    card = weights_dir / f"{name}.json"
     chunks = json.loads(card.read_text())["chunks"] if card.is_file() else []
     return sum(1 for c in chunks if c.get("part", "all") == "all")
 
@@ -78,6 +92,15 @@ def train_chunk(out: Path, size: str, k: int) -> Path:
                  threads=THREADS, log=lambda m: print(f"[{size}] {m}", flush=True))
 
 
+def train_attfuse_chunk(out: Path, size: str, k: int) -> Path:
+    """Chunk ``k`` (0-based) of ATTFUSE_SEQUENCE for ``size``; the first starts from OUT/SIZE/single.pt."""
+    steps, lr = ATTFUSE_SEQUENCE[k]
+    tcfg = replace(load_train_config("attfuse"), steps=steps, lr=lr, schedule="onecycle")
+    return train("attfuse", out_dir=Path("runs") / "size-sequence" / f"{size}-attfuse", train_config=tcfg,
+                 detector_config=SIZES[size], weights_dir=out / size, validate=False, threads=THREADS,
+                 init_from="single" if k == 0 else None, log=lambda m: print(f"[{size} attfuse] {m}", flush=True))
+
+
 def fit_branches(out: Path, size: str) -> Path:
     """The IoU and refinement branches of OUT/SIZE/single.pt, fitted on the frozen network."""
     return train("none", out_dir=Path("runs") / "size-sequence" / size, iou_branch=True,
@@ -85,20 +108,22 @@ def fit_branches(out: Path, size: str) -> Path:
                  threads=THREADS, log=lambda m: print(f"[{size}] {m}", flush=True))
 
 
-def score(out: Path, size: str, k: int, label: str | None = None) -> dict:
+def score(out: Path, size: str, k: int, label: str | None = None, model: str = "none") -> dict:
     """The scores after chunk ``k`` (1-based count of chunks done), kept in OUT/SIZE/LABEL.json
-    (``label`` defaults to chunk-K; "branches" after the branch fit)."""
+    (``label`` defaults to chunk-K; "branches" after the branch fit); ``model``: none (the single
+    network) or attfuse."""
     path = out / size / f"{label or f'chunk-{k}'}.json"
     if path.is_file():
         return json.loads(path.read_text())
-    card = json.loads((out / size / "single.json").read_text())
+    name, detector_class = {"none": ("single", NoFusion), "attfuse": ("attfuse", AttFuseDetector)}[model]
+    card = json.loads((out / size / f"{name}.json").read_text())
     # the card names the base settings file; the size's own settings are these
-    result = {"size": size, "detector": asdict(SIZES[size]), "chunks": k, "branches": branches_fitted(out / size),
-              "steps": card["steps"],
-              "train_wall_s": card["train_wall_s"], "sets": {}}
+    result = {"size": size, "model": model, "detector": asdict(SIZES[size]), "chunks": k,
+              "branches": any(c.get("part") == "branches" for c in card["chunks"]),
+              "steps": card["steps"], "train_wall_s": card["train_wall_s"], "sets": {}}
     for stage in (True, False):
         cfg = replace(SIZES[size], point_stage=stage)
-        detector = NoFusion(cfg=cfg, weights_file=str(out / size / "single.pt"))
+        detector = detector_class(cfg=cfg, weights_file=str(out / size / f"{name}.pt"))
         for set_name in SETS:
             t0 = time.perf_counter()
             scores = evaluate_detector(detector, scenes_of(set_name))
@@ -108,7 +133,7 @@ def score(out: Path, size: str, k: int, label: str | None = None) -> dict:
                 entry["near_miss_pct"] = round(100 * float((rows[:, 1] == STAGES.index("best candidate 0.5-0.7")).mean()), 1)
             entry["eval_s"] = round(time.perf_counter() - t0, 1)
             result["sets"][f"{set_name}{'' if stage else ' (no stage)'}"] = entry
-            print(f"[{size}] chunk {k} {set_name} stage={stage}: {entry}", flush=True)
+            print(f"[{size} {model}] {path.stem} {set_name} stage={stage}: {entry}", flush=True)
     path.write_text(json.dumps(result, indent=1))
     return result
 
@@ -118,7 +143,9 @@ def table(out: Path) -> None:
     print("|---|---|---|---|---|---|---|---|")
     for size_dir in sorted(p for p in out.iterdir() if p.is_dir()):
         paths = sorted(size_dir.glob("chunk-*.json"), key=lambda p: int(p.stem.split("-")[1]))
-        for path in paths + ([size_dir / "branches.json"] if (size_dir / "branches.json").is_file() else []):
+        paths += [size_dir / "branches.json"] if (size_dir / "branches.json").is_file() else []
+        paths += sorted(size_dir.glob("attfuse-chunk-*.json"), key=lambda p: int(p.stem.split("-")[2]))
+        for path in paths:
             table_rows(json.loads(path.read_text()))
 
 
@@ -126,9 +153,35 @@ def table_rows(r: dict) -> None:
     chunks = f"{r['chunks']}{' + branches' if r.get('branches') else ''}"
     for set_name in SETS:
         s, n = r["sets"][set_name], r["sets"][f"{set_name} (no stage)"]
-        print(f"| {r['size']} | {chunks} | {r['steps']} | {set_name} | {100 * s['ap']['0.5']:.1f} / "
+        print(f"| {r['size']}{' attfuse' if r.get('model') == 'attfuse' else ''} | {chunks} | {r['steps']} | {set_name} | {100 * s['ap']['0.5']:.1f} / "
               f"{100 * s['ap']['0.7']:.1f} | {100 * s['ap_per_frame']['0.7']:.1f} | {100 * n['ap']['0.7']:.1f} | "
               f"{s['near_miss_pct']} |")
+
+
+def single_weights(out: Path) -> dict[str, tuple]:
+    """{label: (detector settings, weights file or None for the shipped)}: the shipped single weights
+    ("shipped weights") and each size's with its branches fitted."""
+    weights = {"shipped weights": (NoFusion.detector_config(), None)}
+    weights.update({size: (SIZES[size], str(out / size / "single.pt")) for size in SIZES if branches_fitted(out / size)})
+    return weights
+
+
+def bootstrap(out: Path, set_name: str, resamples: int) -> None:
+    """ap_bootstrap.py's paired gaps between FUSIONS of single_weights (labels FUSION/WEIGHTS)."""
+    from ap_bootstrap import main as bootstrap_main  # this folder's
+
+    weights = single_weights(out)
+    labels = [f"{fusion}/{label.replace(' ', '-')}" for fusion in FUSIONS for label in weights]
+
+    def build(specs) -> dict:
+        found = {}
+        for spec in specs:
+            fusion, _, label = spec.partition("/")
+            cfg, weights_file = weights[label.replace("-", " ")]
+            found[spec] = FUSIONS[fusion][0](cfg=replace(cfg, point_stage=True), weights_file=weights_file)
+        return found
+
+    bootstrap_main(set_name, resamples, tuple(labels), build)
 
 
 def score_fusions(out: Path) -> dict:
@@ -136,9 +189,7 @@ def score_fusions(out: Path) -> dict:
     stage; the sizes here use the shipped single's), kept in OUT/fusions.json, one entry a time."""
     path = out / "fusions.json"
     result = json.loads(path.read_text()) if path.is_file() else {}
-    weights = {"shipped weights": (NoFusion.detector_config(), None)}
-    weights.update({size: (SIZES[size], str(out / size / "single.pt")) for size in SIZES if branches_fitted(out / size)})
-    for label, (cfg, weights_file) in weights.items():
+    for label, (cfg, weights_file) in single_weights(out).items():
         for fusion, (model, sets) in FUSIONS.items():
             detector = model(cfg=replace(cfg, point_stage=True), weights_file=weights_file)
             for set_name in sets:
@@ -174,6 +225,18 @@ def main_branches(out: Path, size: str) -> None:
     score(out, size, done, "branches")
 
 
+def main_attfuse(out: Path, size: str, chunks: int | None) -> None:
+    if size not in SIZES:
+        sys.exit(f"size must be one of {', '.join(SIZES)}")
+    if not branches_fitted(out / size):
+        sys.exit(f"{out / size}: AttFuse starts from the single network after its branch fit (--branches)")
+    target = min(chunks if chunks is not None else chunks_done(out / size, "attfuse") + 1, len(ATTFUSE_SEQUENCE))
+    while chunks_done(out / size, "attfuse") < target:
+        train_attfuse_chunk(out, size, chunks_done(out / size, "attfuse"))
+        k = chunks_done(out / size, "attfuse")
+        score(out, size, k, f"attfuse-chunk-{k}", "attfuse")
+
+
 def main(out: Path, size: str, chunks: int | None) -> None:
     if size not in SIZES:
         sys.exit(f"size must be one of {', '.join(SIZES)}")
@@ -187,8 +250,12 @@ def main(out: Path, size: str, chunks: int | None) -> None:
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[2] == "--table":
         table(Path(sys.argv[1]))
+    elif len(sys.argv) in (4, 5) and sys.argv[2] == "--bootstrap":
+        bootstrap(Path(sys.argv[1]), sys.argv[3], int(sys.argv[4]) if len(sys.argv) == 5 else 1000)
     elif len(sys.argv) == 3 and sys.argv[2] == "--fusions":
         fusions_table(score_fusions(Path(sys.argv[1])))
+    elif len(sys.argv) in (4, 5) and sys.argv[3] == "--attfuse":
+        main_attfuse(Path(sys.argv[1]), sys.argv[2], int(sys.argv[4]) if len(sys.argv) == 5 else None)
     elif len(sys.argv) == 4 and sys.argv[3] == "--branches":
         main_branches(Path(sys.argv[1]), sys.argv[2])
     elif len(sys.argv) in (3, 4):
