@@ -15,25 +15,22 @@ fused points) whose best candidate fits at IoU 0.5-0.7 only (miss_stages.py's ne
 After the last chunk, ``--branches`` fits the IoU and refinement branches on the frozen network
 (train.yaml's iou_branch block, as the shipped single's were) and scores it again (DIR/SIZE/branches.json).
 
-    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
-    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --branches
-    .venv/bin/python docs/experiments/size_sequence.py DIR --table
-    .venv/bin/python docs/experiments/size_sequence.py DIR --fusions
-    .venv/bin/python docs/experiments/size_sequence.py DIR --bootstrap SET [RESAMPLES]
-
-``--bootstrap`` gives the gaps between those models (No and Late Fusion of the shipped weights and
-of each size with its branches) on SET with their paired-bootstrap intervals (ap_bootstrap.py).
-
-``--attfuse [CHUNKS]`` trains AttFuse at that size from that size's single network (after its
-branch fit) by ATTFUSE_SEQUENCE, one more chunk (or up to CHUNKS), and scores it after each
-(DIR/SIZE/attfuse.pt, attfuse.json, attfuse-chunk-K.json; the same sets and figures as the single's).
-
-    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attfuse [CHUNKS]
+``--attfuse [CHUNKS]`` then trains AttFuse at that size from that size's single network by
+ATTFUSE_SEQUENCE, one more chunk (or up to CHUNKS), and scores it after each (DIR/SIZE/attfuse.pt,
+attfuse.json, attfuse-chunk-K.json; the same sets and figures as the single's).
 
 ``--fusions`` scores the two models that are the single network itself, No Fusion and Late Fusion,
 of each size with its branches and of the shipped weights, with the point stage, on normal-val,
 heuristic and that model's own challenging set (scenes attacked against its shipped model), both
-yardsticks: DIR/fusions.json, printed as a table.
+yardsticks: DIR/fusions.json, printed as a table. ``--bootstrap`` gives the gaps between the same
+models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
+
+    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
+    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --branches
+    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attfuse [CHUNKS]
+    .venv/bin/python docs/experiments/size_sequence.py DIR --table
+    .venv/bin/python docs/experiments/size_sequence.py DIR --fusions
+    .venv/bin/python docs/experiments/size_sequence.py DIR --bootstrap SET [RESAMPLES]
 """
 from __future__ import annotations
 
@@ -153,7 +150,8 @@ def table_rows(r: dict) -> None:
     chunks = f"{r['chunks']}{' + branches' if r.get('branches') else ''}"
     for set_name in SETS:
         s, n = r["sets"][set_name], r["sets"][f"{set_name} (no stage)"]
-        print(f"| {r['size']}{' attfuse' if r.get('model') == 'attfuse' else ''} | {chunks} | {r['steps']} | {set_name} | {100 * s['ap']['0.5']:.1f} / "
+        model = f"{r['size']}{' attfuse' if r.get('model') == 'attfuse' else ''}"
+        print(f"| {model} | {chunks} | {r['steps']} | {set_name} | {100 * s['ap']['0.5']:.1f} / "
               f"{100 * s['ap']['0.7']:.1f} | {100 * s['ap_per_frame']['0.7']:.1f} | {100 * n['ap']['0.7']:.1f} | "
               f"{s['near_miss_pct']} |")
 
