@@ -105,6 +105,12 @@ def fit_branches(out: Path, size: str) -> Path:
                  threads=THREADS, log=lambda m: print(f"[{size}] {m}", flush=True))
 
 
+def ap_entry(detector, set_name: str) -> dict:
+    """AP@0.3/0.5/0.7 of ``detector`` on ``set_name`` under both yardsticks, and its frame count."""
+    scores = evaluate_detector(detector, scenes_of(set_name))
+    return {"ap": scores["ap"], "ap_per_frame": scores["ap_per_frame"], "frames": scores["frames"]}
+
+
 def score(out: Path, size: str, k: int, label: str | None = None, model: str = "none") -> dict:
     """The scores after chunk ``k`` (1-based count of chunks done), kept in OUT/SIZE/LABEL.json
     (``label`` defaults to chunk-K; "branches" after the branch fit); ``model``: none (the single
@@ -123,8 +129,7 @@ def score(out: Path, size: str, k: int, label: str | None = None, model: str = "
         detector = detector_class(cfg=cfg, weights_file=str(out / size / f"{name}.pt"))
         for set_name in SETS:
             t0 = time.perf_counter()
-            scores = evaluate_detector(detector, scenes_of(set_name))
-            entry = {"ap": scores["ap"], "ap_per_frame": scores["ap_per_frame"], "frames": scores["frames"]}
+            entry = ap_entry(detector, set_name)
             if stage:
                 rows = rows_of(set_name, detector, cfg)
                 entry["near_miss_pct"] = round(100 * float((rows[:, 1] == STAGES.index("best candidate 0.5-0.7")).mean()), 1)
@@ -195,9 +200,7 @@ def score_fusions(out: Path) -> dict:
                 if key in result:
                     continue
                 t0 = time.perf_counter()
-                scores = evaluate_detector(detector, scenes_of(set_name))
-                result[key] = {"ap": scores["ap"], "ap_per_frame": scores["ap_per_frame"], "frames": scores["frames"],
-                               "eval_s": round(time.perf_counter() - t0, 1)}
+                result[key] = {**ap_entry(detector, set_name), "eval_s": round(time.perf_counter() - t0, 1)}
                 print(f"{key}: {result[key]}", flush=True)
                 path.write_text(json.dumps(result, indent=1))
     return result
