@@ -68,16 +68,19 @@ FUSIONS = {"none": (NoFusion, (*SETS, "challenging-none-train")),
 THREADS = int(os.environ.get("ASG_THREADS", "2"))
 
 
+def card_chunks(weights_dir: Path, name: str) -> list[dict]:
+    """The chunks NAME's card lists (none before its first chunk)."""
+    card = weights_dir / f"{name}.json"
+    return json.loads(card.read_text())["chunks"] if card.is_file() else []
+
+
 def chunks_done(weights_dir: Path, name: str = "single") -> int:
     """The training chunks in NAME's card (its branch fit, if any, is not one)."""
-    card = weights_dir / f"{name}.json"
-    chunks = json.loads(card.read_text())["chunks"] if card.is_file() else []
-    return sum(1 for c in chunks if c.get("part", "all") == "all")
+    return sum(1 for c in card_chunks(weights_dir, name) if c.get("part", "all") == "all")
 
 
-def branches_fitted(weights_dir: Path) -> bool:
-    card = weights_dir / "single.json"
-    return card.is_file() and any(c.get("part") == "branches" for c in json.loads(card.read_text())["chunks"])
+def branches_fitted(weights_dir: Path, name: str = "single") -> bool:
+    return any(c.get("part") == "branches" for c in card_chunks(weights_dir, name))
 
 
 def train_chunk(out: Path, size: str, k: int) -> Path:
@@ -122,7 +125,7 @@ def score(out: Path, size: str, k: int, label: str | None = None, model: str = "
     card = json.loads((out / size / f"{name}.json").read_text())
     # the card names the base settings file; the size's own settings are these
     result = {"size": size, "model": model, "detector": asdict(SIZES[size]), "chunks": k,
-              "branches": any(c.get("part") == "branches" for c in card["chunks"]),
+              "branches": branches_fitted(out / size, name),
               "steps": card["steps"], "train_wall_s": card["train_wall_s"], "sets": {}}
     for stage in (True, False):
         cfg = replace(SIZES[size], point_stage=stage)
@@ -216,8 +219,6 @@ def fusions_table(result: dict) -> None:
 
 
 def main_branches(out: Path, size: str) -> None:
-    if size not in SIZES:
-        sys.exit(f"size must be one of {', '.join(SIZES)}")
     done = chunks_done(out / size)
     if done < len(SEQUENCE):
         sys.exit(f"{out / size}: {done} of {len(SEQUENCE)} chunks trained; the branches are fitted after the last")
@@ -227,8 +228,6 @@ def main_branches(out: Path, size: str) -> None:
 
 
 def main_attfuse(out: Path, size: str, chunks: int | None) -> None:
-    if size not in SIZES:
-        sys.exit(f"size must be one of {', '.join(SIZES)}")
     if not branches_fitted(out / size):
         sys.exit(f"{out / size}: AttFuse starts from the single network after its branch fit (--branches)")
     target = min(chunks if chunks is not None else chunks_done(out / size, "attfuse") + 1, len(ATTFUSE_SEQUENCE))
@@ -239,8 +238,6 @@ def main_attfuse(out: Path, size: str, chunks: int | None) -> None:
 
 
 def main(out: Path, size: str, chunks: int | None) -> None:
-    if size not in SIZES:
-        sys.exit(f"size must be one of {', '.join(SIZES)}")
     (out / size).mkdir(parents=True, exist_ok=True)
     target = min(chunks if chunks is not None else chunks_done(out / size) + 1, len(SEQUENCE))
     while chunks_done(out / size) < target:
@@ -249,6 +246,8 @@ def main(out: Path, size: str, chunks: int | None) -> None:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) >= 3 and not sys.argv[2].startswith("--") and sys.argv[2] not in SIZES:
+        sys.exit(f"size must be one of {', '.join(SIZES)}")
     if len(sys.argv) == 3 and sys.argv[2] == "--table":
         table(Path(sys.argv[1]))
     elif len(sys.argv) in (4, 5) and sys.argv[2] == "--bootstrap":
