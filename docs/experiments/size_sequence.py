@@ -17,7 +17,8 @@ After the last chunk, ``--branches`` fits the IoU and refinement branches on the
 
 ``--attfuse [CHUNKS]`` then trains AttFuse at that size from that size's single network by
 ATTFUSE_SEQUENCE, one more chunk (or up to CHUNKS), and scores it after each (DIR/SIZE/attfuse.pt,
-attfuse.json, attfuse-chunk-K.json; the same sets and figures as the single's).
+attfuse.json, attfuse-chunk-K.json; the same sets and figures as the single's). After its last chunk,
+``--attfuse --branches`` fits AttFuse's branches as the shipped AttFuse's were (DIR/SIZE/attfuse-branches.json).
 
 ``--fusions`` scores the two models that are the single network itself, No Fusion and Late Fusion,
 of each size with its branches and of the shipped weights, with the point stage, on normal-val,
@@ -28,6 +29,7 @@ models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --branches
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attfuse [CHUNKS]
+    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attfuse --branches
     .venv/bin/python docs/experiments/size_sequence.py DIR --table
     .venv/bin/python docs/experiments/size_sequence.py DIR --fusions
     .venv/bin/python docs/experiments/size_sequence.py DIR --bootstrap SET [RESAMPLES]
@@ -60,6 +62,8 @@ SEQUENCE = ((3000, 0.002), (3000, 0.002), (3000, 0.001), (3000, 0.0005))
 #: AttFuse's chunks from the single network (one-cycle; train.yaml's attfuse block otherwise: all
 #: views, batch 4): the shipped AttFuse's peaks (0.001, then 0.0005 and below), in longer chunks
 ATTFUSE_SEQUENCE = ((3000, 0.001), (3000, 0.001), (3000, 0.0005), (2000, 0.00025))
+#: the models trained by chunks: {fusion: (weights name, its chunks)}
+MODELS = {"none": ("single", SEQUENCE), "attfuse": ("attfuse", ATTFUSE_SEQUENCE)}
 SETS = ("normal-val", "heuristic")
 #: the models that are the single network itself, each with the sets --fusions scores it on
 FUSIONS = {"none": (NoFusion, (*SETS, "challenging-none-train")),
@@ -101,11 +105,13 @@ def train_attfuse_chunk(out: Path, size: str, k: int) -> Path:
                  init_from="single" if k == 0 else None, log=lambda m: print(f"[{size} attfuse] {m}", flush=True))
 
 
-def fit_branches(out: Path, size: str) -> Path:
-    """The IoU and refinement branches of OUT/SIZE/single.pt, fitted on the frozen network."""
-    return train("none", out_dir=Path("runs") / "size-sequence" / size, iou_branch=True,
+def fit_branches(out: Path, size: str, model: str = "none") -> Path:
+    """The IoU and refinement branches of MODEL's weights in OUT/SIZE/ (single.pt or attfuse.pt),
+    fitted on the frozen network."""
+    tag = size if model == "none" else f"{size}-{model}"
+    return train(model, out_dir=Path("runs") / "size-sequence" / tag, iou_branch=True,
                  detector_config=SIZES[size], weights_dir=out / size, validate=False,
-                 threads=THREADS, log=lambda m: print(f"[{size}] {m}", flush=True))
+                 threads=THREADS, log=lambda m: print(f"[{tag}] {m}", flush=True))
 
 
 def ap_entry(detector, set_name: str) -> dict:
@@ -150,6 +156,7 @@ def table(out: Path) -> None:
         paths = sorted(size_dir.glob("chunk-*.json"), key=lambda p: int(p.stem.split("-")[1]))
         paths += [size_dir / "branches.json"] if (size_dir / "branches.json").is_file() else []
         paths += sorted(size_dir.glob("attfuse-chunk-*.json"), key=lambda p: int(p.stem.split("-")[2]))
+        paths += [size_dir / "attfuse-branches.json"] if (size_dir / "attfuse-branches.json").is_file() else []
         for path in paths:
             table_rows(json.loads(path.read_text()))
 
@@ -218,13 +225,16 @@ def fusions_table(result: dict) -> None:
               f"{100 * r['ap_per_frame']['0.5']:.1f} / {100 * r['ap_per_frame']['0.7']:.1f} |")
 
 
-def main_branches(out: Path, size: str) -> None:
-    done = chunks_done(out / size)
-    if done < len(SEQUENCE):
-        sys.exit(f"{out / size}: {done} of {len(SEQUENCE)} chunks trained; the branches are fitted after the last")
-    if not branches_fitted(out / size):
-        fit_branches(out, size)
-    score(out, size, done, "branches")
+def main_branches(out: Path, size: str, model: str = "none") -> None:
+    """Fit MODEL's branches after its last chunk and score it (OUT/SIZE/branches.json for the
+    single network, attfuse-branches.json for AttFuse)."""
+    name, sequence = MODELS[model]
+    done = chunks_done(out / size, name)
+    if done < len(sequence):
+        sys.exit(f"{out / size}: {done} of {len(sequence)} {name} chunks trained; the branches are fitted after the last")
+    if not branches_fitted(out / size, name):
+        fit_branches(out, size, model)
+    score(out, size, done, "branches" if model == "none" else f"{name}-branches", model)
 
 
 def main_attfuse(out: Path, size: str, chunks: int | None) -> None:
@@ -254,6 +264,8 @@ if __name__ == "__main__":
         bootstrap(Path(sys.argv[1]), sys.argv[3], int(sys.argv[4]) if len(sys.argv) == 5 else 1000)
     elif len(sys.argv) == 3 and sys.argv[2] == "--fusions":
         fusions_table(score_fusions(Path(sys.argv[1])))
+    elif len(sys.argv) == 5 and sys.argv[3:] == ["--attfuse", "--branches"]:
+        main_branches(Path(sys.argv[1]), sys.argv[2], "attfuse")
     elif len(sys.argv) in (4, 5) and sys.argv[3] == "--attfuse":
         main_attfuse(Path(sys.argv[1]), sys.argv[2], int(sys.argv[4]) if len(sys.argv) == 5 else None)
     elif len(sys.argv) == 4 and sys.argv[3] == "--branches":
