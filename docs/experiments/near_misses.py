@@ -20,12 +20,15 @@ from asg.perception import build_detector
 from moved_vehicles import MIN_POINTS, found_at, frames_of  # this folder's
 
 
-def shares(set_name: str, model: str) -> dict:
+def shares(set_name: str, model: str, cfg=None, weights_file: str | None = None) -> dict:
+    """The shares of ``model`` (its shipped weights and settings, or ``cfg`` and ``weights_file``)
+    with its point stage and without it: {"stage" | "no stage": {"moved" | "unmoved": {...}}}."""
     summary_path = data_root() / set_name / "run" / "summary.json"
     moved = ({e["scene_id"]: set(e.get("moved") or []) for e in json.loads(summary_path.read_text())["scenes"]}
              if summary_path.is_file() else {})
-    shipped = build_detector(model)
-    detectors = {"stage": shipped, "no stage": build_detector(model, cfg=replace(shipped.cfg, point_stage=False))}
+    shipped = build_detector(model, cfg=cfg, weights_file=weights_file)
+    detectors = {"stage": shipped, "no stage": build_detector(model, cfg=replace(shipped.cfg, point_stage=False),
+                                                               weights_file=weights_file)}
     counts = {arm: {kind: np.zeros(3, int) for kind in ("moved", "unmoved")} for arm in detectors}
     for scene_id, frame, gt, points, ids in frames_of(set_name):
         for arm, det in detectors.items():

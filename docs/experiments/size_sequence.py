@@ -23,7 +23,9 @@ attfuse.json, attfuse-chunk-K.json; the same sets and figures as the single's). 
 ``--fusions`` scores the two models that are the single network itself, No Fusion and Late Fusion,
 of each size with its branches and of the shipped weights, with the point stage, on normal-val,
 heuristic and that model's own challenging set (scenes attacked against its shipped model), both
-yardsticks: DIR/fusions.json, printed as a table. ``--bootstrap`` gives the gaps between the same
+yardsticks: DIR/fusions.json, printed as a table. ``--own`` scores the shipped AttFuse and each size's
+AttFuse as it stands on AttFuse's own challenging set (OWN_SET): AP and the near misses among the
+moved and unmoved vehicles (near_misses.py), DIR/own.json. ``--bootstrap`` gives the gaps between the same
 models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
 
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
@@ -32,6 +34,7 @@ models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attfuse --branches
     .venv/bin/python docs/experiments/size_sequence.py DIR --table
     .venv/bin/python docs/experiments/size_sequence.py DIR --fusions
+    .venv/bin/python docs/experiments/size_sequence.py DIR --own
     .venv/bin/python docs/experiments/size_sequence.py DIR --bootstrap SET [RESAMPLES]
 """
 from __future__ import annotations
@@ -52,6 +55,7 @@ from asg.training.train import train
 
 from box_levers import SIZES as BOX_LEVER_SIZES  # this folder's
 from miss_stages import STAGES, rows_of
+from near_misses import shares
 
 #: the two sizes compared, as box_levers.py defines them
 SIZES = {name: BOX_LEVER_SIZES[name] for name in ("shipped", "wide")}
@@ -68,6 +72,10 @@ SETS = ("normal-val", "heuristic")
 #: the models that are the single network itself, each with the sets --fusions scores it on
 FUSIONS = {"none": (NoFusion, (*SETS, "challenging-none-train")),
            "late": (LateFusion, (*SETS, "challenging-late-train"))}
+#: AttFuse's own challenging set: the first 100 scenes of normal's train split attacked against the
+#: shipped AttFuse with its stage (tables.md's; asg dataset build challenging --fusion attfuse
+#: --split train --count 100)
+OWN_SET = "challenging-attfuse-train"
 #: training threads (ASG_THREADS, default 2)
 THREADS = int(os.environ.get("ASG_THREADS", "2"))
 
@@ -197,6 +205,49 @@ def bootstrap(out: Path, set_name: str, resamples: int) -> None:
     bootstrap_main(set_name, resamples, tuple(labels), build)
 
 
+def attfuse_weights(out: Path) -> dict[str, tuple]:
+    """{label: (detector settings, weights file or None for the shipped)}: the shipped AttFuse and
+    each size's AttFuse as it stands (labelled by its chunks)."""
+    weights = {"shipped attfuse": (AttFuseDetector.detector_config(), None)}
+    for size in SIZES:
+        k = chunks_done(out / size, "attfuse")
+        if k:
+            fitted = " + branches" if branches_fitted(out / size, "attfuse") else ""
+            weights[f"{size} attfuse {k}{fitted}"] = (SIZES[size], str(out / size / "attfuse.pt"))
+    return weights
+
+
+def score_own(out: Path) -> dict:
+    """AP under both yardsticks and near_misses.py's shares (moved and unmoved visible vehicles,
+    with the stage and without) of attfuse_weights on OWN_SET, kept in OUT/own.json, one entry a time."""
+    path = out / "own.json"
+    result = json.loads(path.read_text()) if path.is_file() else {}
+    for label, (cfg, weights_file) in attfuse_weights(out).items():
+        if label in result:
+            continue
+        t0 = time.perf_counter()
+        cfg = replace(cfg, point_stage=True)
+        entry = ap_entry(AttFuseDetector(cfg=cfg, weights_file=weights_file), OWN_SET)
+        entry["near_misses"] = shares(OWN_SET, "attfuse", cfg=cfg, weights_file=weights_file)
+        result[label] = {**entry, "eval_s": round(time.perf_counter() - t0, 1)}
+        print(f"{label}: {result[label]}", flush=True)
+        path.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def own_table(result: dict) -> None:
+    print(f"{OWN_SET}, AP in %, the shares in % of the visible vehicles (10+ fused points):")
+    print("| weights | AP@0.5 / 0.7 | per frame | moved found | moved near misses, stage / none | "
+          "unmoved found | unmoved near misses, stage / none |")
+    print("|---|---|---|---|---|---|---|")
+    for label, r in result.items():
+        stage, none = r["near_misses"]["stage"], r["near_misses"]["no stage"]
+        print(f"| {label} | {100 * r['ap']['0.5']:.1f} / {100 * r['ap']['0.7']:.1f} | "
+              f"{100 * r['ap_per_frame']['0.5']:.1f} / {100 * r['ap_per_frame']['0.7']:.1f} | "
+              f"{stage['moved']['found_pct']} | {stage['moved']['near_miss_pct']} / {none['moved']['near_miss_pct']} | "
+              f"{stage['unmoved']['found_pct']} | {stage['unmoved']['near_miss_pct']} / {none['unmoved']['near_miss_pct']} |")
+
+
 def score_fusions(out: Path) -> dict:
     """FUSIONS of each size whose branches are fitted and of the shipped weights (their own point
     stage; the sizes here use the shipped single's), kept in OUT/fusions.json, one entry a time."""
@@ -262,6 +313,8 @@ if __name__ == "__main__":
         table(Path(sys.argv[1]))
     elif len(sys.argv) in (4, 5) and sys.argv[2] == "--bootstrap":
         bootstrap(Path(sys.argv[1]), sys.argv[3], int(sys.argv[4]) if len(sys.argv) == 5 else 1000)
+    elif len(sys.argv) == 3 and sys.argv[2] == "--own":
+        own_table(score_own(Path(sys.argv[1])))
     elif len(sys.argv) == 3 and sys.argv[2] == "--fusions":
         fusions_table(score_fusions(Path(sys.argv[1])))
     elif len(sys.argv) == 5 and sys.argv[3:] == ["--attfuse", "--branches"]:
