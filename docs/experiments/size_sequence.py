@@ -24,8 +24,10 @@ attfuse.json, attfuse-chunk-K.json; the same sets and figures as the single's). 
 of each size with its branches and of the shipped weights, with the point stage, on normal-val,
 heuristic and that model's own challenging set (scenes attacked against its shipped model), both
 yardsticks: DIR/fusions.json, printed as a table. ``--own`` scores the shipped AttFuse and each size's
-AttFuse as it stands on AttFuse's own challenging set (OWN_SET): AP and the near misses among the
-moved and unmoved vehicles (near_misses.py), DIR/own.json. ``--bootstrap`` gives the gaps between the same
+AttFuse as it stands on AttFuse's own challenging set (OWN_SET) or on SET: AP and the near misses
+among the moved and unmoved vehicles (near_misses.py), DIR/own.json. ``SIZE --attack [COUNT]``
+attacks SIZE's AttFuse as it stands by the paper's protocol on the first COUNT (100) scenes of
+normal's train split, as the shipped AttFuse's own set was made (a set named by its chunks). ``--bootstrap`` gives the gaps between the same
 models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
 
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
@@ -34,7 +36,8 @@ models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attfuse --branches
     .venv/bin/python docs/experiments/size_sequence.py DIR --table
     .venv/bin/python docs/experiments/size_sequence.py DIR --fusions
-    .venv/bin/python docs/experiments/size_sequence.py DIR --own
+    .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attack [COUNT]
+    .venv/bin/python docs/experiments/size_sequence.py DIR --own [SET]
     .venv/bin/python docs/experiments/size_sequence.py DIR --bootstrap SET [RESAMPLES]
 """
 from __future__ import annotations
@@ -78,6 +81,8 @@ FUSIONS = {"none": (NoFusion, (*SETS, "challenging-none-train")),
 OWN_SET = "challenging-attfuse-train"
 #: training threads (ASG_THREADS, default 2)
 THREADS = int(os.environ.get("ASG_THREADS", "2"))
+#: the attack's worker processes (ASG_WORKERS, default 2)
+WORKERS = int(os.environ.get("ASG_WORKERS", "2"))
 
 
 def card_chunks(weights_dir: Path, name: str) -> list[dict]:
@@ -217,26 +222,65 @@ def attfuse_weights(out: Path) -> dict[str, tuple]:
     return weights
 
 
-def score_own(out: Path) -> dict:
+def attack_set(out: Path, size: str) -> str:
+    """The name of the challenging set attacked against SIZE's AttFuse as it stands (its chunks,
+    "b" once its branches are fitted, in the name: other weights make another set)."""
+    fitted = "b" if branches_fitted(out / size, "attfuse") else ""
+    return f"challenging-attfuse-{size}-{chunks_done(out / size, 'attfuse')}{fitted}-train"
+
+
+def attfuse_target(_generate_cfg) -> tuple:
+    """The generator's detector factory (``size_sequence:attfuse_target``): the AttFuse of the size
+    and folder main_attack names, with the shared stage, as the target and as ACS-A's attention."""
+    size, out = os.environ["SIZE_SEQUENCE_SIZE"], Path(os.environ["SIZE_SEQUENCE_DIR"])
+    detector = AttFuseDetector(cfg=replace(SIZES[size], point_stage=True), weights_file=str(out / size / "attfuse.pt"))
+    return detector, detector
+
+
+def main_attack(out: Path, size: str, count: int) -> None:
+    """The paper's protocol (asg dataset build challenging's: ACS-A + BO, budget 50, the same seed)
+    over the first COUNT scenes of normal's train split against SIZE's AttFuse: DATA/attack_set(...);
+    resumable; WORKERS processes of one thread each."""
+    from asg.datasets import data_root
+    from asg.executors.base import build_executor
+    from asg.workflows.challenging import build_challenging
+
+    if not chunks_done(out / size, "attfuse"):
+        sys.exit(f"{out / size}: no AttFuse chunk trained yet (--attfuse)")
+    here = str(Path(__file__).resolve().parent)
+    os.environ.update(SIZE_SEQUENCE_SIZE=size, SIZE_SEQUENCE_DIR=str(out.resolve()),
+                      PYTHONPATH=os.pathsep.join(filter(None, (here, os.environ.get("PYTHONPATH")))))
+    sys.path.insert(0, here)
+    with build_executor("local", WORKERS) as executor:
+        built = build_challenging("attfuse", "train", executor, count=count, detector_factory="size_sequence:attfuse_target",
+                                  out=data_root() / attack_set(out, size))
+    index = json.loads((built / "index.json").read_text())
+    print(f"{built}: {index['frames']} scenes; AP normal {index['ap_normal']} -> {index['ap_challenging']}; "
+          f"per frame {index['per_frame']}")
+
+
+def score_own(out: Path, set_name: str = OWN_SET) -> dict:
     """AP under both yardsticks and near_misses.py's shares (moved and unmoved visible vehicles,
-    with the stage and without) of attfuse_weights on OWN_SET, kept in OUT/own.json, one entry a time."""
+    with the stage and without) of attfuse_weights on SET_NAME (a challenging set), kept in
+    OUT/own.json ({set: {weights label: scores}}), one entry a time."""
     path = out / "own.json"
     result = json.loads(path.read_text()) if path.is_file() else {}
+    scored = result.setdefault(set_name, {})
     for label, (cfg, weights_file) in attfuse_weights(out).items():
-        if label in result:
+        if label in scored:
             continue
         t0 = time.perf_counter()
         cfg = replace(cfg, point_stage=True)
-        entry = ap_entry(AttFuseDetector(cfg=cfg, weights_file=weights_file), OWN_SET)
-        entry["near_misses"] = shares(OWN_SET, "attfuse", cfg=cfg, weights_file=weights_file)
-        result[label] = {**entry, "eval_s": round(time.perf_counter() - t0, 1)}
-        print(f"{label}: {result[label]}", flush=True)
+        entry = ap_entry(AttFuseDetector(cfg=cfg, weights_file=weights_file), set_name)
+        entry["near_misses"] = shares(set_name, "attfuse", cfg=cfg, weights_file=weights_file)
+        scored[label] = {**entry, "eval_s": round(time.perf_counter() - t0, 1)}
+        print(f"{label}: {scored[label]}", flush=True)
         path.write_text(json.dumps(result, indent=1))
-    return result
+    return scored
 
 
-def own_table(result: dict) -> None:
-    print(f"{OWN_SET}, AP in %, the shares in % of the visible vehicles (10+ fused points):")
+def own_table(set_name: str, result: dict) -> None:
+    print(f"{set_name}, AP in %, the shares in % of the visible vehicles (10+ fused points):")
     print("| weights | AP@0.5 / 0.7 | per frame | moved found | moved near misses, stage / none | "
           "unmoved found | unmoved near misses, stage / none |")
     print("|---|---|---|---|---|---|---|")
@@ -313,10 +357,13 @@ if __name__ == "__main__":
         table(Path(sys.argv[1]))
     elif len(sys.argv) in (4, 5) and sys.argv[2] == "--bootstrap":
         bootstrap(Path(sys.argv[1]), sys.argv[3], int(sys.argv[4]) if len(sys.argv) == 5 else 1000)
-    elif len(sys.argv) == 3 and sys.argv[2] == "--own":
-        own_table(score_own(Path(sys.argv[1])))
+    elif len(sys.argv) in (3, 4) and sys.argv[2] == "--own":
+        own_set = sys.argv[3] if len(sys.argv) == 4 else OWN_SET
+        own_table(own_set, score_own(Path(sys.argv[1]), own_set))
     elif len(sys.argv) == 3 and sys.argv[2] == "--fusions":
         fusions_table(score_fusions(Path(sys.argv[1])))
+    elif len(sys.argv) in (4, 5) and sys.argv[3] == "--attack":
+        main_attack(Path(sys.argv[1]), sys.argv[2], int(sys.argv[4]) if len(sys.argv) == 5 else 100)
     elif len(sys.argv) == 5 and sys.argv[3:] == ["--attfuse", "--branches"]:
         main_branches(Path(sys.argv[1]), sys.argv[2], "attfuse")
     elif len(sys.argv) in (4, 5) and sys.argv[3] == "--attfuse":
