@@ -27,7 +27,8 @@ yardsticks: DIR/fusions.json, printed as a table. ``--own`` scores the shipped A
 AttFuse as it stands on AttFuse's own challenging set (OWN_SET) or on SET: AP and the near misses
 among the moved and unmoved vehicles (near_misses.py), DIR/own.json. ``SIZE --attack [COUNT]``
 attacks SIZE's AttFuse as it stands by the paper's protocol on the first COUNT (100) scenes of
-normal's train split, as the shipped AttFuse's own set was made (a set named by its chunks). ``--bootstrap`` gives the gaps between the same
+normal's train split, as the shipped AttFuse's own set was made (a set named by its chunks). ``--bootstrap-attfuse``
+gives the paired gaps between those AttFuse weights on those sets. ``--bootstrap`` gives the gaps between the same
 models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
 
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
@@ -39,6 +40,7 @@ models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --attack [COUNT]
     .venv/bin/python docs/experiments/size_sequence.py DIR --own [SET]
     .venv/bin/python docs/experiments/size_sequence.py DIR --bootstrap SET [RESAMPLES]
+    .venv/bin/python docs/experiments/size_sequence.py DIR --bootstrap-attfuse [RESAMPLES]
 """
 from __future__ import annotations
 
@@ -279,6 +281,28 @@ def score_own(out: Path, set_name: str = OWN_SET) -> dict:
     return scored
 
 
+def bootstrap_attfuse(out: Path, resamples: int) -> None:
+    """ap_bootstrap.py's paired gaps between the shipped AttFuse and each size's AttFuse as it
+    stands (attfuse_weights), each on OWN_SET and on each attack set built so far (LABEL-on-SET;
+    frames paired by scene: every one of these sets attacks the same first scenes of normal's
+    train split)."""
+    from ap_bootstrap import main as bootstrap_main  # this folder's
+    from asg.datasets import data_root
+
+    weights = attfuse_weights(out)
+    sets = {"shipped-set": OWN_SET}
+    sets.update({f"{size}-set": attack_set(out, size) for size in SIZES if chunks_done(out / size, "attfuse")
+                 and (data_root() / attack_set(out, size) / "index.json").is_file()})
+    models = {f"{label.replace(' ', '-')}-on-{tag}": (weights[label], set_name)
+              for tag, set_name in sets.items() for label in weights}
+
+    def build(specs) -> dict:
+        return {spec: AttFuseDetector(cfg=replace(models[spec][0][0], point_stage=True), weights_file=models[spec][0][1])
+                for spec in specs}
+
+    bootstrap_main(OWN_SET, resamples, tuple(f"{name}@{set_name}" for name, (_, set_name) in models.items()), build)
+
+
 def own_table(set_name: str, result: dict) -> None:
     print(f"{set_name}, AP in %, the shares in % of the visible vehicles (10+ fused points):")
     print("| weights | AP@0.5 / 0.7 | per frame | moved found | moved near misses, stage / none | "
@@ -357,6 +381,8 @@ if __name__ == "__main__":
         table(Path(sys.argv[1]))
     elif len(sys.argv) in (4, 5) and sys.argv[2] == "--bootstrap":
         bootstrap(Path(sys.argv[1]), sys.argv[3], int(sys.argv[4]) if len(sys.argv) == 5 else 1000)
+    elif len(sys.argv) in (3, 4) and sys.argv[2] == "--bootstrap-attfuse":
+        bootstrap_attfuse(Path(sys.argv[1]), int(sys.argv[3]) if len(sys.argv) == 4 else 1000)
     elif len(sys.argv) in (3, 4) and sys.argv[2] == "--own":
         own_set = sys.argv[3] if len(sys.argv) == 4 else OWN_SET
         own_table(own_set, score_own(Path(sys.argv[1]), own_set))
