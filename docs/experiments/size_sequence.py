@@ -213,9 +213,9 @@ def bootstrap(out: Path, set_name: str, resamples: int) -> None:
 
 
 def attfuse_weights(out: Path) -> dict[str, tuple]:
-    """{label: (detector settings, weights file or None for the shipped)}: the shipped AttFuse and
-    each size's AttFuse as it stands (labelled by its chunks)."""
-    weights = {"shipped attfuse": (AttFuseDetector.detector_config(), None)}
+    """{label: (detector settings, weights file or None for the shipped)}: the shipped AttFuse
+    ("shipped weights") and each size's AttFuse as it stands ("SIZE attfuse K": K chunks done)."""
+    weights = {"shipped weights": (AttFuseDetector.detector_config(), None)}
     for size in SIZES:
         k = chunks_done(out / size, "attfuse")
         if k:
@@ -290,7 +290,7 @@ def bootstrap_attfuse(out: Path, resamples: int) -> None:
     from asg.datasets import data_root
 
     weights = attfuse_weights(out)
-    sets = {"shipped-set": OWN_SET}
+    sets = {"shipped-weights-set": OWN_SET}
     sets.update({f"{size}-set": attack_set(out, size) for size in SIZES if chunks_done(out / size, "attfuse")
                  and (data_root() / attack_set(out, size) / "index.json").is_file()})
     models = {f"{label.replace(' ', '-')}-on-{tag}": (weights[label], set_name)
