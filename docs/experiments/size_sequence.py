@@ -23,13 +23,15 @@ attfuse.json, attfuse-chunk-K.json; the same sets and figures as the single's). 
 ``--fusions`` scores the two models that are the single network itself, No Fusion and Late Fusion,
 of each size with its branches and of the shipped weights, with the point stage, on normal-val,
 heuristic and that model's own challenging set (scenes attacked against its shipped model), both
-yardsticks: DIR/fusions.json, printed as a table. ``--own`` scores the shipped AttFuse and each size's
-AttFuse as it stands on AttFuse's own challenging set (OWN_SET) or on SET: AP and the near misses
-among the moved and unmoved vehicles (near_misses.py), DIR/own.json. ``SIZE --attack [COUNT]``
-attacks SIZE's AttFuse as it stands by the paper's protocol on the first COUNT (100) scenes of
-normal's train split, as the shipped AttFuse's own set was made (a set named by its chunks). ``--bootstrap-attfuse``
-gives the paired gaps between those AttFuse weights on those sets. ``--bootstrap`` gives the gaps between the same
+yardsticks: DIR/fusions.json, printed as a table. ``--bootstrap`` gives the gaps between the same
 models on SET with their paired-bootstrap intervals (ap_bootstrap.py).
+
+``SIZE --attack [COUNT]`` attacks SIZE's AttFuse as it stands by the paper's protocol on the first
+COUNT (100) scenes of normal's train split, as the shipped AttFuse's own set was made (a set named
+by its chunks). ``--own`` scores the shipped AttFuse and each size's AttFuse as it stands on
+AttFuse's own challenging set (OWN_SET) or on SET: AP and the near misses among the moved and
+unmoved vehicles (near_misses.py), DIR/own.json. ``--bootstrap-attfuse`` gives the paired gaps
+between those AttFuse weights on those sets.
 
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE [CHUNKS]    (SIZE: shipped or wide)
     .venv/bin/python docs/experiments/size_sequence.py DIR SIZE --branches
