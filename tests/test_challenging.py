@@ -26,6 +26,7 @@ def test_build_resume_and_evaluate(capsys, data_root):
     out = build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
     index = json.loads((out / "index.json").read_text())
     assert out.name == "challenging-none-val" and index["frames"] == 2 and index["splits"] == {"val": ["n0", "n1"]}
+    assert index["source"]["detector"] == "fakes:oracle_factory"  # the set names the detector it attacked
     first = (out / "run" / "scenes" / "n0" / "result.json").read_text()
     assert not (out / "run" / "scenes" / "n0" / "clouds").exists()  # a data set keeps no clouds or pictures
     # a larger --count resumes: the finished scenes stay as they are

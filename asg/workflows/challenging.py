@@ -77,8 +77,10 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
                 final = load_scene(run_dir / "scenes" / scene_id / "final.yaml")
                 fh.write(json.dumps(final.to_dict(), separators=(",", ":")) + "\n")
     agg = run.summary["aggregate"]
+    # the attacked detector: the shipped FUSION, its WEIGHTS, or a detector factory's target
+    attacked = {"fusion": fusion, "weights": cfg.weights, **({"detector": detector_factory} if detector_factory else {})}
     index = {"name": out.name, "frames": len(ids), "splits": {split: ids},
-             "source": {"set": "normal", "split": split, "fusion": fusion, "weights": cfg.weights, "seed": SEED,
+             "source": {"set": "normal", "split": split, **attacked, "seed": SEED,
                         "skipped": [sid for sid, _ in run.skipped]},
              "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"],
              "per_frame": {k: agg["by_method"]["per-frame"][k] for k in ("ap_normal", "ap_challenging")}}
