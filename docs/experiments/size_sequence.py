@@ -215,14 +215,15 @@ def bootstrap(out: Path, set_name: str, resamples: int) -> None:
 
 
 def attfuse_weights(out: Path) -> dict[str, tuple]:
-    """{label: (detector settings, weights file or None for the shipped)}: the shipped AttFuse
-    ("shipped weights") and each size's AttFuse as it stands ("SIZE attfuse K": K chunks done)."""
-    weights = {"shipped weights": (AttFuseDetector.detector_config(), None)}
+    """{label: (detector settings with the point stage on, weights file or None for the shipped)}:
+    the shipped AttFuse ("shipped weights") and each size's AttFuse as it stands ("SIZE attfuse K":
+    K chunks done)."""
+    weights = {"shipped weights": (replace(AttFuseDetector.detector_config(), point_stage=True), None)}
     for size in SIZES:
         k = chunks_done(out / size, "attfuse")
         if k:
             fitted = " + branches" if branches_fitted(out / size, "attfuse") else ""
-            weights[f"{size} attfuse {k}{fitted}"] = (SIZES[size], str(out / size / "attfuse.pt"))
+            weights[f"{size} attfuse {k}{fitted}"] = (replace(SIZES[size], point_stage=True), str(out / size / "attfuse.pt"))
     return weights
 
 
@@ -274,7 +275,6 @@ def score_own(out: Path, set_name: str = OWN_SET) -> dict:
         if label in scored:
             continue
         t0 = time.perf_counter()
-        cfg = replace(cfg, point_stage=True)
         entry = ap_entry(AttFuseDetector(cfg=cfg, weights_file=weights_file), set_name)
         entry["near_misses"] = shares(set_name, "attfuse", cfg=cfg, weights_file=weights_file)
         scored[label] = {**entry, "eval_s": round(time.perf_counter() - t0, 1)}
@@ -299,8 +299,7 @@ def bootstrap_attfuse(out: Path, resamples: int) -> None:
               for tag, set_name in sets.items() for label in weights}
 
     def build(specs) -> dict:
-        return {spec: AttFuseDetector(cfg=replace(models[spec][0][0], point_stage=True), weights_file=models[spec][0][1])
-                for spec in specs}
+        return {spec: AttFuseDetector(cfg=models[spec][0][0], weights_file=models[spec][0][1]) for spec in specs}
 
     bootstrap_main(OWN_SET, resamples, tuple(f"{name}@{set_name}" for name, (_, set_name) in models.items()), build)
 
