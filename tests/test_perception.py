@@ -122,6 +122,38 @@ def test_out_of_range_detector_config_is_one_clear_error(tmp_path, line):
     assert "\n" not in str(err.value)
 
 
+def test_a_settings_file_extends_another_beside_it(tmp_path):
+    """extends: NAME takes NAME's keys and replaces those the file gives (the wide variant keeps the
+    shipped post-processing); a base that is not a plain name beside it, the file itself, a base
+    that extends again or one missing is one line."""
+    from asg.perception.config import DetectorConfig, load_detector_config
+    from sumo_scenarios.paths import configs_dir
+
+    wide = load_detector_config(configs_dir() / "detectors" / "pointpillars-wide.yaml")
+    shipped = load_detector_config()
+    assert wide.filters == (64, 128, 256) and wide.upsample_channels == 128
+    assert replace(wide, filters=shipped.filters, upsample_channels=shipped.upsample_channels) == shipped
+    (tmp_path / "base.yaml").write_text("score_threshold: 0.3\nnms_iou: 0.2\n")
+    (tmp_path / "v.yaml").write_text("extends: base.yaml\nnms_iou: 0.25\n")
+    got = load_detector_config(tmp_path / "v.yaml")
+    assert (got.score_threshold, got.nms_iou, got.vote_iou) == (0.3, 0.25, DetectorConfig().vote_iou)
+    (tmp_path / "chain.yaml").write_text("extends: v.yaml\n")
+    cases = {"extends: ../base.yaml": "must be the name of a settings file beside it",
+             "extends: 3": "must be the name of a settings file beside it",
+             "extends: ..": "must be the name of a settings file beside it",
+             "extends: bad.yaml": "names the file itself",
+             "extends: missing.yaml": "missing.yaml: file not found",
+             "extends: chain.yaml": "which extends another file"}
+    for text, message in cases.items():
+        (tmp_path / "bad.yaml").write_text(text + "\n")
+        with pytest.raises(InputError, match=message) as err:
+            load_detector_config(tmp_path / "bad.yaml")
+        assert "\n" not in str(err.value)
+    (tmp_path / "base.yaml").write_text("vote_iou: 1.5\n")  # the merged settings are checked
+    with pytest.raises(InputError, match="vote_iou = .* is out of range"):
+        load_detector_config(tmp_path / "v.yaml")
+
+
 def test_nms_equals_greedy_nms_on_the_full_iou_matrix():
     from asg.objective.iou import bev_iou_matrix
 
@@ -222,7 +254,7 @@ def test_folding_batch_norms_keeps_the_function(where):
 def test_registry_lists_all_fusions():
     from asg import perception  # noqa: F401
 
-    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit",
+    assert set(names("fusion")) == {"none", "late", "early", "attfuse", "attfuse-ft", "attfuse-wide", "fcooper", "where2comm", "v2xvit",
                                   "v2xvit-noisy"}
     with pytest.raises(InputError, match="unknown fusion 'mid'.*attfuse"):
         perception.build_detector("mid")

@@ -41,7 +41,7 @@ def scenes(tmp_path):
 def test_shipped_and_plugin_detectors_are_listed(installed):
     from asg.perception.plugins import plugin_names
 
-    shipped = {"none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit", "v2xvit-noisy"}
+    shipped = {"none", "late", "early", "attfuse", "attfuse-ft", "attfuse-wide", "fcooper", "where2comm", "v2xvit", "v2xvit-noisy"}
     assert shipped <= set(plugin_names())  # the shipped models register through the same entry point group
     assert shipped | {"toy"} <= set(detector_names())
 

@@ -19,13 +19,13 @@ def test_every_fusion_entry_builds_untrained(cross_map):
     tiny = DetectorConfig(range_m=16.0, pfn_channels=8, layers=(1, 1, 1), filters=(8, 8, 8), upsample_channels=8,
                           score_threshold=0.99, iou_rescore=0.0, iou_patch=1, box_refine=False,
                           attfuse_fusion="output")
-    assert names("fusion") == ["attfuse", "attfuse-ft", "early", "fcooper", "late", "none", "v2xvit", "v2xvit-noisy", "where2comm"]
+    assert names("fusion") == ["attfuse", "attfuse-ft", "attfuse-wide", "early", "fcooper", "late", "none", "v2xvit", "v2xvit-noisy", "where2comm"]
     for name in names("fusion"):
         det = lookup("fusion", name)(cfg=tiny, load=False)
         boxes, scores = det.detect(frame)
         assert boxes.shape[1:] == (7,) and scores.shape == (len(boxes),)
         w = det.attention_weights(frame)
-        assert (w is None) == (name not in ("attfuse", "attfuse-ft", "where2comm", "v2xvit", "v2xvit-noisy"))  # the models with attention
+        assert (w is None) == (name not in ("attfuse", "attfuse-ft", "attfuse-wide", "where2comm", "v2xvit", "v2xvit-noisy"))  # the models with attention
         if w is not None:
             assert set(w) == {"r", "a"} and abs(sum(w.values()) - 1.0) < 1e-5
 

@@ -28,12 +28,12 @@ def held_out_samples(tmp_path_factory):
 #: 0.78, early 0.95 / 0.84, attfuse 0.95 / 0.82, fcooper 0.95 / 0.73, where2comm 0.93 / 0.89, v2xvit 0.93 / 0.89, v2xvit-noisy 0.93 / 0.91); quality on the whole validation
 #: split is in the model cards
 FLOOR = {"none": (0.65, 0.26), "late": (0.8, 0.65), "early": (0.8, 0.68), "attfuse": (0.8, 0.7),
-         "attfuse-ft": (0.8, 0.7), "fcooper": (0.8, 0.58), "where2comm": (0.78, 0.73),
+         "attfuse-ft": (0.8, 0.7), "attfuse-wide": (0.8, 0.7), "fcooper": (0.8, 0.58), "where2comm": (0.78, 0.73),
          "v2xvit": (0.78, 0.73), "v2xvit-noisy": (0.78, 0.73)}
 
 
-@pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit",
-                                    "v2xvit-noisy"])
+@pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse", "attfuse-ft", "attfuse-wide", "fcooper", "where2comm",
+                                    "v2xvit", "v2xvit-noisy"])
 def test_shipped_model_detects_vehicles(fusion, held_out_samples):
     det = build_detector(fusion)
     frames = [(*det.detect(s.frame), s.gt_eval()) for s in held_out_samples]
@@ -55,7 +55,7 @@ def test_the_point_stage_every_model_uses_is_shipped_with_its_record():
     whose card records how it was fitted."""
     from asg.perception.weights_io import stage_file_for
 
-    for fusion in ("none", "late", "early", "attfuse", "attfuse-ft", "fcooper", "where2comm", "v2xvit", "v2xvit-noisy"):
+    for fusion in ("none", "late", "early", "attfuse", "attfuse-ft", "attfuse-wide", "fcooper", "where2comm", "v2xvit", "v2xvit-noisy"):
         det = build_detector(fusion)
         assert det.point_stage is not None, fusion
         path = stage_file_for(det.weights)
@@ -79,6 +79,20 @@ def test_the_fine_tuned_card_says_what_it_was_tuned_on():
         assert set(row["before"]) == set(row["after"]) == {"0.3", "0.5", "0.7"} and row["frames"] > 0
     assert set(card["reattack"]) >= {"finetuned", "original", "frames"}
     assert (WEIGHTS_DIR / card["weights"]).is_file()
+
+
+def test_the_wide_attfuse_card_says_its_size_and_what_it_started_from():
+    """attfuse-wide is AttFuse on the wide network: its card names that settings file, records the
+    size its weights were trained at (the file's), and the wide single network it started from."""
+    from asg.perception.fusion import detector_config_of
+
+    card = json.loads((WEIGHTS_DIR / "attfuse-wide.json").read_text())
+    cfg = detector_config_of("attfuse-wide")
+    assert card["fusion"] == ["attfuse-wide"] and card["detector_config"] == "configs/detectors/pointpillars-wide.yaml"
+    assert card["network"]["filters"] == list(cfg.filters) == [64, 128, 256]
+    assert card["network"]["upsample_channels"] == cfg.upsample_channels
+    assert card["init_from"]["weights"].endswith("size-sequence/wide/single.pt") and len(card["init_from"]["sha256"]) == 64
+    assert card["steps"] > 0 and card["validation"]["attfuse-wide"]["frames"] == 112
 
 
 def test_the_where2comm_card_says_it_started_from_attfuse():

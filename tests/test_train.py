@@ -3,6 +3,7 @@ import gzip
 import itertools
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -381,4 +382,8 @@ def test_a_detector_builds_and_trains_with_its_own_config_file(monkeypatch, tmp_
     assert cfg.filters == (64, 128, 256) and cfg.upsample_channels == 64
     detector = _Single.__subclasses__()[0](load=False)
     assert detector.cfg == cfg and detector.model.backbone.stage_channels == (64, 128, 256)
-    assert card_settings_of("single", cfg)["detector_config"] == "configs/detectors/wide.yaml"
+    card = card_settings_of("single", cfg)
+    assert card["detector_config"] == "configs/detectors/wide.yaml"
+    assert card["network"]["filters"] == (64, 128, 256) and card["network"]["upsample_channels"] == 64
+    # settings a caller gives apart from the file (as the size experiments do) are what the card says
+    assert card_settings_of("single", replace(cfg, filters=(16, 32, 64)))["network"]["filters"] == (16, 32, 64)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import configs_dir
-from sumo_scenarios.strict import load_dataclass
+from sumo_scenarios.strict import from_mapping, read_yaml
 
 
 #: where AttFuse may fuse (see ``DetectorConfig.attfuse_fusion``)
@@ -100,5 +100,34 @@ class DetectorConfig:
 DEFAULT_CONFIG_FILE = "pointpillars.yaml"
 
 
+#: the key by which a detector settings file names the file of the same folder it varies: its own
+#: keys replace that file's (a larger or slimmer network keeps the shipped post-processing)
+EXTENDS_KEY = "extends"
+
+
 def load_detector_config(path: str | Path | None = None) -> DetectorConfig:
-    return load_dataclass(DetectorConfig, path or configs_dir() / "detectors" / DEFAULT_CONFIG_FILE)
+    """The settings of a detector settings file (default configs/detectors/pointpillars.yaml); a
+    file with ``extends: NAME`` takes the keys of NAME (a file beside it that extends none) and
+    replaces those it gives itself. Anything wrong is one InputError."""
+    path = Path(path or configs_dir() / "detectors" / DEFAULT_CONFIG_FILE)
+    data = read_yaml(path)
+    if isinstance(data, dict) and EXTENDS_KEY in data:
+        data = {**_base_settings(path, data.pop(EXTENDS_KEY)), **data}
+    return from_mapping(DetectorConfig, data, str(path))
+
+
+def _base_settings(path: Path, name) -> dict:
+    """The keys of the file ``name`` that ``path`` extends: a file name beside it, not itself, that
+    extends none (one level, so no cycle)."""
+    if not isinstance(name, str) or not name or Path(name).name != name or name in (".", ".."):
+        raise InputError(f"{path}: {EXTENDS_KEY} must be the name of a settings file beside it "
+                         f"(e.g. {DEFAULT_CONFIG_FILE}), got {name!r}")
+    base_path = path.parent / name
+    if base_path.resolve() == path.resolve():
+        raise InputError(f"{path}: {EXTENDS_KEY} names the file itself; name the file it varies")
+    base = read_yaml(base_path)
+    if not isinstance(base, dict):
+        raise InputError(f"{base_path}: expected a mapping of keys to values (it is extended by {path.name})")
+    if EXTENDS_KEY in base:
+        raise InputError(f"{path}: extends {name}, which extends another file; extend the file at the bottom")
+    return base

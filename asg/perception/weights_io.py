@@ -13,9 +13,10 @@ from .numerics import zero_subnormals_
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 
 
-#: what to do when weights and model disagree (another fusion, or another attfuse_fusion)
-_MISMATCH_HINT = ("; use the matching --fusion and the detector config they were trained with "
-                  "(configs/detectors/pointpillars.yaml, e.g. attfuse_fusion), or retrain")
+#: what to do when weights and model disagree (another fusion, another attfuse_fusion, another size)
+_MISMATCH_HINT = ("; use the --fusion they were trained for (each names its settings file in "
+                  "configs/detectors/, e.g. attfuse-wide's wide network) and the settings they were trained "
+                  "with (e.g. attfuse_fusion), or retrain")
 
 
 def weights_path(name: str) -> Path:

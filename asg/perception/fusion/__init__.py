@@ -120,11 +120,17 @@ def feed_of(weights_name: str):
     return _entry_of(weights_name).feed
 
 
+#: the settings that size a network (its weights load only into a network built with the same)
+NETWORK_SIZE_KEYS = ("pillar_m", "pfn_channels", "layers", "filters", "upsample_channels")
+
+
 def card_settings_of(weights_name: str, cfg) -> dict:
     """What the card of a weights file records of its network's settings ``cfg``: the settings
-    file and the settings particular to its model."""
+    file, the network's size as ``cfg`` gives it (which a caller may have set apart from the file)
+    and the settings particular to its model."""
     entry = _entry_of(weights_name)
-    return {"detector_config": f"configs/detectors/{entry.config_file}", **entry.card_settings(cfg)}
+    return {"detector_config": f"configs/detectors/{entry.config_file}",
+            "network": {key: getattr(cfg, key) for key in NETWORK_SIZE_KEYS}, **entry.card_settings(cfg)}
 
 
 def detector_config_of(weights_name: str):
