@@ -6,6 +6,7 @@ import json
 import pytest
 
 from asg.workflows.challenging import build_challenging
+from asg.workflows.finetune import attacked_model
 from asg.cli import main
 from asg.scene import Scene
 
@@ -27,6 +28,9 @@ def test_build_resume_and_evaluate(capsys, data_root):
     index = json.loads((out / "index.json").read_text())
     assert out.name == "challenging-none-val" and index["frames"] == 2 and index["splits"] == {"val": ["n0", "n1"]}
     assert index["source"]["detector"] == "fakes:oracle_factory"  # the set names the detector it attacked
+    # and a re-attack's record of the original model names it too
+    assert attacked_model(index["source"]) == {"weights": "shipped", "detector": "fakes:oracle_factory"}
+    assert attacked_model({"fusion": "none", "weights": "w.pt"}) == {"weights": "w.pt"}
     first = (out / "run" / "scenes" / "n0" / "result.json").read_text()
     assert not (out / "run" / "scenes" / "n0" / "clouds").exists()  # a data set keeps no clouds or pictures
     # a larger --count resumes: the finished scenes stay as they are

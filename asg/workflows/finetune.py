@@ -234,13 +234,21 @@ def reattack(fusion: str, ft_weights: Path, out: Path, executor, log: Callable[[
     built = build_challenging(fusion, "val", executor=executor, weights_file=str(ft_weights), out=out)
     mine = json.loads((built / "index.json").read_text())
     original = json.loads((data_root() / set_name(fusion, "val") / "index.json").read_text())
+
     def both(index: dict) -> dict:  # ours, and per frame where the set recorded it
         return {"normal": index["ap_normal"], "challenging": index["ap_challenging"]} | (
             {"per_frame": index["per_frame"]} if "per_frame" in index else {})
 
     return {"frames": mine["frames"], "finetuned": both(mine),
-            # the original model's own attack: the challenging val set made against its shipped weights
-            "original": {"weights": original["source"].get("weights") or "shipped"} | both(original)}
+            # the original model's own attack: the challenging val set made against it
+            "original": attacked_model(original["source"]) | both(original)}
+
+
+def attacked_model(source: dict) -> dict:
+    """The model a challenging set was attacked against, from its index.json ``source``: its weights
+    file ("shipped" for the shipped ones) and, when a detector factory was attacked, that factory."""
+    return {"weights": source.get("weights") or "shipped",
+            **({"detector": source["detector"]} if source.get("detector") else {})}
 
 
 # ``asg finetune``: this workflow's command (asg.cli's COMMAND_MODULES)
