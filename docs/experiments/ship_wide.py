@@ -13,12 +13,11 @@ from __future__ import annotations
 import json
 import shutil
 import sys
-from dataclasses import asdict
 from pathlib import Path
 
 from asg.generator.run import file_digest
-from asg.perception.fusion import card_settings_of, detector_config_of
-from asg.perception.weights_io import WEIGHTS_DIR, load_state
+from asg.perception.fusion import card_settings_of, check_weights_file, detector_config_of
+from asg.perception.weights_io import WEIGHTS_DIR
 from asg.training.cards import card_validation
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -29,16 +28,14 @@ NAME = "attfuse-wide"
 
 def main(out: Path) -> None:
     cfg = detector_config_of(NAME)
-    if asdict(cfg) != asdict(SIZES["wide"]):
+    if cfg != SIZES["wide"]:
         raise SystemExit("configs/detectors/pointpillars-wide.yaml differs from the sequence's wide settings; "
                          "ship weights trained with the entry's settings")
     source = out / "wide" / "attfuse.pt"
     card = json.loads((out / "wide" / "attfuse.json").read_text())
     if card["chunks"][-1].get("part") != "branches":
         print("note: the sequence's last step was not the branch fit; shipping the weights as they are")
-    from asg.perception.fusion.attfuse import AttFuseWideDetector
-
-    load_state(AttFuseWideDetector.new_network(cfg), source)  # the weights load into the entry's network
+    check_weights_file(NAME, source)  # the weights load into the entry's network
     single = out / "wide" / "single.pt"
     card.update({"weights": f"{NAME}.pt", "fusion": [NAME],
                  "init_from": {**card["init_from"], "weights": str(single), "sha256": file_digest(single)},
