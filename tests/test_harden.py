@@ -162,6 +162,33 @@ def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, 
     assert card["rounds"][1]["trained"]["steps"] == 2
 
 
+def test_a_round_with_its_scenes_on_disk_resumes_at_its_training_without_attacking(tmp_path, data_root, monkeypatch):
+    """A run folder copied without its attack folder (a committed one on an empty machine) resumes
+    at the training checkpoint: the scenes and their record are read back, nothing is attacked."""
+    import shutil
+
+    import asg.workflows.harden as h
+
+    out = tmp_path / "h"
+
+    def stop_at_step_two(step, total, loss):
+        if step == 2:  # step 1's checkpoint is written
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet, progress=stop_at_step_two)
+    made = json.loads((out / "round-1" / "data.json").read_text())
+    assert made["kind"] == "adversarial" and (out / "round-1" / "last.pt").is_file()
+    shutil.rmtree(out / "round-1" / "attack")
+
+    def no_attack(*_args, **_kw):
+        raise AssertionError("the round's scenes were made again")
+
+    monkeypatch.setattr(h, "round_data", no_attack)
+    card = harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    assert card["rounds"][1]["data"] == made and card["rounds"][1]["trained"]["steps"] == 2
+
+
 def test_the_finetune_table_gains_a_row_per_round_of_each_kind_of_data(tmp_path, data_root):
     from asg.benchmarks.tables import TableRun, run_table
 

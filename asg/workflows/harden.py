@@ -137,9 +137,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         row: dict = {"round": k}
         if k:
             scenes = pool[(k - 1) * cfg.scenes_per_round: k * cfg.scenes_per_round]
-            made, row["data"] = round_data(fusion, current, scenes, cfg, space, round_dir / "attack", executor,
-                                           detector_factory, log)
-            _save_scenes(made, round_dir / "scenes")
+            row["data"] = _round_scenes(fusion, current, scenes, cfg, space, round_dir, executor, detector_factory, log)
             first = {f"round-{j}": _load_scenes(out / f"round-{j}" / "scenes")
                      for j in (range(1, k + 1) if cfg.keep_previous else [k])}
             weights_out, record = round_dir / "weights.pt", round_dir / "trained.json"
@@ -267,6 +265,21 @@ def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfi
     agg = run.summary["aggregate"]
     return made, {"kind": "adversarial", "scenes": len(made), "skipped": len(run.skipped),
                   "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"]}
+
+
+def _round_scenes(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfig, space, round_dir: Path,
+                  executor, detector_factory: str | None, log: Callable[[str], None]) -> dict:
+    """Make (or find) the round's training scenes, ``round_dir/scenes/``, and return the record of
+    how they were made (``round_dir/data.json``). A round whose scenes and record are both on disk
+    does not make them again: a run folder copied to another machine (say, a committed one without
+    its attack folder) resumes at its training."""
+    folder, record = round_dir / "scenes", round_dir / "data.json"
+    if (folder / ".complete").is_file() and record.is_file():
+        return json.loads(record.read_text())
+    made, data = round_data(fusion, weights, scenes, cfg, space, round_dir / "attack", executor, detector_factory, log)
+    _save_scenes(made, folder)
+    write_text_atomic(record, json.dumps(data, indent=1))
+    return data
 
 
 def random_draw(scene: Scene, gen_cfg, seed: int) -> Scene:
