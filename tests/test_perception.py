@@ -679,8 +679,8 @@ def test_v2xvit_starts_as_attfuse_and_then_tells_rsus_from_vehicles(tmp_path):
     clouds = _random_clouds(1)
     with torch.no_grad():
         expected, expected_att = att([clouds])[0], att.last_attention
-        for rsu in [(False, False, False), (True, False, True), (False, True, True)]:
-            assert torch.allclose(vit([KindedClouds(clouds, rsu)])[0], expected, atol=1e-5), rsu
+        for rsu_flags in [(False, False, False), (True, False, True), (False, True, True)]:
+            assert torch.allclose(vit([KindedClouds(clouds, rsu_flags)])[0], expected, atol=1e-5), rsu_flags
             assert torch.allclose(vit.last_attention, expected_att, atol=1e-6)
         torch.nn.init.normal_(vit.fusion.k_rsu.weight)
         torch.nn.init.normal_(vit.fusion.v_rsu.weight)
