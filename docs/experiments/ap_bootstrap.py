@@ -8,7 +8,8 @@ Prints each model's AP, and for each pair the gap and its 5-95 % interval over t
 usage: .venv/bin/python docs/experiments/ap_bootstrap.py SET [RESAMPLES] [MODEL ...]
   SET: any --set of asg evaluate (normal-val, heuristic, challenging-attfuse-val, a folder of scenes);
   MODEL: a shipped name, or NAME=path/to/weights.pt (AttFuse network; e.g. fine-tuned or hardened
-  weights), or NAME=FUSION:path/to/weights.pt (another shipped network, e.g. early:runs/.../weights.pt); default the four shipped models. MODEL@SET scores that model on SET instead (e.g. each
+  weights), or NAME=FUSION:path/to/weights.pt (any shipped network, e.g. early:runs/.../weights.pt,
+  attfuse-wide:docs/experiments/harden-wide/round-1/weights.pt); default the four shipped models. MODEL@SET scores that model on SET instead (e.g. each
   model on its own re-attack of normal-val: frames are paired by scene id, the scenes every set
   holds). Intervals: 5-95 % and 2.5-97.5 % of the resamples.
 """
@@ -21,6 +22,7 @@ from asg.objective.ap import ap_from_matches, match_frame
 from asg.perception.data import Sample
 from asg.datasets import scenes_of
 from asg.perception.fusion import build_detector
+from asg.registry import names
 from asg.sensors import load_lidar_spec, simulate_frame
 
 MODELS = ("none", "late", "early", "attfuse")
@@ -29,12 +31,12 @@ THRESHOLDS = (0.3, 0.5, 0.7)
 
 def build_models(models) -> dict:
     """{label: detector} from shipped names, NAME=weights.pt (AttFuse network) or
-    NAME=FUSION:weights.pt (that shipped network)."""
+    NAME=FUSION:weights.pt (that shipped network: any name of the fusion registry)."""
     out = {}
     for m in models:
         name, _, path = m.partition("=")
         fusion, _, rest = path.partition(":")
-        fusion, path = (fusion, rest) if rest and fusion in MODELS else ("attfuse", path)
+        fusion, path = (fusion, rest) if rest and fusion in names("fusion") else ("attfuse", path)
         out[name] = build_detector(fusion, weights_file=path) if path else build_detector(name)
     return out
 
