@@ -4,7 +4,8 @@ LiDAR points) of a set, moved by the attack and unmoved, the share found at IoU 
 the rest, for a detector with its point stage (as shipped) and without it. Unlike miss_stages.py,
 which taps the candidates before NMS, this scores the boxes the detector returns.
 
-    .venv/bin/python docs/experiments/near_misses.py SET [MODEL]    (MODEL default attfuse)
+    .venv/bin/python docs/experiments/near_misses.py SET [MODEL [WEIGHTS]]
+    (MODEL default attfuse; WEIGHTS: other weights of MODEL's network, e.g. a hardening round's)
 """
 from __future__ import annotations
 
@@ -49,4 +50,5 @@ def shares(set_name: str, model: str, cfg=None, weights_file: str | None = None)
 
 
 if __name__ == "__main__":
-    print(json.dumps(shares(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else "attfuse"), indent=1))
+    print(json.dumps(shares(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else "attfuse",
+                            weights_file=sys.argv[3] if len(sys.argv) > 3 else None), indent=1))
