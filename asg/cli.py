@@ -10,7 +10,7 @@ import errno
 import importlib
 import signal
 import sys
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 from sumo_scenarios.errors import InputError
 
@@ -35,12 +35,25 @@ COMMAND_GROUPS = {
               "Speed benchmarks and the paper's tables.", "WHAT"),
 }
 
-#: Every subcommand, declared one way: (name, module, one-line help). The module holds
+class Command(NamedTuple):
+    """One subcommand: its name (two words: an action of a group in COMMAND_GROUPS), the module
+    holding ``add_arguments(parser)`` and ``run(args) -> exit code``, its one-line help, and
+    whether it runs the detectors (then PyTorch is imported before a held signal is released:
+    a Ctrl-C inside torch's import, C++ calling back into Python, aborted the process with exit
+    -6 instead of ending the command)."""
+
+    name: str
+    module: str
+    help: str
+    needs_torch: bool = False
+
+
+#: Every subcommand, declared one way (Command). The module holds
 #: ``add_arguments(parser)`` and ``run(args) -> exit code``, beside what it runs (the generator,
 #: training, a workflow) or in asg/commands/, and is imported only when its command is asked for,
 #: so ``asg --help`` stays quick. A new command: its module and one line here (a name of two
 #: words is an action of a group in COMMAND_GROUPS).
-COMMAND_MODULES = (
+COMMAND_MODULES: tuple[Command, ...] = tuple(Command(*c) for c in (
     ("towns build", "asg.commands.towns_build", "rebuild nets/NAME.net.xml and NAME.poly.xml from configs/towns.yaml"),
     ("towns import", "asg.commands.towns_import", "make a town of your own map (OpenDRIVE .xodr, OpenStreetMap .osm, "
      "SUMO .net.xml) with SUMO's netconvert and polyconvert"),
@@ -49,37 +62,37 @@ COMMAND_MODULES = (
     ("scenes extract", "asg.commands.scenes_extract", "write every N-th frame of a log as a scene yaml"),
     ("render", "asg.commands.render", "render a scene's cooperative LiDAR frame to a bird's-eye picture (and PCD files)"),
     ("dataset build", "asg.commands.dataset_build", "simulate and extract a data set from configs/datasets.yaml, or "
-     "generate a challenging set"),
+     "generate a challenging set", True),
     ("export", "asg.commands.export", "write scenes for other tools: OPV2V (OpenCOOD), KITTI (OpenPCDet), OpenSCENARIO "
      "1.2 + OpenDRIVE, SUMO routes"),
     ("report", "asg.commands.report", "one self-contained HTML page of a run folder or an 'asg bench paper' folder"),
     ("generate", "asg.generator.command", "generate challenging scenes: collaborator search, then perturbation search "
-     "(no arguments: a one-minute demo)"),
-    ("train", "asg.training.command", "train a detector on CPU (resumes from runs/train/NAME/last.pt)"),
+     "(no arguments: a one-minute demo)", True),
+    ("train", "asg.training.command", "train a detector on CPU (resumes from runs/train/NAME/last.pt)", True),
     ("finetune", "asg.workflows.finetune", "train a detector further on its challenging scenes, then evaluate it "
-     "before and after and attack it again (runs/finetune/FUSION-ft/)"),
+     "before and after and attack it again (runs/finetune/FUSION-ft/)", True),
     ("harden", "asg.workflows.harden", "iterated adversarial training: each round attacks the current weights on "
-     "fresh training scenes, fine-tunes on them and evaluates (runs/harden/FUSION/)"),
-    ("evaluate", "asg.workflows.evaluate", "AP of a detector on a scene set"),
+     "fresh training scenes, fine-tunes on them and evaluates (runs/harden/FUSION/)", True),
+    ("evaluate", "asg.workflows.evaluate", "AP of a detector on a scene set", True),
     ("bench simulate", "asg.commands.bench_simulate", "10 simulated minutes of a dense town at 0.1 s steps"),
     ("bench lidar", "asg.commands.bench_lidar", "cooperative-frame ray casting vs Open3D, and re-render after moves"),
-    ("bench detect", "asg.commands.bench_detect", "median inference time of each shipped model with 3 agents"),
+    ("bench detect", "asg.commands.bench_detect", "median inference time of each shipped model with 3 agents", True),
     ("bench generate", "asg.commands.bench_generate", "seconds per scene of AttFuse + ACS-A + BO, BO overhead per "
-     "suggestion"),
+     "suggestion", True),
     ("bench train", "asg.commands.bench_train", "seconds a training step of AttFuse takes (batch 4, 2 threads) and its "
-     "phases' shares"),
+     "phases' shares", True),
     ("bench scale", "asg.commands.bench_scale", "scenes per hour of the generator benchmark: 1 worker (1 thread, all "
-     "threads), 2 workers, 2 Ray actors"),
+     "threads), 2 workers, 2 Ray actors", True),
     ("bench paper", "asg.commands.bench_paper", "the paper's tables (--table), or the generator's targets: AttFuse with "
-     "ACS-A/BO, GA, RS and ACS-R/BO on 30 normal scenes"),
-)
+     "ACS-A/BO, GA, RS and ACS-R/BO on 30 normal scenes", True),
+))
 
 
 def _add_commands(sub, argv: Sequence[str] | None) -> None:
     """Every COMMAND_MODULES subparser; the arguments of the one ``argv`` names (all without ``argv``)."""
     chosen = [a for a in argv if not a.startswith("-")][:2] if argv is not None else None
     groups: dict[str, argparse._SubParsersAction] = {}
-    for name, module, help_text in COMMAND_MODULES:
+    for name, module, help_text, _ in map(lambda c: Command(*c), COMMAND_MODULES):
         words = name.split()
         parent = sub
         if len(words) == 2:
@@ -118,15 +131,10 @@ def _on_sigterm(signum, frame) -> None:
 _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.ENOTDIR, errno.EISDIR}
 
 
-#: commands that run the detectors: PyTorch is imported before a held signal is released, because
-#: a Ctrl-C inside torch's import (C++ calling back into Python) aborted the process (exit -6)
-#: instead of ending the command
-_TORCH_COMMANDS = {"generate", "evaluate", "train", "finetune", "harden", "dataset", "bench"}
-
-
 def _preload(argv: Sequence[str]) -> None:
-    """Import what the command will need and cannot be interrupted while importing."""
-    if argv and argv[0] in _TORCH_COMMANDS:
+    """Import what the command will need and cannot be interrupted while importing (Command.needs_torch)."""
+    words = [a for a in argv if not a.startswith("-")][:2]
+    if any(Command(*c).needs_torch and c[0].split() == words[:len(c[0].split())] for c in COMMAND_MODULES):
         import torch  # noqa: F401
 
 

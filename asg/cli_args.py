@@ -9,8 +9,7 @@ import re
 from pathlib import Path
 from typing import Callable
 
-from .executors import Executor, build_executor, default_workers
-from .registry import detector_entry_names, names
+from .executors import EXECUTORS, Executor, build_executor, default_workers
 
 
 def whole(lo: int, hi: int, what: str) -> Callable[[str], int]:
@@ -57,10 +56,14 @@ THREADS = whole(1, 256, "--threads")
 
 
 def fusion_arg(p: argparse.ArgumentParser, what: str, required: bool = False) -> None:
-    """--fusion: a detector by name; the help lists every installed one (validated where the command
-    runs, by asg.perception.check_fusion, before any run folder or worker starts)."""
+    """--fusion: a detector by name; the help lists every one (the shipped models of the fusion
+    registry and the installed plugins), validated where the command runs, by
+    asg.perception.check_fusion, before any run folder or worker starts. Only the parser of a
+    command that runs the detectors calls this (it imports torch)."""
+    from .perception.fusion import detector_names
+
     p.add_argument("--fusion", required=required, default=None, metavar="NAME",
-                   help=f"{what}: one of {', '.join(detector_entry_names())}")
+                   help=f"{what}: one of {', '.join(detector_names())}")
 
 
 def weights_arg(p: argparse.ArgumentParser) -> None:
@@ -73,7 +76,7 @@ def executor_args(p: argparse.ArgumentParser) -> None:
     """--workers, --executor, --address: how a batch command spreads its items."""
     p.add_argument("--workers", type=whole(1, 1024, "--workers"), default=None,
                    help="worker processes, one thread each (default: one per core); results do not depend on it")
-    p.add_argument("--executor", choices=names("executor"), default="local",
+    p.add_argument("--executor", choices=EXECUTORS.names(), default="local",
                    help="local processes (default) or Ray actors (pip install 'asg[ray]')")
     p.add_argument("--address", default=None, help="an existing Ray cluster (default: a local Ray instance)")
 

@@ -1,46 +1,87 @@
-"""Name → class registries (fusion methods, search algorithms, ...): one decorator, one lookup.
+"""Registries: one per extension point, each owned by the package of its base class.
 
-Each subpackage's ``__init__`` imports its implementations, so a registry is full once its
-package is imported.
+A registry maps a name to its entry (a class) and answers what callers need to know about the part
+by asking the entry's own attributes (``needs_attention``, ``has_attention``, ``feed``, ...), never by
+comparing names or classes. Each package defines its registry beside its base class and imports its
+implementations in its ``__init__``, so ``from asg.search import SEARCHES`` gives a full registry:
+
+    asg.perception.fusion.FUSIONS       the shipped detectors (``--fusion``)
+    asg.search.SEARCHES                 search algorithms (``--search``)
+    asg.search.spaces.SPACES            perturbation spaces (``--space``)
+    asg.collaborators.ACS_STRATEGIES    collaborator searches (``--acs``)
+    asg.executors.EXECUTORS             executors (``--executor``)
+
+Detector plugins of other packages come in through the ``asg.detectors`` entry point group
+(asg.perception.plugins); the shipped models are only in FUSIONS.
 """
 from __future__ import annotations
 
 from importlib import metadata
-from typing import Callable, TypeVar
+from typing import Callable, Generic, Iterator, TypeVar
 
 from sumo_scenarios.errors import InputError
 
-#: the entry-point group of detectors: the shipped ones (pyproject.toml) and installed plugins
+#: the entry-point group of detector plugins (installed packages; the shipped models are in FUSIONS)
 DETECTOR_ENTRY_POINTS = "asg.detectors"
 
 T = TypeVar("T")
-_REGISTRIES: dict[str, dict[str, type]] = {}
 
 
-def register(kind: str, name: str) -> Callable[[type[T]], type[T]]:
-    def deco(cls: type[T]) -> type[T]:
-        table = _REGISTRIES.setdefault(kind, {})
-        if name in table:
-            raise RuntimeError(f"{kind} '{name}' registered twice")
-        table[name] = cls
-        cls.registry_name = name  # type: ignore[attr-defined]
-        return cls
+class Registry(Generic[T]):
+    """Name -> entry of one extension point. ``what`` names the kind in messages ("search
+    algorithm"); ``flag`` is the option that takes the name ("--search")."""
 
-    return deco
+    def __init__(self, what: str, flag: str):
+        self.what = what
+        self.flag = flag
+        self._entries: dict[str, T] = {}
+
+    def register(self, name: str) -> Callable[[T], T]:
+        """Class decorator: the entry ``name`` (its ``registry_name`` is set to it)."""
+        def deco(entry: T) -> T:
+            if name in self._entries:
+                raise RuntimeError(f"{self.what} '{name}' registered twice")
+            self._entries[name] = entry
+            entry.registry_name = name  # type: ignore[attr-defined]
+            return entry
+
+        return deco
+
+    def unregister(self, name: str) -> None:
+        """Remove the entry ``name`` (a test's temporary entry)."""
+        del self._entries[name]
+
+    def names(self) -> list[str]:
+        return sorted(self._entries)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._entries
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def entry(self, name: str) -> T:
+        """The entry called ``name``; InputError (one line with the known names) if there is none."""
+        return self._entries[self.check(name)]
+
+    def entries(self) -> list[T]:
+        return [self._entries[n] for n in self.names()]
+
+    def check(self, name: str, extra: tuple[str, ...] = ()) -> str:
+        """``name`` if it is an entry (or one of ``extra``, e.g. "off"), else the InputError every
+        command refuses it with, before any work starts."""
+        if name in self._entries or name in extra:
+            return name
+        known = ", ".join([*self.names(), *extra]) or "none"
+        raise InputError(f"unknown {self.what} {safe_name(name)} for {self.flag}; known: {known}")
 
 
-def names(kind: str) -> list[str]:
-    return sorted(_REGISTRIES.get(kind, {}))
-
-
-def lookup(kind: str, name: str) -> type:
-    table = _REGISTRIES.get(kind, {})
-    if name not in table:
-        raise InputError(f"unknown {kind} '{name}'; known: {', '.join(sorted(table)) or 'none'}")
-    return table[name]
+def safe_name(name: object) -> str:
+    """A user's name quoted for a one-line message (newlines and control characters escaped)."""
+    return repr(str(name))
 
 
 def detector_entry_names() -> list[str]:
-    """Every detector name installed as an entry point (the shipped models and the plugins), read
-    from the package metadata without importing a detector."""
+    """Every detector plugin installed as an entry point, read from the package metadata without
+    importing one."""
     return sorted({ep.name for ep in metadata.entry_points(group=DETECTOR_ENTRY_POINTS)})

@@ -178,10 +178,9 @@ def test_a_new_collaborator_search_is_one_class_and_one_registry_line(busy_scene
     """A strategy registered under "acs" runs in the generator and from the command line."""
     from dataclasses import replace
 
-    from asg.collaborators import CollaboratorSearch
-    from asg.registry import _REGISTRIES, register
+    from asg.collaborators import ACS_STRATEGIES, CollaboratorSearch
 
-    @register("acs", "first-two")
+    @ACS_STRATEGIES.register("first-two")
     class FirstTwo(CollaboratorSearch):
         def propose(self, scene, candidates, size, rng, attention_of):
             return [tuple(sorted(candidates)[:size])], {}
@@ -194,4 +193,4 @@ def test_a_new_collaborator_search_is_one_class_and_one_registry_line(busy_scene
 
         assert build_parser().parse_args(["generate", "--acs", "first-two"]).acs == "first-two"
     finally:
-        del _REGISTRIES["acs"]["first-two"]
+        ACS_STRATEGIES.unregister("first-two")

@@ -1,8 +1,33 @@
 """Every registry entry builds and answers through its interface."""
 import numpy as np
 
-from asg import perception, search  # noqa: F401  (fill the registries)
-from asg.registry import lookup, names
+import pytest
+
+from asg.collaborators import ACS_STRATEGIES
+from asg.executors import EXECUTORS
+from asg.perception.fusion import FUSIONS
+from asg.search import SEARCHES
+from asg.search.spaces import SPACES
+
+#: the shipped set of each registry, pinned (every other test walks the registries themselves)
+SHIPPED = {"fusion": ["attfuse", "attfuse-ft", "attfuse-wide", "early", "fcooper", "late", "none", "v2xvit",
+                      "v2xvit-noisy", "where2comm"],
+           "search": ["bo", "ga", "ng", "rs"], "space": ["dropout", "insert", "latency", "pose-error", "poses"],
+           "acs": ["attention", "random"], "executor": ["local", "ray"]}
+REGISTRIES = {"fusion": FUSIONS, "search": SEARCHES, "space": SPACES, "acs": ACS_STRATEGIES, "executor": EXECUTORS}
+
+
+@pytest.mark.parametrize("kind", sorted(SHIPPED))
+def test_each_registry_holds_the_shipped_set_once_its_package_is_imported(kind):
+    assert REGISTRIES[kind].names() == SHIPPED[kind]
+
+
+def test_an_unknown_name_is_one_line_naming_the_known_ones():
+    from sumo_scenarios.errors import InputError
+
+    with pytest.raises(InputError) as exc:
+        SEARCHES.entry("b\no")
+    assert "\n" not in str(exc.value) and "'b\\no'" in str(exc.value) and "bo, ga, ng, rs" in str(exc.value)
 
 
 def test_every_fusion_entry_builds_untrained(cross_map):
@@ -19,22 +44,21 @@ def test_every_fusion_entry_builds_untrained(cross_map):
     tiny = DetectorConfig(range_m=16.0, pfn_channels=8, layers=(1, 1, 1), filters=(8, 8, 8), upsample_channels=8,
                           score_threshold=0.99, iou_rescore=0.0, iou_patch=1, box_refine=False,
                           attfuse_fusion="output")
-    assert names("fusion") == ["attfuse", "attfuse-ft", "attfuse-wide", "early", "fcooper", "late", "none", "v2xvit", "v2xvit-noisy", "where2comm"]
-    for name in names("fusion"):
-        det = lookup("fusion", name)(cfg=tiny, load=False)
+    for name in FUSIONS.names():
+        entry = FUSIONS.entry(name)
+        det = entry(cfg=tiny, load=False)
         boxes, scores = det.detect(frame)
         assert boxes.shape[1:] == (7,) and scores.shape == (len(boxes),)
         w = det.attention_weights(frame)
-        assert (w is None) == (name not in ("attfuse", "attfuse-ft", "attfuse-wide", "where2comm", "v2xvit", "v2xvit-noisy"))  # the models with attention
+        assert (w is None) == (not entry.has_attention), name  # the entry says whether it has attention
         if w is not None:
             assert set(w) == {"r", "a"} and abs(sum(w.values()) - 1.0) < 1e-5
 
 
 def test_every_search_entry_asks_inside_the_box():
-    assert names("search") == ["bo", "ga", "ng", "rs"]
-    for name in names("search"):
+    for name in SEARCHES.names():
         params = {"n_initial": 2} if name == "bo" else {}
-        opt = lookup("search", name)(6, 5, np.random.default_rng(0), **params)
+        opt = SEARCHES.entry(name)(6, 5, np.random.default_rng(0), **params)
         candidates = np.random.default_rng(1).uniform(-1, 1, (20, 6))
         for i in range(4):
             x = opt.ask(candidates)
@@ -47,7 +71,7 @@ def test_every_search_entry_asks_inside_the_box():
 def test_nevergrad_search_is_seeded_and_learns():
     """Same generator seed, same asks; on a quadratic it ends nearer the minimum than it started."""
     def run(seed):
-        opt = lookup("search", "ng")(4, 40, np.random.default_rng(seed))
+        opt = SEARCHES.entry("ng")(4, 40, np.random.default_rng(seed))
         xs = []
         for _ in range(40):
             x = opt.ask(np.zeros((1, 4)))

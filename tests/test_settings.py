@@ -6,7 +6,7 @@ import pytest
 
 from asg.perception.config import DetectorConfig, load_detector_config
 from asg.generator.config import GenerateConfig, load_generate_config, search_params
-from asg.registry import lookup, names
+from asg.search import SEARCHES
 from asg.sensors import LidarSpec, load_lidar_spec
 
 
@@ -28,11 +28,11 @@ def _optimizer_defaults(name: str) -> dict:
 
     if name == "ga":
         return {f.name: f.default for f in dataclasses.fields(GAParams)}
-    sig = inspect.signature(lookup("search", name).__init__).parameters
-    return {k: sig[k].default for k in lookup("search", name).settings()}
+    sig = inspect.signature(SEARCHES.entry(name).__init__).parameters
+    return {k: sig[k].default for k in SEARCHES.entry(name).settings()}
 
 
-@pytest.mark.parametrize("name", names("search"))
+@pytest.mark.parametrize("name", SEARCHES.names())
 def test_search_yaml_mirrors_the_optimiser_defaults(name):
     assert search_params(name) == _optimizer_defaults(name)
 

@@ -14,10 +14,9 @@ from ..sensors import load_lidar_spec, simulate_frame
 def models() -> list[str]:
     """A row per shipped model with a network of its own: every registered fusion but the
     fine-tuned twins (attfuse-ft runs AttFuse's network, at AttFuse's cost)."""
-    from ..perception.fusion import shipped_model
-    from ..registry import names
+    from ..perception.fusion import FUSIONS
 
-    return [n for n in names("fusion") if not shipped_model(n).fine_tuned_from]
+    return [n for n in FUSIONS.names() if not FUSIONS.entry(n).fine_tuned_from]
 
 
 def bench_detect(frames: int = 10, repeats: int = 3) -> dict:

@@ -5,13 +5,12 @@ from typing import Sequence
 
 import numpy as np
 
-from ..registry import register
 from ..scene import Scene
-from .base import AttentionOf, CollaboratorSearch
+from .base import ACS_STRATEGIES, AttentionOf, CollaboratorSearch
 from .sampling import all_combinations, attention_combinations
 
 
-@register("acs", "attention")
+@ACS_STRATEGIES.register("attention")
 class AttentionSearch(CollaboratorSearch):
     """``samples`` combinations drawn without replacement from softmax(weakness / tau), the
     weakness of a combination the sum of 1 / s_j over its members (asg.collaborators.sampling)."""

@@ -1,6 +1,6 @@
 """The collaborator search's strategy: which collaborator combinations ACS evaluates.
 
-A strategy is registered by name (``@register("acs", NAME)``) and chosen with ``--acs NAME`` /
+A strategy is registered by name (``@ACS_STRATEGIES.register(NAME)``) and chosen with ``--acs NAME`` /
 generate.yaml's ``acs``; ``off`` (no search: the scene's own collaborators) needs none. The
 generator evaluates every proposed combination and keeps the one with the lowest loss.
 """
@@ -11,6 +11,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..registry import Registry
 from ..scene import Scene
 
 #: the attention weight s_j of each candidate j, from a frame where every candidate collaborates
@@ -33,3 +34,7 @@ class CollaboratorSearch(ABC):
                 attention_of: AttentionOf | None) -> tuple[list[tuple[str, ...]], dict[str, float]]:
         """The combinations to evaluate, and each possible combination's probability ("a+b": p) for
         the record ({} when the strategy has none). ``attention_of``: given when ``needs_attention``."""
+
+
+#: the collaborator searches (``--acs``), one module of this package each, filled by its import
+ACS_STRATEGIES: "Registry[type[CollaboratorSearch]]" = Registry("collaborator search", "--acs")

@@ -5,13 +5,12 @@ from typing import Sequence
 
 import numpy as np
 
-from ..registry import register
 from ..scene import Scene
-from .base import AttentionOf, CollaboratorSearch
+from .base import ACS_STRATEGIES, AttentionOf, CollaboratorSearch
 from .sampling import random_combinations
 
 
-@register("acs", "random")
+@ACS_STRATEGIES.register("random")
 class RandomSearch(CollaboratorSearch):
     """``samples`` combinations drawn uniformly without replacement."""
 

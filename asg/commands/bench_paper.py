@@ -101,27 +101,25 @@ def _tables(args: argparse.Namespace) -> int:
 def _models(text: str | None) -> tuple[str, ...] | None:
     """``--models``: shipped model names, comma-separated (None: each table's own); one line for an
     unknown or repeated name."""
-    from ..perception import fusion  # noqa: F401  (fills the registry)
+    from ..perception.fusion import FUSIONS
 
-    return _distinct_names(text, "--models", "fusion", "shipped models")
+    return _distinct_names(text, "--models", FUSIONS, "shipped models")
 
 
 def _searches(text: str | None) -> tuple[str, ...] | None:
     """``--searches``: search names, comma-separated (None: the spaces table's own)."""
-    from .. import search  # noqa: F401  (fills the registry)
+    from ..search import SEARCHES
 
-    return _distinct_names(text, "--searches", "search", "searches")
+    return _distinct_names(text, "--searches", SEARCHES, "searches")
 
 
-def _distinct_names(text: str | None, flag: str, kind: str, what: str) -> tuple[str, ...] | None:
-    """The comma-separated names of ``text``, each registered as ``kind``, none twice (None: ``text``
-    is None); one line naming the known ones otherwise."""
-    from ..registry import names as registered
-
+def _distinct_names(text: str | None, flag: str, registry, what: str) -> tuple[str, ...] | None:
+    """The comma-separated names of ``text``, each an entry of ``registry``, none twice (None:
+    ``text`` is None); one line naming the known ones otherwise."""
     if text is None:
         return None
     chosen = tuple(m.strip() for m in text.split(",") if m.strip())
-    known = registered(kind)
+    known = registry.names()
     if not chosen or any(m not in known for m in chosen) or len(set(chosen)) != len(chosen):
         raise InputError(f"{flag} takes distinct {what} ({', '.join(known)}), got {text!r}")
     return chosen

@@ -20,6 +20,8 @@ from typing import Any, Callable, Iterator, Sequence
 
 from sumo_scenarios.errors import InputError
 
+from ..registry import Registry
+
 #: how often one item may take its worker down before the batch gives up on it
 MAX_ATTEMPTS = 3
 
@@ -41,6 +43,8 @@ class Executor(ABC):
     """Runs a job's items on ``workers`` workers of ``threads`` threads each."""
 
     registry_name: str = ""
+    #: does it connect to a cluster at an ``--address``?
+    takes_address: bool = False
 
     def __init__(self, workers: int = 1, threads: int = 1, address: str | None = None):
         if not isinstance(workers, int) or workers < 1:
@@ -71,6 +75,10 @@ class Executor(ABC):
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+#: the executors (``--executor``), one module of this package each, filled by its import
+EXECUTORS: "Registry[type[Executor]]" = Registry("executor", "--executor")
 
 
 #: libraries whose warnings are notes to their own developers, not to a user of asg (torch's beta
@@ -122,11 +130,10 @@ def default_workers(items: int) -> int:
 
 def build_executor(name: str, workers: int, threads: int = 1, address: str | None = None) -> Executor:
     """The executor registered as ``name``; InputError naming the known ones on a miss."""
-    from ..registry import lookup
-
-    if address is not None and name != "ray":
-        raise InputError("--address applies to --executor ray only")
-    return lookup("executor", name)(workers=workers, threads=threads, address=address)
+    entry = EXECUTORS.entry(name)
+    if address is not None and not entry.takes_address:
+        raise InputError(f"--address applies to an executor of a cluster, not to --executor {name}")
+    return entry(workers=workers, threads=threads, address=address)
 
 
 @contextlib.contextmanager

@@ -20,8 +20,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Iterator, Sequence
 
-from ..registry import register
-from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, quiet_third_party_warnings, signals_deferred
+from .base import EXECUTORS, MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, quiet_third_party_warnings, signals_deferred
 from .launcher import spawned_ignoring_sigint
 
 _STATE: Any = None
@@ -92,7 +91,7 @@ def _worker_run(job: Job, item: Any) -> Any:
         _BUSY = False
 
 
-@register("executor", "local")
+@EXECUTORS.register("local")
 class LocalExecutor(Executor):
     """``workers`` processes (or this process alone when ``workers`` is 1)."""
 

@@ -23,8 +23,7 @@ from typing import Any, Iterator, Sequence
 
 from sumo_scenarios.errors import InputError
 
-from ..registry import register
-from .base import MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, signals_deferred
+from .base import EXECUTORS, MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, signals_deferred
 from .fatal_signals import fatal_handlers_kept, restore_fatal_handlers
 
 
@@ -89,9 +88,11 @@ def _ray_leaves_sigterm_alone(ray):
         utils.set_sigterm_handler = original
 
 
-@register("executor", "ray")
+@EXECUTORS.register("ray")
 class RayExecutor(Executor):
     """``workers`` Ray actors of ``threads`` CPUs each."""
+
+    takes_address = True
 
     def __init__(self, workers: int = 1, threads: int = 1, address: str | None = None):
         super().__init__(workers, threads, address)

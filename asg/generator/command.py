@@ -9,11 +9,11 @@ from pathlib import Path
 from sumo_scenarios.errors import InputError
 
 from ..cli_args import COUNT, SEED, executor_args, executor_from_args, fusion_arg, weights_arg, whole
-from ..registry import names
+from ..collaborators import ACS_STRATEGIES
 from ..scene.feasibility import PLAUSIBILITY_LEVELS
 from .run import SceneSource, factory_models, open_run
 from .run_folder import print_table
-from .config import load_generate_config, protocols, with_space_flags
+from .config import ACS_OFF, load_generate_config, protocols, with_space_flags
 from ..progress import console, progress_bar, stdout
 
 #: the no-argument demo: a held-out town, the paper's main target (AttFuse, whose own attention
@@ -25,13 +25,6 @@ DEMO = {"town": "fiveleg", "count": 3, "budget": 20, "fusion": "attfuse"}
 DEFAULT_COUNT = 10
 
 
-def acs_strategies() -> list[str]:
-    """The registered collaborator searches (asg.collaborators)."""
-    from .. import collaborators  # noqa: F401  (fill the registry)
-
-    return names("acs")
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--town", help="sample normal scenes from this bundled town")
@@ -39,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--scenes", type=Path, help="...or take the scenes of this folder (scene yaml or a data set) or set (normal, normal-val)")
     fusion_arg(p, "the model attacked (default attfuse)")
     p.add_argument("--search", default=None, help="rs, ga, bo or ng (nevergrad; default bo)")
-    p.add_argument("--acs", default=None, choices=[*acs_strategies(), "off"],
+    p.add_argument("--acs", default=None, choices=[*ACS_STRATEGIES.names(), ACS_OFF],
                    help="collaborator search: attention (ACS-A), random (ACS-R) or off (default attention)")
     p.add_argument("--aps", default=None, choices=["on", "off"])
     p.add_argument("--movers", type=whole(0, 64, "--movers"), default=None,
@@ -79,10 +72,6 @@ def run(args: argparse.Namespace) -> int:
                                aps=None if args.aps is None else args.aps == "on", budget=budget, perturbed=args.movers,
                                weights=None if args.weights is None else str(args.weights))
     cfg = with_space_flags(cfg, args.plausibility, args.space)
-    if not args.detector:  # refused here, before a town is simulated or a worker starts
-        from ..perception import check_fusion
-
-        check_fusion(cfg.fusion)
     if cfg.weights and not args.detector:
         from ..perception import check_weights_file
 

@@ -17,6 +17,8 @@ from ..scene.neighbours import COMM_RANGE_M
 from ..search import SpaceConfig
 from ..sensors.lidar_spec import DEFAULT_LIDAR
 
+#: ``--acs off``: no collaborator search (the scene's own collaborators)
+ACS_OFF = "off"
 #: evaluations per scene at most (a scene at 50 takes seconds; this many is a day)
 MAX_BUDGET = 100_000
 
@@ -42,14 +44,21 @@ class GenerateConfig:
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
     space: SpaceConfig = field(default_factory=SpaceConfig)
 
-    def validate(self) -> "GenerateConfig":
-        from ..registry import names
-        from .. import collaborators as _c, search as _s  # noqa: F401  (fill the registries)
+    @property
+    def acs_needs_attention(self) -> bool:
+        """Does the collaborator search read attention weights (then the run loads an attention model)?"""
+        from ..collaborators import ACS_STRATEGIES
 
-        if self.search not in names("search"):
-            raise InputError(f"unknown search algorithm '{self.search}'; known: {', '.join(names('search'))}")
-        if self.acs not in (*names("acs"), "off"):
-            raise InputError(f"--acs must be {', '.join(names('acs'))} or off, got {self.acs!r}")
+        return self.acs != ACS_OFF and ACS_STRATEGIES.entry(self.acs).needs_attention
+
+    def validate(self) -> "GenerateConfig":
+        from ..collaborators import ACS_STRATEGIES
+        from ..perception.fusion import check_fusion
+        from ..search import SEARCHES
+
+        check_fusion(self.fusion)
+        SEARCHES.check(self.search)
+        ACS_STRATEGIES.check(self.acs, extra=(ACS_OFF,))
         if not 1 <= self.budget <= MAX_BUDGET:
             raise InputError(f"--budget must be between 1 and {MAX_BUDGET}, got {self.budget}")
         checks.number(self.sensing_agents, "sensing_agents", 1, 16)

@@ -13,7 +13,7 @@ import numpy as np
 
 from sumo_scenarios.errors import InputError
 
-from .config import MAX_BUDGET, GenerateConfig, load_generate_config, search_params, with_space_flags  # noqa: F401  (re-exported)
+from .config import ACS_OFF, MAX_BUDGET, GenerateConfig, load_generate_config, search_params, with_space_flags  # noqa: F401  (re-exported)
 from ..objective import adversarial_loss, ap_at
 from ..scene import Scene
 from ..perception.data import in_range
@@ -103,9 +103,9 @@ class Generator:
     def collaborator_search(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> "AcsOutcome":
         """The lowest-loss of the combinations ``cfg.acs``'s strategy proposes (asg.collaborators),
         with the strategy's probabilities."""
-        from ..registry import lookup
+        from ..collaborators import ACS_STRATEGIES
 
-        strategy = lookup("acs", self.cfg.acs)(self.cfg.acs_samples, self.cfg.acs_tau)
+        strategy = ACS_STRATEGIES.entry(self.cfg.acs)(self.cfg.acs_samples, self.cfg.acs_tau)
         cands = [a.agent_id for a in vehicles_within(scene, scene.ego_id, self.cfg.comm_range_m)]
         size = self.cfg.sensing_agents - 1
         if len(cands) < size:
@@ -158,7 +158,7 @@ class Generator:
         notes: list[str] = []
         initial = self.normal_collaborators(scene, rng, notes)
         normal = self.evaluate_scene(initial)
-        acs = AcsOutcome(normal, {}, 0) if self.cfg.acs == "off" else self.collaborator_search(initial, rng, notes)
+        acs = AcsOutcome(normal, {}, 0) if self.cfg.acs == ACS_OFF else self.collaborator_search(initial, rng, notes)
         after = acs.best
         if after.loss > normal.loss:  # the paper's ACS samples among the candidates, not the scene's own pair
             notes.append(f"ACS ended easier than the scene began (loss {normal.loss:.3f} -> {after.loss:.3f}): "

@@ -243,21 +243,22 @@ def factory_models(spec: str, cfg: GenerateConfig):
     target, acs_model = out
     if acs_model is not None and not callable(getattr(acs_model, "attention_weights", None)):
         raise InputError(f"{where}: its ACS model has no attention_weights(frame, cells) method")
-    if acs_model is None and cfg.acs == "attention":  # as for a shipped model without attention: AttFuse's
+    if acs_model is None and cfg.acs_needs_attention:  # as for a shipped model without attention: AttFuse's
         from ..perception import build_detector
+        from ..perception.fusion import ATTENTION_LENDER
 
-        return CheckedDetector(where, target), build_detector("attfuse")
+        return CheckedDetector(where, target), build_detector(ATTENTION_LENDER)
     return CheckedDetector(where, target), (None if acs_model is None else CheckedDetector(where, acs_model))
 
 
 def _shipped_models(cfg: GenerateConfig):
     from ..perception import build_detector
-    from ..perception.fusion import has_own_attention
+    from ..perception.fusion import ATTENTION_LENDER, has_own_attention
 
     target = build_detector(cfg.fusion, weights_file=cfg.weights)
     acs_model = None
-    if cfg.acs == "attention":  # the target's own attention when it has one, else the shipped AttFuse's
-        acs_model = target if has_own_attention(target) else build_detector("attfuse")
+    if cfg.acs_needs_attention:  # the target's own attention when it has one, else the shipped AttFuse's
+        acs_model = target if has_own_attention(target) else build_detector(ATTENTION_LENDER)
     return target, acs_model
 
 
@@ -277,18 +278,22 @@ def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> di
     settings = {"config": asdict(cfg), "seed": seed, "count": count, "source": source}
     if cfg.weights:
         settings["weights_sha256"] = file_digest(Path(cfg.weights))
-    shipped = shipped_digests(cfg.fusion, cfg.weights, cfg.acs)
+    shipped = shipped_digests(cfg.fusion, cfg.weights, cfg.acs_needs_attention)
     if shipped:
         settings["shipped_weights_sha256"] = shipped
+    from ..perception.opencood import is_opencood, model_dir_of, model_files
+
+    if is_opencood(cfg.fusion):  # the model folder's files: a rerun after they changed is refused
+        settings["opencood_sha256"] = {k: file_digest(p) for k, p in model_files(model_dir_of(cfg.fusion)).items()}
     return settings
 
 
-def shipped_digests(fusion: str, weights: str | None, acs: str) -> dict[str, str]:
+def shipped_digests(fusion: str, weights: str | None, acs_attention: bool) -> dict[str, str]:
     """{weights name: sha256} of the shipped weights files a run of these settings loads (the
     target's when no ``weights`` file is given; the shipped AttFuse's for attention-based ACS)."""
     from ..perception.fusion import shipped_weights_of
 
-    files = shipped_weights_of(fusion, target=not weights, acs_attention=acs == "attention")
+    files = shipped_weights_of(fusion, target=not weights, acs_attention=acs_attention)
     return {name: file_digest(path) for name, path in sorted(files.items())}
 
 
@@ -340,10 +345,17 @@ def with_new_defaults(record: dict) -> dict:
     filled = fill(record, {"config": json.loads(json.dumps(asdict(GenerateConfig())))})
     cfg = filled.get("config")
     if "shipped_weights_sha256" not in filled and isinstance(cfg, dict):
-        shipped = shipped_digests(str(cfg.get("fusion")), cfg.get("weights"), str(cfg.get("acs")))
+        shipped = shipped_digests(str(cfg.get("fusion")), cfg.get("weights"), _reads_attention(cfg.get("acs")))
         if shipped:
             filled["shipped_weights_sha256"] = shipped
     return filled
+
+
+def _reads_attention(acs: object) -> bool:
+    """Does the collaborator search ``acs`` recorded by an older run folder read attention?"""
+    from ..collaborators import ACS_STRATEGIES
+
+    return isinstance(acs, str) and acs in ACS_STRATEGIES and ACS_STRATEGIES.entry(acs).needs_attention
 
 
 def made_with_other_shipped_weights(out: Path, cfg: GenerateConfig) -> str | None:
@@ -355,7 +367,7 @@ def made_with_other_shipped_weights(out: Path, cfg: GenerateConfig) -> str | Non
         return None
     if not isinstance(recorded, dict):
         return None  # a damaged record: claiming the folder refuses it
-    today = shipped_digests(cfg.fusion, cfg.weights, cfg.acs)
+    today = shipped_digests(cfg.fusion, cfg.weights, cfg.acs_needs_attention)
     return next((name for name in sorted(set(recorded) | set(today)) if recorded.get(name) != today.get(name)), None)
 
 

@@ -49,12 +49,17 @@ def read_pcd(path: str | Path) -> np.ndarray:
     return np.frombuffer(data[pos:pos + 16 * n], dtype=np.float32).reshape(n, 4).copy()
 
 
+def pcd_intensity_levels(intensity: np.ndarray) -> np.ndarray:
+    """(N,) uint32 8-bit colour levels of intensities (N,) in [0, 1] (clipped), as the rgb PCD stores them."""
+    return np.round(np.clip(intensity, 0.0, 1.0) * 255.0).astype(np.uint32)
+
+
 def write_pcd_rgb_intensity(path: str | Path, points: np.ndarray) -> None:
     """Write (N, 4) x, y, z, intensity as binary PCD with fields x y z rgb, the intensity (clipped to
     [0, 1]) in every colour channel: OpenCOOD's OPV2V loader reads intensity from Open3D's first
     colour channel and ignores an ``intensity`` field. Written atomically."""
     pts = np.asarray(points, dtype=np.float32).reshape(-1, 4)
-    level = np.round(np.clip(pts[:, 3], 0.0, 1.0) * 255.0).astype(np.uint32)
+    level = pcd_intensity_levels(pts[:, 3])
     packed = ((level << 16) | (level << 8) | level).view(np.float32)
     data = np.column_stack([pts[:, :3], packed]).astype(np.float32)
     header = (

@@ -3,11 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..registry import register
-from .optimizer import Optimizer
+from .optimizer import SEARCHES, Optimizer
 
 
-@register("search", "bo")
+@SEARCHES.register("bo")
 class BayesianOptimization(Optimizer):
     """scikit-optimize's Optimizer: a GP (Matern 2.5) surrogate fitted on every point told; the first
     ``n_initial`` points (at most budget - 1) uniform over the candidates, then the candidate with

@@ -6,8 +6,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ..registry import register
-from .optimizer import Optimizer
+from .optimizer import SEARCHES, Optimizer
 
 
 @dataclass
@@ -23,7 +22,7 @@ class GAParams:
     decay: float = 0.9
 
 
-@register("search", "ga")
+@SEARCHES.register("ga")
 class GeneticAlgorithm(Optimizer):
     """Elitism, softmax parent selection on negated loss (temperature 0.8), uniform crossover,
     adaptive mutation: probability and range shrink by x0.9 when a generation does not improve.

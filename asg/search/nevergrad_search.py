@@ -5,11 +5,10 @@ import numpy as np
 
 from sumo_scenarios.errors import InputError
 
-from ..registry import register
-from .optimizer import Optimizer
+from .optimizer import SEARCHES, Optimizer
 
 
-@register("search", "ng")
+@SEARCHES.register("ng")
 class NevergradSearch(Optimizer):
     """A nevergrad optimiser (default NGOpt, its own pick of algorithm for the dimension and budget;
     nevergrad also handles discrete and mixed dimensions) over the box [-1, 1]^D, seeded from the

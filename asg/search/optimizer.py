@@ -1,3 +1,4 @@
+
 """The black-box optimisers' ask/tell interface; each optimiser is one file of this package,
 registered by name (rs, ga, bo, ng: nevergrad).
 
@@ -14,7 +15,7 @@ import numpy as np
 
 from sumo_scenarios.errors import InputError
 
-from ..registry import lookup
+from ..registry import Registry
 
 
 class Optimizer(ABC):
@@ -44,9 +45,13 @@ class Optimizer(ABC):
         return candidates[int(self.rng.integers(len(candidates)))]
 
 
+#: the search algorithms (``--search``), one module of this package each, filled by asg.search's import
+SEARCHES: "Registry[type[Optimizer]]" = Registry("search algorithm", "--search")
+
+
 def check_settings(name: str, params: dict) -> None:
     """InputError naming the first setting the optimiser ``name`` does not take."""
-    known = lookup("search", name).settings()
+    known = SEARCHES.entry(name).settings()
     unknown = sorted(set(params) - set(known))
     if unknown:
         raise InputError(f"configs/search/{name}.yaml: unknown setting '{unknown[0]}' for {name}; "
@@ -55,4 +60,4 @@ def check_settings(name: str, params: dict) -> None:
 
 def build_optimizer(name: str, dim: int, budget: int, rng: np.random.Generator, **params) -> Optimizer:
     check_settings(name, params)
-    return lookup("search", name)(dim, budget, rng, **params)
+    return SEARCHES.entry(name)(dim, budget, rng, **params)

@@ -3,11 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..registry import register
-from .optimizer import Optimizer
+from .optimizer import SEARCHES, Optimizer
 
 
-@register("search", "rs")
+@SEARCHES.register("rs")
 class RandomSearch(Optimizer):
     """Uniform over Q's members not evaluated yet (drawing without replacement from Q)."""
 

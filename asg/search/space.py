@@ -24,11 +24,10 @@ import numpy as np
 from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 
-from ..registry import lookup, names
 from ..scene import Agent, Scene
 from ..scene.feasibility import PLAUSIBILITY_LEVELS, FeasibilityChecker, PlausibilityLevel, box_object, collide_boxes
 from ..scene.link import LinkState
-from .spaces import DropoutConfig, InsertConfig, LatencyConfig, PoseErrorConfig, Slot, SpaceContext
+from .spaces import SPACES, DropoutConfig, InsertConfig, LatencyConfig, PoseErrorConfig, Slot, SpaceContext
 
 
 @dataclass(frozen=True)
@@ -56,7 +55,7 @@ class SpaceConfig:
     @property
     def past_s(self) -> float:
         """How far into the scene's past (s) the spaces of ``kinds`` read from its SUMO log (0: none)."""
-        return max(lookup("space", k).past_s(self) for k in self.kinds)
+        return max(SPACES.entry(k).past_s(self) for k in self.kinds)
 
     @property
     def needs_past(self) -> bool:
@@ -66,15 +65,13 @@ class SpaceConfig:
     @property
     def needs_movers(self) -> bool:
         """Does a space of ``kinds`` move the vehicles the occlusion heuristic picks (poses)?"""
-        return any(lookup("space", k).needs_movers for k in self.kinds)
+        return any(SPACES.entry(k).needs_movers for k in self.kinds)
 
     def __post_init__(self) -> None:
-        known = names("space")  # filled by importing .spaces above
         if not self.kinds:
-            raise InputError(f"space.kinds is empty; name at least one of {', '.join(known)}")
+            raise InputError(f"space.kinds is empty; name at least one of {', '.join(SPACES.names())}")
         for k in self.kinds:
-            if k not in known:
-                raise InputError(f"unknown perturbation space '{k}'; known: {', '.join(known)}")
+            SPACES.check(k)
         if len(set(self.kinds)) != len(self.kinds):
             raise InputError(f"space.kinds names a space twice: {', '.join(self.kinds)}")
         checks.number(self.dxy_m, "space.dxy_m", 0.0, MAX_DXY_M, lo_open=True)
@@ -131,7 +128,7 @@ class SearchSpace:
         self.vehicle_ids = tuple(movers)
         self.cfg = cfg
         ctx = SpaceContext(scene, self.vehicle_ids)
-        self.parts = [lookup("space", k)(ctx, cfg) for k in cfg.kinds]
+        self.parts = [SPACES.entry(k)(ctx, cfg) for k in cfg.kinds]
         self.slots: list[Slot] = [slot for p in self.parts for slot in p.slots]
         self.link_parts = [p for p in self.parts if p.width]
         self._slot_cuts = np.cumsum([0] + [s.width for s in self.slots])

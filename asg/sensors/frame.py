@@ -38,6 +38,8 @@ class CooperativeFrame:
     #: how old each delayed agent's cloud is at the frame's instant (s; the link's message delay,
     #: known to the receiver from the message's time stamp); an agent not listed: 0, current
     agent_delays_s: Mapping[str, float] = field(default_factory=dict)
+    #: the ground height (m, network frame) under each sensing agent; an agent not listed: unknown
+    ground_z_m: Mapping[str, float] = field(default_factory=dict)
 
     def boxes_in(self, agent_id: str) -> np.ndarray:
         """Ground-truth boxes (M, 7) in ``agent_id``'s sensor frame."""
@@ -155,7 +157,7 @@ def render_frame(world: World, sensing_ids: Sequence[str] | None = None, moved: 
     ego_box = scene.ego.box7() if scene.ego.is_vehicle else None
     kinds = {a.agent_id: a.kind for a in scene.agents if a.agent_id in ids}
     frame = CooperativeFrame(scene.scene_id, scene.ego_id, ids, {a: world.sensor_pose(a) for a in ids}, clouds, gt_ids,
-                             gt, ego_box, kinds)
+                             gt, ego_box, kinds, ground_z_m={a.agent_id: a.z_m for a in scene.agents if a.agent_id in ids})
     if not scene.link:
         return frame
     return apply_link(frame, scene.link, lambda aid, state: delayed_view(scene, aid, state, world.spec, seed))

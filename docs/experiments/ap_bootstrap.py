@@ -22,7 +22,7 @@ from asg.objective.ap import ap_from_matches, match_frame
 from asg.perception.data import Sample
 from asg.datasets import scenes_of
 from asg.perception.fusion import build_detector
-from asg.registry import names
+from asg.perception.fusion import FUSIONS
 from asg.sensors import load_lidar_spec, simulate_frame
 
 MODELS = ("none", "late", "early", "attfuse")
@@ -36,7 +36,7 @@ def build_models(models) -> dict:
     for m in models:
         name, _, path = m.partition("=")
         fusion, _, rest = path.partition(":")
-        fusion, path = (fusion, rest) if rest and fusion in names("fusion") else ("attfuse", path)
+        fusion, path = (fusion, rest) if rest and fusion in FUSIONS else ("attfuse", path)
         out[name] = build_detector(fusion, weights_file=path) if path else build_detector(name)
     return out
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from sumo_scenarios.atomic import write_text_atomic
@@ -31,7 +32,8 @@ from sumo_scenarios.checks import inside
 
 from ...scene import Scene
 from ...sensors import load_lidar_spec, simulate_frame
-from ..pcd import write_pcd_rgb_intensity
+from ...sensors.frame import CooperativeFrame
+from ..pcd import pcd_intensity_levels, write_pcd_rgb_intensity
 from .frames import ego_frame_drop_m
 
 TIMESTAMP = "000000"
@@ -77,6 +79,37 @@ def mirrored_pose(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> list[fl
     return [float(x_m), float(-y_m), float(z_m), 0.0, float(-math.degrees(yaw_rad)), 0.0]
 
 
+def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | None = None) -> tuple[dict, float]:
+    """Each sensing agent's view as OpenCOOD reads it from this layout, in memory: ({agent id:
+    (meta, cloud)}, how far the ego's frame is lowered in m). ``meta``: the agent's yaml
+    (lidar_pose, true_ego_pos, ego_speed, vehicles: {OPV2V id: box entry}, every vehicle but itself);
+    ``cloud``: (N, 4) float32 x, y, z, intensity in its sensor frame, mirrored (and the ego's raised),
+    intensity quantised to the PCD's 8-bit colour. ``scene``: the scene's agents (the boxes, the
+    speeds); without it (a detector's input) no vehicles are listed and the bodies are the sensors."""
+    ego_pose = frame.poses[frame.ego_id]
+    lowered_m = ego_frame_drop_m(ego_pose.z_m, frame.ground_z_m.get(frame.ego_id, ego_pose.z_m))
+    vehicles = {} if scene is None else {a.agent_id: _vehicle_entry(a) for a in scene.agents if a.kind == "vehicle"}
+    views = {}
+    for agent_id in frame.sensing_ids:
+        pose = frame.poses[agent_id]
+        drop_m = lowered_m if agent_id == frame.ego_id else 0.0  # the ego's frame at a car's sensor height
+        cloud = frame.clouds[agent_id].astype(np.float32)
+        cloud[:, 1] = -cloud[:, 1]
+        cloud[:, 2] += drop_m
+        cloud[:, 3] = (pcd_intensity_levels(cloud[:, 3]) / 255.0).astype(np.float32)
+        lidar_pose = mirrored_pose(pose.x_m, pose.y_m, pose.z_m - drop_m, pose.yaw_rad)
+        if scene is None:
+            body, speed_mps = mirrored_pose(pose.x_m, pose.y_m, frame.ground_z_m.get(agent_id, pose.z_m), pose.yaw_rad), 0.0
+        else:
+            agent = scene.agent(agent_id)
+            body, speed_mps = mirrored_pose(agent.x_m, agent.y_m, agent.z_m, agent.yaw_rad), agent.speed_mps
+        meta = {"lidar_pose": lidar_pose, "true_ego_pos": body, "predicted_ego_pos": body,
+                "ego_speed": float(speed_mps * KMH_PER_MPS),
+                "vehicles": {ids[v]: entry for v, entry in vehicles.items() if v != agent_id}}
+        views[agent_id] = (meta, cloud)
+    return views, lowered_m
+
+
 class ScenarioWriter:
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out
@@ -86,24 +119,11 @@ class ScenarioWriter:
         frame = simulate_frame(scene, self.spec)
         ids = opv2v_ids(scene, frame.sensing_ids)
         folder = inside(self.out, self.out / scene.scene_id)
-        vehicles = {a.agent_id: _vehicle_entry(a) for a in scene.agents if a.kind == "vehicle"}
-        ego_pose = frame.poses[scene.ego_id]
-        lowered_m = ego_frame_drop_m(ego_pose.z_m, scene.ego.z_m)
-        for agent_id in frame.sensing_ids:
-            pose = frame.poses[agent_id]
-            drop_m = lowered_m if agent_id == scene.ego_id else 0.0  # the ego's frame at a car's sensor height
+        views, lowered_m = agent_views(frame, ids, scene)
+        for agent_id, (meta, cloud) in views.items():
             agent_dir = folder / str(ids[agent_id])
             agent_dir.mkdir(parents=True, exist_ok=True)
-            cloud = frame.clouds[agent_id].copy()
-            cloud[:, 1] = -cloud[:, 1]
-            cloud[:, 2] += drop_m
             write_pcd_rgb_intensity(agent_dir / f"{TIMESTAMP}.pcd", cloud)
-            agent = scene.agent(agent_id)
-            lidar_pose = mirrored_pose(pose.x_m, pose.y_m, pose.z_m - drop_m, pose.yaw_rad)
-            body = mirrored_pose(agent.x_m, agent.y_m, agent.z_m, agent.yaw_rad)
-            meta = {"lidar_pose": lidar_pose, "true_ego_pos": body, "predicted_ego_pos": body,
-                    "ego_speed": float(agent.speed_mps * KMH_PER_MPS),
-                    "vehicles": {ids[v]: entry for v, entry in vehicles.items() if v != agent_id}}
             write_text_atomic(agent_dir / f"{TIMESTAMP}.yaml", yaml.safe_dump(meta, sort_keys=False))
         picked = int(opencood_ego([str(ids[a]) for a in frame.sensing_ids]))
         write_text_atomic(folder / "ids.yaml", yaml.safe_dump(

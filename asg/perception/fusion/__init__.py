@@ -7,42 +7,53 @@ from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
-from .base import Detections, V2XDetector
+from ...registry import safe_name
+from ..opencood import PREFIX as OPENCOOD_PREFIX, build_opencood_detector, check_opencood, is_opencood
+
+from .base import FUSIONS, Detections, V2XDetector
 
 # every module of this package registers its detectors when imported: a new shipped model is its
 # module here, with no import line to add (docs/extending.md)
 for _module in pkgutil.iter_modules(__path__):
     importlib.import_module(f"{__name__}.{_module.name}")
 
-__all__ = ["Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
+__all__ = ["FUSIONS", "Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
            "card_settings_of", "detector_config_of", "feed_of", "fusions_of", "has_own_attention", "shipped_model", "shipped_weights_of", "weights_names"]
+
+
+#: the shipped model whose attention ACS-A reads for a target without attention of its own
+ATTENTION_LENDER = "attfuse"
 
 
 def detector_names() -> list[str]:
     """Every detector ``--fusion`` accepts: the shipped models and the installed plugins."""
-    from ...registry import names
     from ..plugins import plugin_names
 
-    return sorted(set(names("fusion")) | set(plugin_names()))
+    return sorted(set(FUSIONS.names()) | set(plugin_names())) + [f"{OPENCOOD_PREFIX}DIR"]
 
 
 def check_fusion(name: str) -> str:
     """``name`` if ``--fusion`` accepts it (a shipped model or an installed plugin), else the one
     line every command refuses an unknown fusion with."""
+    if is_opencood(name):
+        return check_opencood(name)
     known = detector_names()
     if name not in known:
-        raise InputError(f"unknown fusion '{name}'; known: {', '.join(known)}")
+        raise InputError(f"unknown fusion {safe_name(name)}; known: {', '.join(known)}")
     return name
 
 
 def build_detector(name: str, **kwargs):
     """The detector called ``name``: a shipped model with its weights (or ``weights_file``), or
     an installed plugin (see asg.perception.plugins); InputError if there is none."""
-    from ...registry import names, lookup
     from ..plugins import load_plugin
 
-    if name in names("fusion"):
-        return lookup("fusion", name)(**kwargs)
+    if name in FUSIONS:
+        return FUSIONS.entry(name)(**kwargs)
+    if is_opencood(name):
+        if kwargs.get("weights_file"):
+            raise InputError(f"--weights applies to the shipped models; '{name}' loads its folder's checkpoint")
+        return build_opencood_detector(name)
     plugin = load_plugin(name)
     if plugin is None:
         check_fusion(name)
@@ -55,25 +66,24 @@ def shipped_model(fusion: str) -> type[V2XDetector]:
     """The registry's entry of a shipped model: its detector class, which knows its weights file
     (``weights``), how its network is built (``new_network``) and trained (``feed``). InputError for a plugin
     (it brings its own weights: nothing of asg trains it) or an unknown name."""
-    from ...registry import lookup, names
     from ..plugins import plugin_names
 
-    if fusion in names("fusion"):
-        return lookup("fusion", fusion)
-    shipped = ", ".join(names("fusion"))
+    if fusion in FUSIONS:
+        return FUSIONS.entry(fusion)
+    shipped = ", ".join(FUSIONS.names())
+    if is_opencood(fusion):
+        raise InputError(f"'{fusion}' is an OpenCOOD model: OpenCOOD's own trainer trains it (docs/opencood.md); "
+                         f"asg trains, fine-tunes and hardens the shipped models ({shipped})")
     if fusion in plugin_names():
         raise InputError(f"'{fusion}' is a detector plugin: it brings its own weights, and asg trains, fine-tunes and "
                          f"hardens the shipped models only ({shipped})")
-    raise InputError(f"unknown fusion '{fusion}'; choose one of {shipped}")
+    raise InputError(f"unknown fusion {safe_name(fusion)}; choose one of {shipped}")
 
 
 def has_own_attention(model) -> bool:
-    """Does a detector (an instance or its class) bring the attention ACS-A reads (AttFuse, or a
-    plugin saying ``has_attention``)? Without it, ACS-A borrows the shipped AttFuse's."""
-    from .attfuse import AttFuseDetector
-
-    cls = model if isinstance(model, type) else type(model)
-    return issubclass(cls, AttFuseDetector) or bool(getattr(model, "has_attention", False))
+    """Does a detector (an instance or its registry entry) bring the attention ACS-A reads (its
+    ``has_attention``)? Without it, ACS-A borrows the shipped AttFuse's."""
+    return bool(getattr(model, "has_attention", False))
 
 
 def shipped_weights_of(fusion: str, target: bool = True, acs_attention: bool = False) -> dict[str, Path]:
@@ -81,21 +91,18 @@ def shipped_weights_of(fusion: str, target: bool = True, acs_attention: bool = F
     own (a shipped model's, when ``target``: it is given no weights file) and, with attention-based
     ACS and a target without attention of its own, the shipped AttFuse's. Files not on disk (a
     plugin's) are left out."""
-    from ...registry import lookup, names
     from ..weights_io import weights_path
-    from .attfuse import AttFuseDetector
 
-    cls = lookup("fusion", fusion) if fusion in names("fusion") else None
+    cls = FUSIONS.entry(fusion) if fusion in FUSIONS else None
     wanted = [cls.weights] if cls is not None and target else []
-    if acs_attention and not (cls is not None and has_own_attention(cls)):
-        wanted.append(AttFuseDetector.weights)
+    own = build_opencood_detector(fusion) if is_opencood(fusion) else cls
+    if acs_attention and not (own is not None and has_own_attention(own)):
+        wanted.append(FUSIONS.entry(ATTENTION_LENDER).weights)
     return {name: weights_path(name) for name in wanted if weights_path(name).is_file()}
 
 
 def _entries() -> list[type[V2XDetector]]:
-    from ...registry import lookup, names
-
-    return [lookup("fusion", f) for f in names("fusion")]
+    return FUSIONS.entries()
 
 
 def weights_names() -> list[str]:

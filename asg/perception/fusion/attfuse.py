@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ...registry import register
 from ...sensors.frame import CooperativeFrame
 from ..model import AttFuse
-from .base import AgentCloudsDetector
+from .base import FUSIONS, AgentCloudsDetector
 
 
-@register("fusion", "attfuse")
+@FUSIONS.register("attfuse")
 class AttFuseDetector(AgentCloudsDetector):
     weights = "attfuse"
+    has_attention = True
 
     @classmethod
     def card_settings(cls, cfg) -> dict:
@@ -46,7 +46,7 @@ class AttFuseDetector(AgentCloudsDetector):
         return mask
 
 
-@register("fusion", "attfuse-ft")
+@FUSIONS.register("attfuse-ft")
 class AttFuseFinetunedDetector(AttFuseDetector):
     """AttFuse trained further on scenes attacked against it (``asg harden``); what it was trained
     on, how, and its AP before and after are in its card, asg/perception/weights/attfuse-ft.json."""
@@ -55,7 +55,7 @@ class AttFuseFinetunedDetector(AttFuseDetector):
     fine_tuned_from = "attfuse"
 
 
-@register("fusion", "attfuse-wide")
+@FUSIONS.register("attfuse-wide")
 class AttFuseWideDetector(AttFuseDetector):
     """AttFuse on the wide PointPillars (configs/detectors/pointpillars-wide.yaml: the paper's
     filter widths): harder to attack than ``attfuse``; a frame costs about 1.6x AttFuse's (its

@@ -6,6 +6,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 import torch
 
+from ...registry import Registry
 from ...sensors.frame import CooperativeFrame
 from sumo_scenarios.paths import configs_dir
 
@@ -43,6 +44,8 @@ class V2XDetector(ABC):
     #: the shipped model whose network and weights these weights fine-tune ("" for a model trained
     #: by ``asg train``, with its block in train.yaml)
     fine_tuned_from: str = ""
+    #: does it bring the attention weights ACS-A reads (``attention_weights`` returns them)?
+    has_attention: bool = False
 
     def __init__(self, cfg: DetectorConfig | None = None, weights_file: str | None = None, load: bool = True):
         self.cfg = cfg or self.detector_config()
@@ -123,3 +126,8 @@ class AgentCloudsDetector(V2XDetector):
         clouds = self._clouds(frame)
         boxes, scores = postprocess(self.model([self._sample(frame, clouds)]), self.model, self.cfg)[0]
         return self._clip(*self.refined(boxes, scores, torch.cat(clouds).numpy()))
+
+
+#: the shipped detectors (``--fusion``): one module of this package each, filled by its import;
+#: each entry (a V2XDetector class) knows its weights, network, feed and capabilities
+FUSIONS: "Registry[type[V2XDetector]]" = Registry("fusion", "--fusion")

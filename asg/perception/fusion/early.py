@@ -4,18 +4,17 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ...registry import register
 from ...sensors.frame import CooperativeFrame
 from ..feeds import FUSED_CLOUD
 from ..model import PointPillars, postprocess
-from .base import Detections, V2XDetector
+from .base import FUSIONS, Detections, V2XDetector
 
 
 def fused_cloud(frame: CooperativeFrame) -> np.ndarray:
     return np.vstack(frame.clouds_in_frame_of(frame.ego_id))
 
 
-@register("fusion", "early")
+@FUSIONS.register("early")
 class EarlyFusion(V2XDetector):
     weights = "early"
     feed = FUSED_CLOUD

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import torch
 
-from ...registry import register
 from ..model import MaxFuse
-from .base import AgentCloudsDetector
+from .base import FUSIONS, AgentCloudsDetector
 
 
-@register("fusion", "fcooper")
+@FUSIONS.register("fcooper")
 class FCooperDetector(AgentCloudsDetector):
     weights = "fcooper"
 

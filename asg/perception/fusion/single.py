@@ -4,12 +4,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ...registry import register
 from ...sensors.frame import CooperativeFrame, boxes_to_sensor, boxes_to_world
 from ..feeds import OWN_CLOUD
 from ..nms import select_boxes
 from ..model import PointPillars, postprocess
-from .base import Detections, V2XDetector
+from .base import FUSIONS, Detections, V2XDetector
 
 
 class _Single(V2XDetector):
@@ -27,7 +26,7 @@ class _Single(V2XDetector):
         return [self.refined(boxes, scores, cloud) for (boxes, scores), cloud in zip(found, clouds)]
 
 
-@register("fusion", "none")
+@FUSIONS.register("none")
 class NoFusion(_Single):
     """The ego's own LiDAR only."""
 
@@ -40,7 +39,7 @@ class NoFusion(_Single):
         return frame.clouds[frame.ego_id]
 
 
-@register("fusion", "late")
+@FUSIONS.register("late")
 class LateFusion(_Single):
     """Each agent detects in its own frame; boxes are moved to the ego frame; one rotated NMS (with
     box voting, so agents seeing the same vehicle average their boxes)."""

@@ -38,7 +38,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ...registry import register
+from .base import FUSIONS
 from ..config import DetectorConfig
 from ..feeds import KINDED_AGENT_CLOUDS, KindedClouds
 from ..model import AttFuse
@@ -228,7 +228,7 @@ class V2XViTFuse(AttFuse):
         return self.head(self.backbone.after_first_stage(self.window(fused)))
 
 
-@register("fusion", "v2xvit")
+@FUSIONS.register("v2xvit")
 class V2XViTDetector(AttFuseDetector):
     """V2X-ViT: attention across agents by kind (vehicle or RSU), then across cells in windows.
     Its attention is its own (ACS-A reads the ego row of HMSA)."""
@@ -245,7 +245,7 @@ class V2XViTDetector(AttFuseDetector):
         return V2XViTFuse(cfg)
 
 
-@register("fusion", "v2xvit-noisy")
+@FUSIONS.register("v2xvit-noisy")
 class V2XViTNoisyDetector(V2XViTDetector):
     """V2X-ViT with its delay-aware positional encoding, trained on perfect and noisy links (see the
     module docstring); started from the shipped V2X-ViT."""

@@ -27,7 +27,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ...registry import register
+from .base import FUSIONS
 from ..config import DetectorConfig
 from ..model import AttFuse
 from .attfuse import AttFuseDetector
@@ -106,7 +106,7 @@ class Where2CommFuse(AttFuse):
         return self.head(self.backbone.after_first_stage(fused))
 
 
-@register("fusion", "where2comm")
+@FUSIONS.register("where2comm")
 class Where2CommDetector(AttFuseDetector):
     """Where2comm: AttFuse's attention over the cells each collaborator's confidence asks it to
     send. Its attention is its own (ACS-A reads it)."""

@@ -16,6 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from ...scene import Agent, Scene
+from ...registry import Registry
 
 
 class Slot(ABC):
@@ -106,6 +107,10 @@ class PerturbationSpace(ABC):
     @abstractmethod
     def bounds(self) -> dict:
         """The space's bounds as summary.json records them (units in the keys)."""
+
+
+#: the perturbation spaces (``--space``), one module of this package each, filled by its import
+SPACES: "Registry[type[PerturbationSpace]]" = Registry("perturbation space", "--space")
 
 
 def collaborators(ctx: SpaceContext) -> tuple[str, ...]:

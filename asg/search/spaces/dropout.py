@@ -12,8 +12,7 @@ import numpy as np
 
 from sumo_scenarios import checks
 
-from ...registry import register
-from .base import PerturbationSpace, collaborators
+from .base import SPACES, PerturbationSpace, collaborators
 
 
 @dataclass(frozen=True)
@@ -24,7 +23,7 @@ class DropoutConfig:
         checks.number(self.max_lost, "space.dropout.max_lost", 1, 16)
 
 
-@register("space", "dropout")
+@SPACES.register("dropout")
 class DropoutSpace(PerturbationSpace):
     @property
     def width(self) -> int:

@@ -19,10 +19,9 @@ from shapely.geometry import LineString, Point
 
 from sumo_scenarios import checks
 
-from ...registry import register
 from ...scene import Agent
 from ...scene.feasibility import EVAL_RANGE_M
-from .base import PerturbationSpace, Slot
+from .base import SPACES, PerturbationSpace, Slot
 
 #: inserted vehicles are named INSERT_PREFIX + slot number
 INSERT_PREFIX = "asg-insert-"
@@ -90,7 +89,7 @@ class InsertSlot(Slot):
         return [f"{self.agent_id}_{k}" for k in ("present", "x_m", "y_m", "yaw_deg")]
 
 
-@register("space", "insert")
+@SPACES.register("insert")
 class InsertSpace(PerturbationSpace):
     @property
     def slots(self) -> list[InsertSlot]:

@@ -15,10 +15,9 @@ import numpy as np
 from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 
-from ...registry import register
 from ...scene.history import HISTORY_MARGIN_S, History, earlier_agents, scene_history
 from ...scene.link import MAX_DELAY_S
-from .base import PerturbationSpace, SpaceContext, collaborators
+from .base import SPACES, PerturbationSpace, SpaceContext, collaborators
 
 
 @dataclass(frozen=True)
@@ -30,7 +29,7 @@ class LatencyConfig:
                       lo_open=True)
 
 
-@register("space", "latency")
+@SPACES.register("latency")
 class LatencySpace(PerturbationSpace):
     @classmethod
     def past_s(cls, cfg) -> float:

@@ -15,8 +15,7 @@ import numpy as np
 
 from sumo_scenarios import checks
 
-from ...registry import register
-from .base import PerturbationSpace, collaborators
+from .base import SPACES, PerturbationSpace, collaborators
 
 
 @dataclass(frozen=True)
@@ -29,7 +28,7 @@ class PoseErrorConfig:
         checks.number(self.yaw_deg, "space.pose_error.yaw_deg (degrees)", 0.0, 30.0, lo_open=True)
 
 
-@register("space", "pose-error")
+@SPACES.register("pose-error")
 class PoseErrorSpace(PerturbationSpace):
     @property
     def _scale(self) -> np.ndarray:

@@ -7,9 +7,8 @@ import math
 
 import numpy as np
 
-from ...registry import register
 from ...scene import Agent
-from .base import PerturbationSpace, Slot
+from .base import SPACES, PerturbationSpace, Slot
 
 
 class MoveSlot(Slot):
@@ -43,7 +42,7 @@ class MoveSlot(Slot):
         return [f"{self.agent_id}_{k}" for k in ("dx_m", "dy_m", "dyaw_deg")]
 
 
-@register("space", "poses")
+@SPACES.register("poses")
 class PosesSpace(PerturbationSpace):
     needs_movers = True
     @property

@@ -1,0 +1,154 @@
+"""An OpenCOOD model as a target: a cooperative frame in, boxes in the ego's sensor frame out, every
+step between them OpenCOOD's own code (its dataset's processing, model forward and post-processor)."""
+from __future__ import annotations
+
+import shutil
+import tempfile
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from ...io.export.opv2v import EGO_ID, EXTRA_RSU_ID_BASE, VEHICLE_ID_BASE, agent_views
+from ...sensors.frame import CooperativeFrame
+from ..data import in_range
+from .folder import FUSION_KINDS, MODELS, checkpoint_of, load_checkpoint, read_hypes
+from .runtime import module
+
+#: OpenCOOD shuffles each agent's cloud with numpy's global generator before voxelising (which points
+#: a full pillar keeps): the adapter seeds it with this for every frame, restoring the caller's state
+FRAME_SEED = 0
+
+
+def frame_ids(frame: CooperativeFrame) -> dict[str, int]:
+    """OPV2V ids of the frame's sensing agents, as ``asg export --format opv2v`` numbers them
+    (asg.io.export.opv2v.opv2v_ids): the ego 0, vehicles 1000 + their rank among the scene's
+    vehicles, the first other RSU -1, further ones 9001, ..."""
+    rank = {a: i for i, a in enumerate(frame.gt_ids)}
+    ids, rsus = {frame.ego_id: EGO_ID}, 0
+    for a in frame.sensing_ids:
+        if a == frame.ego_id:
+            continue
+        if frame.agent_kinds.get(a, "vehicle") == "rsu":
+            ids[a] = -1 if rsus == 0 else EXTRA_RSU_ID_BASE + rsus
+            rsus += 1
+        else:
+            ids[a] = VEHICLE_ID_BASE + rank.get(a, len(rank))
+    return ids
+
+
+class OpenCOODDetector:
+    """OpenCOOD's model of ``folder`` behind asg's detector interface (``detect``, ``attention_weights``)."""
+
+    #: nothing of asg trains it (OpenCOOD's own trainer does); no asg weights, feed or point stage
+    weights = ""
+    feed = None
+    fine_tuned_from = ""
+    point_stage = None
+
+    def __init__(self, folder: Path, name: str):
+        self.registry_name = name
+        self.folder = folder
+        hypes = read_hypes(folder)
+        self.kind = FUSION_KINDS[hypes["fusion"]["core_method"]]
+        self.has_attention = MODELS[hypes["model"]["core_method"]] and self.kind == "intermediate"
+        empty = tempfile.mkdtemp(prefix="asg-opencood-")  # its dataset lists a data folder: an empty one
+        try:
+            self.dataset = module("data_utils.datasets").build_dataset(
+                {**hypes, "root_dir": empty, "validate_dir": empty}, visualize=False, train=False)
+        finally:
+            shutil.rmtree(empty, ignore_errors=True)
+        self.model = module("tools.train_utils").create_model(hypes)
+        load_checkpoint(self.model, checkpoint_of(folder))
+        self.model.eval()
+        self._infer = getattr(module("tools.inference_utils"), f"inference_{self.kind}_fusion")
+        self._corner_to_center = module("utils.box_utils").corner_to_center
+
+    def base_data(self, frame: CooperativeFrame) -> tuple[OrderedDict, float]:
+        """The frame as OpenCOOD's ``retrieve_base_data`` returns it from the OPV2V export (ego first,
+        the others in its folder order), and how far the ego's frame is lowered (m)."""
+        ids = frame_ids(frame)
+        views, lowered_m = agent_views(frame, ids)
+        order = [frame.ego_id] + sorted((a for a in frame.sensing_ids if a != frame.ego_id), key=lambda a: str(ids[a]))
+        data = OrderedDict()
+        for a in order:
+            meta, cloud = views[a]
+            data[str(ids[a])] = OrderedDict(ego=a == frame.ego_id, params=meta, lidar_np=cloud)
+        return data, lowered_m
+
+    def _run(self, frame: CooperativeFrame):
+        """(corners (K, 8, 3) or None, scores (K,) or None) in OpenCOOD's ego frame, and the drop (m)."""
+        import torch
+
+        data, lowered_m = self.base_data(frame)
+        self.dataset.retrieve_base_data = lambda idx: data
+        state = np.random.get_state()
+        np.random.seed(FRAME_SEED)
+        try:
+            batch = self.dataset.collate_batch_test([self.dataset[0]])
+            with torch.no_grad():
+                corners, scores, _ = self._infer(batch, self.model, self.dataset)
+        finally:
+            np.random.set_state(state)
+        return corners, scores, lowered_m
+
+    def detect(self, frame: CooperativeFrame) -> tuple[np.ndarray, np.ndarray]:
+        """Boxes (K, 7) x, y, z (centre), l, w, h, yaw in the ego's sensor frame and scores (K,),
+        within the evaluation range."""
+        corners, scores, lowered_m = self._run(frame)
+        if corners is None or len(corners) == 0:
+            return np.zeros((0, 7)), np.zeros(0)
+        boxes = self._corner_to_center(corners.detach().cpu().numpy().astype(np.float64), order="lwh")
+        boxes = boxes_from_opv2v(boxes, lowered_m)
+        scores = scores.detach().cpu().numpy().astype(np.float64).reshape(-1)
+        keep = in_range(boxes)
+        return boxes[keep], scores[keep]
+
+    def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float] | None:
+        """AttFuse's ego-row self-attention toward each agent, averaged over BEV cells and over the
+        backbone's fusion stages (an agent beyond OpenCOOD's communication range: 0); None for a
+        model without attention."""
+        if not self.has_attention:
+            return None
+        import torch
+
+        rows = []
+
+        def keep(mod, args):
+            query, key = args[0], args[1]  # (cells, agents, C)
+            attn = torch.softmax(torch.bmm(query, key.transpose(1, 2)) / mod.sqrt_dim, -1)
+            rows.append(attn[:, 0, :].mean(dim=0).numpy())
+
+        attention_type = module("models.fuse_modules.self_attn").ScaledDotProductAttention
+        hooks = [m.register_forward_pre_hook(keep) for m in self.model.modules() if isinstance(m, attention_type)]
+        try:
+            self._run(frame)
+        finally:
+            for h in hooks:
+                h.remove()
+        data, _ = self.base_data(frame)
+        kept = self._agents_in_range(frame, data)
+        weights = np.mean([r for r in rows if len(r) == len(kept)], axis=0) if rows else np.ones(len(kept)) / len(kept)
+        out = {a: 0.0 for a in frame.sensing_ids}
+        out.update({a: float(w) for a, w in zip(kept, weights)})
+        return out
+
+    @staticmethod
+    def _agents_in_range(frame: CooperativeFrame, data: OrderedDict) -> list[str]:
+        """Our ids of the agents OpenCOOD's intermediate dataset keeps (within its COM_RANGE of the
+        ego's LiDAR), in its order."""
+        com_range_m = module("data_utils.datasets").COM_RANGE
+        by_id = {str(i): a for a, i in frame_ids(frame).items()}
+        ego = next(iter(data.values()))["params"]["lidar_pose"]
+        return [by_id[k] for k, v in data.items()
+                if np.hypot(v["params"]["lidar_pose"][0] - ego[0], v["params"]["lidar_pose"][1] - ego[1]) <= com_range_m]
+
+
+def boxes_from_opv2v(boxes: np.ndarray, lowered_m: float) -> np.ndarray:
+    """(K, 7) boxes of OpenCOOD's ego frame (the export's: y mirrored, the ego's frame lowered by
+    ``lowered_m``) in asg's ego sensor frame: y and yaw back, z back down."""
+    out = np.array(boxes, dtype=np.float64)
+    out[:, 1] = -out[:, 1]
+    out[:, 2] -= lowered_m
+    out[:, 6] = -out[:, 6]
+    return out

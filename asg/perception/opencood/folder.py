@@ -1,0 +1,139 @@
+"""An OpenCOOD model folder read without running its code: ``config.yaml`` parsed by a safe YAML
+loader (OpenCOOD's own ``load_yaml`` uses PyYAML's full loader, which builds arbitrary Python
+objects, and ``eval``s its ``yaml_parser``), the parser looked up among OpenCOOD's own by name, and
+the checkpoint loaded as tensors only (``weights_only``)."""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import yaml
+
+from sumo_scenarios.errors import InputError
+
+from .runtime import module
+
+#: the dataset classes (OpenCOOD's ``fusion.core_method``) the adapter runs, and how each infers
+FUSION_KINDS = {"LateFusionDataset": "late", "EarlyFusionDataset": "early",
+                "IntermediateFusionDataset": "intermediate"}
+#: OpenCOOD's models the adapter runs (the PointPillars family the paper attacked): model -> has the
+#: attention ACS-A reads (AttFuse's self-attention)
+MODELS = {"point_pillar": False, "point_pillar_intermediate": True, "point_pillar_fcooper": False,
+          "point_pillar_v2vnet": False}
+#: OpenCOOD's yaml parsers (``yaml_parser``), looked up by name instead of ``eval``
+PARSERS = ("load_voxel_params", "load_point_pillar_params", "load_second_params", "load_bev_params")
+#: a config expanding (aliases included) to more values than this is refused
+MAX_CONFIG_VALUES = 100_000
+_EPOCH = re.compile(r"net_epoch([0-9]{1,6})\.pth")
+
+
+class HypesLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with OpenCOOD's float resolver (``1e-10`` is a number)."""
+
+
+HypesLoader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+HypesLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |\.[0-9_]+(?:[eE][-+][0-9]+)?
+    |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."))
+
+
+def read_hypes(folder: Path) -> dict:
+    """``folder/config.yaml`` as OpenCOOD's ``load_yaml`` returns it (its parser applied); InputError
+    (one line) for a missing, malformed, oversized or unsupported config."""
+    path = folder / "config.yaml"
+    if not path.is_file():
+        raise InputError(f"{folder}: no config.yaml; an OpenCOOD model folder holds the config.yaml its trainer saved")
+    try:
+        hypes = yaml.load(path.read_text(encoding="utf-8"), Loader=HypesLoader)
+    except (yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise InputError(f"{path}: not a readable OpenCOOD config ({type(exc).__name__}); fix or re-save it") from None
+    if not isinstance(hypes, dict):
+        raise InputError(f"{path}: expected a mapping of OpenCOOD's settings")
+    _check_size(hypes, path)
+    _check_supported(hypes, path)
+    parser = hypes.get("yaml_parser")
+    if parser is not None:
+        if parser not in PARSERS:
+            raise InputError(f"{path}: yaml_parser {parser!r} is not one of OpenCOOD's ({', '.join(PARSERS)})")
+        try:
+            hypes = getattr(module("hypes_yaml.yaml_utils"), parser)(hypes)
+        except (KeyError, TypeError, ValueError, ZeroDivisionError, IndexError) as exc:
+            raise InputError(f"{path}: OpenCOOD's {parser} cannot read it ({type(exc).__name__}: {exc}); "
+                             "compare it with OpenCOOD's hypes_yaml") from None
+    return hypes
+
+
+def _check_size(value, path: Path) -> None:
+    """Refuse a config whose values (aliases expanded) exceed MAX_CONFIG_VALUES, or hold a
+    non-finite number."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > MAX_CONFIG_VALUES:
+            raise InputError(f"{path}: more than {MAX_CONFIG_VALUES} values once its aliases are expanded; "
+                             "not an OpenCOOD config")
+        if isinstance(item, dict):
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, float) and not math.isfinite(item):
+            raise InputError(f"{path}: holds a non-finite number ({item}); fix the config")
+
+
+def _check_supported(hypes: dict, path: Path) -> None:
+    try:
+        fusion = hypes["fusion"]["core_method"]
+        model = hypes["model"]["core_method"]
+        hypes["preprocess"]["cav_lidar_range"], hypes["postprocess"]["anchor_args"]
+    except (KeyError, TypeError):
+        raise InputError(f"{path}: lacks fusion, model, preprocess or postprocess settings; not an OpenCOOD config") from None
+    if fusion not in FUSION_KINDS:
+        raise InputError(f"{path}: fusion {fusion!r} is not run here; the adapter runs {', '.join(FUSION_KINDS)}")
+    if model not in MODELS:
+        raise InputError(f"{path}: model {model!r} is not run here (the adapter runs OpenCOOD's PointPillars "
+                         f"models: {', '.join(MODELS)})")
+
+
+def checkpoint_of(folder: Path) -> Path:
+    """The checkpoint OpenCOOD's ``load_saved_model`` takes: ``latest.pth``, else the highest
+    ``net_epochN.pth``; InputError if there is none."""
+    latest = folder / "latest.pth"
+    if latest.is_file():
+        return latest
+    epochs = [(int(m.group(1)), p) for p in folder.iterdir() if (m := _EPOCH.fullmatch(p.name)) and p.is_file()]
+    if not epochs:
+        raise InputError(f"{folder}: no checkpoint (latest.pth or net_epochN.pth); train the model with OpenCOOD first")
+    return max(epochs)[1]
+
+
+def load_checkpoint(model, path: Path) -> None:
+    """Load ``path``'s tensors into ``model`` without unpickling objects; InputError for a file that
+    is not a state dict of tensors or does not fit the config's network."""
+    import torch
+
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for a corrupt or code-carrying pickle
+        raise InputError(f"{path}: not a checkpoint of tensors ({type(exc).__name__}); a checkpoint is loaded "
+                         "only as tensors (weights_only), never as pickled objects") from None
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise InputError(f"{path}: not a state dict of tensors; save model.state_dict() as OpenCOOD's trainer does")
+    own = model.state_dict()
+    missing = sorted(set(own) - set(state))
+    unexpected = sorted(set(state) - set(own))
+    shape = next((k for k in own if k in state and own[k].shape != state[k].shape), None)
+    if missing or unexpected or shape:
+        what = (f"lacks {missing[0]}" if missing else f"has {unexpected[0]}, which the network has not" if unexpected
+                else f"{shape} is {tuple(state[shape].shape)}, the network's {tuple(own[shape].shape)}")
+        raise InputError(f"{path}: does not fit the network of its config.yaml ({what}); give the config it was trained with")
+    if not all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point()):
+        raise InputError(f"{path}: holds non-finite weights; retrain or take an earlier checkpoint")
+    model.load_state_dict(state)

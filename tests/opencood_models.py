@@ -1,0 +1,49 @@
+"""Small OpenCOOD model folders for the adapter's tests: OpenCOOD's stock hypes of a fusion with the
+backbone made shallow and the range cut to asg's evaluation square (so that a CPU runs it in a second),
+and a checkpoint of seeded initial weights saved as OpenCOOD's trainer saves one (a state dict)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+#: OpenCOOD's stock hypes file of each fusion the tests run
+STOCK = {"intermediate": "point_pillar_intermediate_fusion.yaml", "early": "point_pillar_early_fusion.yaml",
+         "late": "point_pillar_late_fusion.yaml", "fcooper": "point_pillar_fcooper.yaml"}
+RANGE = [-51.2, -51.2, -3.0, 51.2, 51.2, 1.0]
+
+
+def tiny_hypes(kind: str) -> dict:
+    from asg.perception.opencood.folder import HypesLoader
+    from asg.perception.opencood.runtime import module
+
+    text = (Path(module("hypes_yaml").__file__).parent / STOCK[kind]).read_text()
+    hypes = yaml.load(text, Loader=HypesLoader)
+    hypes = yaml.safe_load(yaml.safe_dump(hypes))  # aliases written out: each value its own
+    hypes["preprocess"]["cav_lidar_range"] = list(RANGE)
+    hypes["postprocess"]["anchor_args"]["cav_lidar_range"] = list(RANGE)
+    args = hypes["model"]["args"]
+    args["lidar_range"] = list(RANGE)
+    # OpenCOOD's PointPillars models hard-code the pillar features (64) and the head's input (128 a
+    # stage): what can shrink is the depth of the backbone's stages and their inner widths
+    args["base_bev_backbone"].update(layer_nums=[1, 1, 1], num_filters=[32, 64, 64])
+    return hypes
+
+
+def make_model_dir(folder: Path, kind: str, seed: int = 0, score_threshold: float | None = None) -> Path:
+    """``folder`` holding config.yaml and net_epoch1.pth of a small OpenCOOD model of ``kind``."""
+    import torch
+
+    from asg.perception.opencood.folder import HypesLoader  # noqa: F401
+    from asg.perception.opencood.runtime import module
+
+    hypes = tiny_hypes(kind)
+    if score_threshold is not None:
+        hypes["postprocess"]["target_args"]["score_threshold"] = score_threshold
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "config.yaml").write_text(yaml.safe_dump(hypes, sort_keys=False))
+    parsed = getattr(module("hypes_yaml.yaml_utils"), hypes["yaml_parser"])(yaml.safe_load(yaml.safe_dump(hypes)))
+    torch.manual_seed(seed)
+    model = module("tools.train_utils").create_model(parsed)
+    torch.save(model.state_dict(), folder / "net_epoch1.pth")
+    return folder

@@ -1,0 +1,113 @@
+"""OpenCOOD model folders as targets (``--fusion opencood:DIR``): the adapter's boxes equal those of
+OpenCOOD's own inference (its dataset reading ``asg export --format opv2v``, its model, its
+post-processor), and bad folders are one line."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("opencood")
+
+from opencood_models import make_model_dir  # noqa: E402
+
+from asg.cli import main  # noqa: E402
+from asg.perception import build_detector  # noqa: E402
+from sumo_scenarios.errors import InputError  # noqa: E402
+
+#: random initial weights score near 0.5 everywhere: a threshold that keeps tens of boxes a frame
+THRESHOLD = 0.505
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    """Three scenes of a held-out town with an RSU ego, and the same with a vehicle ego; each with
+    two vehicle collaborators (opencoodx 0.1.19 takes the first folder as the ego, so a collaborating
+    RSU, numbered -1, is left out here: see docs/opencood.md)."""
+    from asg.scene.from_log import ExtractParams, extract_scenes
+    from asg.scene.neighbours import with_nearest_collaborators
+    from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
+
+    log = tmp_path_factory.mktemp("oc") / "log"
+    simulate_sumo(SimulationRequest(out_dir=log, town="roundabout", seed=77, duration_s=20.0, density="normal"))
+    base = list(extract_scenes(log, ExtractParams(every=10, min_vehicles=5)))[:2]
+    out = {}
+    for k in (1, 2):
+        out["rsu", k] = [with_nearest_collaborators(s, k) for s in base]
+        out["vehicle", k] = [with_nearest_collaborators(replace(s, ego_id=s.vehicles[0].agent_id, collaborators=()), k)
+                             for s in base]
+    for chosen in out.values():
+        assert all(s.agent(a).kind == "vehicle" for s in chosen for a in s.collaborators)
+    return out
+
+
+def opencood_own_boxes(model_dir: Path, export_dir: Path, kind: str) -> dict[str, np.ndarray]:
+    """{scene id: boxes (K, 7)} of OpenCOOD's own inference over an OPV2V export, converted to asg's
+    ego frame here by the export's documented rule (y and yaw mirrored, the ego frame lowered by
+    ids.yaml's ego_frame_lowered_m)."""
+    import torch
+
+    from asg.perception.opencood.folder import read_hypes
+    from asg.perception.opencood.runtime import module
+
+    hypes = read_hypes(model_dir)
+    hypes.update(root_dir=str(export_dir), validate_dir=str(export_dir))
+    dataset = module("data_utils.datasets").build_dataset(hypes, visualize=False, train=False)
+    model = module("tools.train_utils").create_model(hypes)
+    model.load_state_dict(torch.load(model_dir / "net_epoch1.pth", weights_only=True))
+    model.eval()
+    infer = getattr(module("tools.inference_utils"), f"inference_{kind}_fusion")
+    to_center = module("utils.box_utils").corner_to_center
+    scenarios = sorted(p.name for p in export_dir.iterdir() if p.is_dir())
+    out = {}
+    for i, name in enumerate(scenarios):
+        np.random.seed(0)
+        batch = dataset.collate_batch_test([dataset[i]])
+        with torch.no_grad():
+            corners, scores, _ = infer(batch, model, dataset)
+        ids = yaml.safe_load((export_dir / name / "ids.yaml").read_text())
+        assert ids["opencood_ego"] == ids["ego"]
+        boxes = to_center(corners.numpy().astype(np.float64), order="lwh") if corners is not None else np.zeros((0, 7))
+        boxes[:, 1] *= -1
+        boxes[:, 6] *= -1
+        boxes[:, 2] -= ids["ego_frame_lowered_m"]
+        out[name] = boxes
+    return out
+
+
+SLOW = pytest.mark.slow
+
+
+@pytest.mark.parametrize("kind, ego, collaborators", [
+    ("intermediate", "rsu", 2), pytest.param("intermediate", "vehicle", 2, marks=SLOW),
+    pytest.param("intermediate", "rsu", 1, marks=SLOW), ("early", "vehicle", 1),
+    pytest.param("early", "rsu", 2, marks=SLOW), ("late", "vehicle", 2), pytest.param("late", "rsu", 1, marks=SLOW)])
+def test_the_adapter_gives_opencoods_own_boxes(kind, ego, collaborators, scenes, tmp_path):
+    """Same boxes to 1e-4 m and 1e-4 rad: a broken conversion (axes, yaw sign, the RSU's height,
+    which agent is the ego, the cloud order OpenCOOD shuffles in) fails it."""
+    from asg.io.export.opv2v import ScenarioWriter
+    from asg.sensors import load_lidar_spec, simulate_frame
+
+    chosen = scenes[ego, collaborators]
+    assert chosen, "no scene of this ego kind"
+    model_dir = make_model_dir(tmp_path / "model", kind, score_threshold=THRESHOLD)
+    export = tmp_path / "export"
+    writer = ScenarioWriter(export)
+    for s in chosen:
+        writer.write(s)
+    own = opencood_own_boxes(model_dir, export, kind)
+    det = build_detector(f"opencood:{model_dir}")
+    spec = load_lidar_spec()
+    compared = 0
+    for s in chosen:
+        boxes, scores = det.detect(simulate_frame(s, spec))
+        theirs = own[s.scene_id]
+        theirs = theirs[(np.abs(theirs[:, 0]) <= 48.0) & (np.abs(theirs[:, 1]) <= 48.0)]
+        assert boxes.shape == theirs.shape and len(boxes) > 0, (boxes.shape, theirs.shape)
+        assert np.abs(boxes[:, :6] - theirs[:, :6]).max() < 1e-4
+        assert np.abs(np.angle(np.exp(1j * (boxes[:, 6] - theirs[:, 6])))).max() < 1e-4
+        compared += len(boxes)
+    assert compared > 0
