@@ -10,7 +10,7 @@ import yaml
 
 from asg.io.export import export
 from asg.io.export.kitti import TR_VELO_TO_CAM
-from asg.io.export.opv2v import opv2v_ids
+from asg.sensors.opv2v import opv2v_ids
 from asg.perception.data import in_range
 from asg.scene import save_scene
 from asg.scene.from_log import ExtractParams, extract_scenes
@@ -226,7 +226,7 @@ def test_opencood_takes_our_ego_whatever_its_kind(cross_map):
     to the folder names picks our ego; ids are unique."""
     from dataclasses import replace
 
-    from asg.io.export.opv2v import opencood_ego
+    from asg.sensors.opv2v import opencood_ego
     from conftest import car, make_scene, rsu
 
     agents = [car("v0", 0, 0), car("v1", 10, 0), car("v2", 20, 0)] + [rsu(f"r{i}", 5 * i, 8) for i in range(4)]

@@ -172,7 +172,7 @@ def test_imports_through_importlib_are_checked_too(tmp_path):
     probe = tmp_path / "probe.py"
     probe.write_text('import importlib\nimportlib.import_module("asg.cli")\n')
     assert _imports(probe) == {"asg.cli"}
-    upward = [module for _, module, _ in COMMAND_MODULES if LAYERS[_part(module)] >= LAYERS["cli"]]
+    upward = [c.module for c in COMMAND_MODULES if LAYERS[_part(c.module)] >= LAYERS["cli"]]
     assert not upward, upward
 
 

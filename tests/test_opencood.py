@@ -111,3 +111,109 @@ def test_the_adapter_gives_opencoods_own_boxes(kind, ego, collaborators, scenes,
         assert np.abs(np.angle(np.exp(1j * (boxes[:, 6] - theirs[:, 6])))).max() < 1e-4
         compared += len(boxes)
     assert compared > 0
+
+
+def _refusal(capsys, *argv: str) -> str:
+    """The one-line error of ``asg ARGV`` (exit 2, no traceback)."""
+    assert main(list(argv)) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("asg: error: ") and "\n" not in err and "Traceback" not in err, err
+    return err
+
+
+def test_bad_model_folders_are_one_line_and_write_nothing(capsys, tmp_path):
+    """No folder, no config, no checkpoint, a checkpoint that does not fit its config, a pickle
+    carrying code, a model the adapter does not run: each one line, exit 2, no output folder."""
+    import pickle
+
+    import torch
+
+    out = tmp_path / "out"
+    good = make_model_dir(tmp_path / "good", "early")
+    cases = {}
+    cases["is not a folder"] = tmp_path / "nope"
+    no_config = tmp_path / "no-config"
+    no_config.mkdir()
+    (no_config / "net_epoch1.pth").write_bytes((good / "net_epoch1.pth").read_bytes())
+    cases["config.yaml"] = no_config
+    no_ckpt = tmp_path / "no-ckpt"
+    no_ckpt.mkdir()
+    (no_ckpt / "config.yaml").write_text((good / "config.yaml").read_text())
+    cases["no checkpoint"] = no_ckpt
+    other = make_model_dir(tmp_path / "other", "fcooper")  # AttFuse's weights would fit: its attention has none
+    misfit = tmp_path / "misfit"
+    misfit.mkdir()
+    (misfit / "config.yaml").write_text((good / "config.yaml").read_text())
+    (misfit / "net_epoch1.pth").write_bytes((other / "net_epoch1.pth").read_bytes())
+    cases["does not fit"] = misfit
+
+    class Boom:
+        def __reduce__(self):
+            return (open, (str(tmp_path / "pwned"), "w"))
+
+    evil = tmp_path / "evil"
+    evil.mkdir()
+    (evil / "config.yaml").write_text((good / "config.yaml").read_text())
+    with open(evil / "latest.pth", "wb") as fh:
+        pickle.dump({"w": Boom()}, fh)
+    cases["weights_only"] = evil
+    second = tmp_path / "second"
+    second.mkdir()
+    hypes = yaml.safe_load((good / "config.yaml").read_text())
+    hypes["model"]["core_method"] = "second_intermediate"
+    (second / "config.yaml").write_text(yaml.safe_dump(hypes))
+    torch.save({}, second / "latest.pth")
+    cases["not run here"] = second
+    code_yaml = tmp_path / "code-yaml"
+    code_yaml.mkdir()
+    (code_yaml / "config.yaml").write_text("!!python/object/apply:os.system ['touch " + str(tmp_path / "pwned") + "']\n")
+    (code_yaml / "latest.pth").write_bytes((good / "net_epoch1.pth").read_bytes())
+    cases["not a readable OpenCOOD config"] = code_yaml
+    for expected, folder in cases.items():
+        err = _refusal(capsys, "evaluate", "--fusion", f"opencood:{folder}", "--set", "normal-val")
+        assert expected in err, (expected, err)
+    err = _refusal(capsys, "generate", "--fusion", f"opencood:{misfit}", "--town", "fiveleg", "--count", "1",
+                   "--out", str(out))
+    assert "does not fit" in err
+    assert not out.exists() and not (tmp_path / "pwned").exists()
+
+
+def test_opencood_is_refused_where_asg_would_train_it(capsys, tmp_path):
+    model = make_model_dir(tmp_path / "m", "early")
+    err = _refusal(capsys, "train", "--fusion", f"opencood:{model}")
+    assert "OpenCOOD's own trainer" in err
+
+
+def test_a_missing_opencood_install_names_the_extra(monkeypatch):
+    import builtins
+
+    from asg.perception.opencood import runtime
+
+    real = builtins.__import__
+
+    def no_opencood(name, *args, **kwargs):
+        if name == "opencood" or name.startswith("opencood."):
+            raise ImportError("No module named 'opencood'")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_opencood)
+    monkeypatch.setattr(runtime.importlib, "import_module", lambda n, *a: no_opencood(n))
+    with pytest.raises(InputError, match=r"asg\[opencood\]"):
+        runtime.opencood()
+
+
+def test_an_opencood_model_is_evaluated_and_its_attention_read(capsys, scenes, tmp_path):
+    """``asg evaluate --fusion opencood:DIR`` scores a set; AttFuse's self-attention gives ACS-A a
+    weight for every sensing agent (summing to 1), F-Cooper none."""
+    from asg.perception.fusion import has_own_attention
+    from asg.sensors import load_lidar_spec, simulate_frame
+
+    att = make_model_dir(tmp_path / "att", "intermediate", score_threshold=THRESHOLD)
+    det = build_detector(f"opencood:{att}")
+    frame = simulate_frame(scenes["rsu", 2][0], load_lidar_spec())
+    w = det.attention_weights(frame)
+    assert has_own_attention(det) and set(w) == set(frame.sensing_ids) and abs(sum(w.values()) - 1.0) < 1e-5
+    fc = build_detector(f"opencood:{make_model_dir(tmp_path / 'fc', 'fcooper', score_threshold=THRESHOLD)}")
+    assert not has_own_attention(fc) and fc.attention_weights(frame) is None
+    boxes, scores = fc.detect(frame)
+    assert boxes.shape[1:] == (7,) and scores.shape == (len(boxes),)

@@ -8,6 +8,8 @@ import numpy as np
 from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
 
+from ..sensors.opv2v import pcd_intensity_levels
+
 FIELDS = ("x", "y", "z", "intensity")
 
 
@@ -47,11 +49,6 @@ def read_pcd(path: str | Path) -> np.ndarray:
         raise InputError(f"{path}: only binary PCD with fields {' '.join(FIELDS)} is supported")
     n = int(header["POINTS"])
     return np.frombuffer(data[pos:pos + 16 * n], dtype=np.float32).reshape(n, 4).copy()
-
-
-def pcd_intensity_levels(intensity: np.ndarray) -> np.ndarray:
-    """(N,) uint32 8-bit colour levels of intensities (N,) in [0, 1] (clipped), as the rgb PCD stores them."""
-    return np.round(np.clip(intensity, 0.0, 1.0) * 255.0).astype(np.uint32)
 
 
 def write_pcd_rgb_intensity(path: str | Path, points: np.ndarray) -> None:

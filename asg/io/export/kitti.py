@@ -5,7 +5,7 @@ cloud fused: ``DIR/training/{velodyne,label_2,calib,image_2}/NNNNNN.*`` and
 - ``velodyne/NNNNNN.bin``: float32 x, y, z, intensity of the fused cloud in the ego's sensor frame
   (x forward, y left, z up: KITTI's velodyne frame), 360 degrees; an ego sensor standing higher than
   a car's (an RSU, a truck) is written in a frame at a car's sensor height below it (points and
-  labels raised by ``ego_frame.yaml``'s ``lowered_m``, asg.io.export.frames), so that OpenPCDet's
+  labels raised by ``ego_frame.yaml``'s ``lowered_m``, asg.sensors.ego_frame), so that OpenPCDet's
   stock point-cloud range (z in [-3, 1] m) keeps every vehicle.
 - ``label_2/NNNNNN.txt``: every vehicle within the evaluation range (the ground truth the AP of
   asg counts), class ``Car`` (``Truck`` for truck and bus types), in the rectified camera frame of
@@ -35,7 +35,7 @@ from sumo_scenarios.geometry import wrap_rad
 from ...perception.data import in_range
 from ...scene import Scene
 from ...sensors import load_lidar_spec, simulate_frame
-from .frames import ego_frame_drop_m
+from ...sensors.ego_frame import ego_frame_drop_m
 
 #: KITTI's left colour camera intrinsics (sequence 0000 of the object benchmark) and image size
 P2 = np.array([[721.5377, 0.0, 609.5593, 44.85728], [0.0, 721.5377, 172.854, 0.2163791], [0.0, 0.0, 1.0, 0.002745884]])
@@ -55,7 +55,7 @@ class KittiWriter:
         self.placeholder_png = placeholder_image()
         (out / "ImageSets").mkdir(exist_ok=True)
         self.ids: dict[str, str] = {}
-        #: per frame, how far below the ego's sensor its frame is (asg.io.export.frames)
+        #: per frame, how far below the ego's sensor its frame is (asg.sensors.ego_frame)
         self.lowered_m: dict[str, float] = {}
 
     def write(self, scene: Scene) -> None:

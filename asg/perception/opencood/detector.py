@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...io.export.opv2v import EGO_ID, EXTRA_RSU_ID_BASE, VEHICLE_ID_BASE, agent_views
+from ...sensors.opv2v import EGO_ID, EXTRA_RSU_ID_BASE, VEHICLE_ID_BASE, agent_views
 from ...sensors.frame import CooperativeFrame
 from ..data import in_range
 from .folder import FUSION_KINDS, MODELS, checkpoint_of, load_checkpoint, read_hypes
@@ -22,7 +22,7 @@ FRAME_SEED = 0
 
 def frame_ids(frame: CooperativeFrame) -> dict[str, int]:
     """OPV2V ids of the frame's sensing agents, as ``asg export --format opv2v`` numbers them
-    (asg.io.export.opv2v.opv2v_ids): the ego 0, vehicles 1000 + their rank among the scene's
+    (asg.sensors.opv2v.opv2v_ids): the ego 0, vehicles 1000 + their rank among the scene's
     vehicles, the first other RSU -1, further ones 9001, ..."""
     rank = {a: i for i, a in enumerate(frame.gt_ids)}
     ids, rsus = {frame.ego_id: EGO_ID}, 0
