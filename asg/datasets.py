@@ -190,15 +190,18 @@ def check_set_name(set_name: str) -> str:
     folder), without building or reading it; else one InputError."""
     from sumo_scenarios.checks import safe_id
 
+    if not set_name.strip():
+        raise InputError(f"--set is empty; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
     if set_name in SETS or Path(set_name).is_dir():
         return set_name
     if set_name.startswith("challenging-"):
         return safe_id(set_name, "challenging set")
-    raise InputError(f"unknown set '{set_name}'; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
+    raise InputError(f"unknown set {set_name!r}; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
 
 
 def scenes_of(set_name: str) -> Iterator[Scene]:
     """Scenes of a named set (building the normal set if needed) or of a folder of scene yaml."""
+    check_set_name(set_name)
     if set_name in SETS:
         name, split = SETS[set_name]
         if not (dataset_path(name) / "index.json").is_file():
@@ -214,7 +217,7 @@ def scenes_of(set_name: str) -> Iterator[Scene]:
         if not files:
             raise InputError(f"{p}: no scene yaml files; give a folder written by 'asg scenes extract' or 'asg generate'")
         return (load_scene(f) for f in files)
-    raise InputError(f"unknown set '{set_name}'; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
+    raise InputError(f"unknown set {set_name!r}; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
 
 
 def challenging_scenes(name: str):

@@ -14,3 +14,21 @@ def test_parallel_workers_give_the_sequential_table(tmp_path):
     strip = lambda r: {k: {m: v[m] for m in ("normal", "after_acs", "challenging", "scenes")} for k, v in r["table"].items()}
     assert strip(one) == strip(two)
     assert set(one["table"]) == {"attention-bo", "attention-ga", "attention-rs", "random-bo", "off-bo", "off-ga", "off-rs"}
+
+
+@pytest.mark.parametrize("table", ["", ",", "main,main", "main,nope", " "])
+def test_a_bad_table_list_is_refused_before_anything_is_written(table, capsys, tmp_path):
+    from test_cli import assert_one_line_error, run
+
+    code, err = run(capsys, "bench", "paper", "--table", table, "--scenes", "1", "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "--table takes distinct table names")
+    assert not (tmp_path / "o").exists()
+
+
+def test_bench_paper_under_proc_is_one_line(capsys):
+    from test_cli import assert_one_line_error, run
+
+    code, err = run(capsys, "bench", "paper", "--scenes", "1", "--out", "/proc/asg-bench")
+    assert code == 2
+    assert_one_line_error(err, "--out")

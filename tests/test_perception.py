@@ -16,6 +16,9 @@ from sumo_scenarios.errors import InputError
 
 from conftest import car, make_scene, rsu
 
+#: torch's kernels decide these outcomes: CI runs this file again on AVX2 and default kernels
+pytestmark = pytest.mark.numeric
+
 #: a tiny plain PointPillars (no IoU or refinement branch, AttFuse fused on the backbone output)
 PLAIN = dict(iou_rescore=0.0, iou_patch=1, box_refine=False, attfuse_fusion="output")
 TINY = DetectorConfig(range_m=16.0, pillar_m=0.5, pfn_channels=16, layers=(1, 1, 1), filters=(16, 32, 32),

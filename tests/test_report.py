@@ -3,6 +3,7 @@ opens with every inline image decoded; no network reference in it."""
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 from asg.cli import main
 
@@ -170,3 +171,25 @@ def test_links_huge_detections_and_bad_outputs_are_one_line(capsys, tmp_path):
         code, err = run(capsys, "report", str(out), "--out", where)
         assert code == 2, where
         assert_one_line_error(err, "--out")
+
+
+def test_report_never_writes_over_a_special_file_or_an_input_of_the_run(capsys, tmp_path):
+    """--out onto a FIFO, a device node, a symbolic link or the run's own final.yaml / summary.json:
+    one line, exit 2, the file untouched."""
+    import os
+
+    out = oracle_run(tmp_path / "run", 1, "--budget", "2")
+    capsys.readouterr()
+    fifo = tmp_path / "pipe.html"
+    os.mkfifo(fifo)
+    link = tmp_path / "link.html"
+    link.symlink_to(tmp_path / "elsewhere.html")
+    summary = out / "summary.json"
+    before = summary.read_bytes()
+    for where, words in ((fifo, "special file"), (Path("/dev/null"), "special file"), (link, "symbolic link"),
+                         (summary, "file of the run")):
+        code, err = run(capsys, "report", str(out), "--out", str(where))
+        assert code == 2, where
+        assert_one_line_error(err, words)
+    assert fifo.is_fifo() and summary.read_bytes() == before and not (tmp_path / "elsewhere.html").exists()
+    assert Path("/dev/null").is_char_device()

@@ -855,3 +855,19 @@ def test_a_hostile_scene_file_is_one_line(capsys, tmp_path, edit, needle):
     assert code == 2
     assert_one_line_error(err, needle)
     assert not list((tmp_path / "o").glob("scenes/*"))
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["evaluate", "--fusion", "early", "--set", ""], "--set is empty"),
+    (["evaluate", "--fusion", "early", "--set", " "], "--set is empty"),
+    (["evaluate", "--fusion", "early", "--set", "normal\nval"], "unknown set 'normal\\nval'"),
+    (["train", "--fusion", "early", "--init-from", ""], "--init-from is empty"),
+])
+def test_empty_and_multi_line_names_are_one_line(argv, words, capsys):
+    """An empty --set or --init-from is not the flag left out (it read the current folder, or the
+    model's own weights); a name with a newline is quoted, so the error stays one line."""
+    from test_cli import assert_one_line_error, run
+
+    code, err = run(capsys, *argv)
+    assert code == 2
+    assert_one_line_error(err, words)

@@ -9,11 +9,16 @@ from ..progress import print_result
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=COUNT, default=10)
+    p.add_argument("--fusion", default=None, metavar="NAME",
+                   help="time this detector only (an OpenCOOD model, opencood:DIR, beside OpenCOOD's own pipeline)")
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..benchmarks.detect import bench_detect
+    from ..perception import check_fusion
 
-    print_result("asg bench detect", bench_detect(frames=args.frames), args.json)
+    if args.fusion is not None:
+        check_fusion(args.fusion)
+    print_result("asg bench detect", bench_detect(frames=args.frames, fusion=args.fusion), args.json)
     return 0

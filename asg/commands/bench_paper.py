@@ -8,6 +8,7 @@ from pathlib import Path
 
 from rich.table import Table
 
+from sumo_scenarios.checks import output_dir
 from sumo_scenarios.errors import InputError
 
 from ..cli_args import COUNT, executor_args, executor_from_args, fusion_arg, whole
@@ -47,6 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    _table_names(args)  # a bad --table is refused before anything is written
     if args.harden_rounds and "finetune" not in _table_names(args):
         raise InputError("--harden-rounds adds rows to the finetune table; give --table finetune (or all)")
     if args.searches is not None and "spaces" not in _table_names(args):
@@ -62,7 +64,12 @@ def _table_names(args: argparse.Namespace) -> tuple[str, ...]:
 
     if args.table is None:
         return ()
-    return TABLES if args.table == "all" else tuple(t.strip() for t in args.table.split(",") if t.strip())
+    if args.table == "all":
+        return TABLES
+    names = tuple(t.strip() for t in args.table.split(","))
+    if not names or any(n not in TABLES for n in names) or len(set(names)) != len(names):
+        raise InputError(f"--table takes distinct table names ({', '.join(TABLES)}) or all, got {args.table!r}")
+    return names
 
 
 def _tables(args: argparse.Namespace) -> int:
@@ -80,6 +87,7 @@ def _tables(args: argparse.Namespace) -> int:
         from ..generator.run import load_factory
 
         load_factory(args.detector)
+    output_dir(Path(args.out))  # /proc, a file in the way: one line before any work
     command = "asg " + " ".join(shlex.quote(a) for a in args.argv)
     methods = AP_METHODS if args.ap_method == "both" else (args.ap_method,)
     with executor_from_args(args, args.scenes or 10**6) as executor:
@@ -137,6 +145,7 @@ def _targets(args: argparse.Namespace) -> int:
         raise InputError("--ap-method both applies to --table runs; the targets table takes global or per-frame")
     scenes = args.scenes or 30
     defaults = GenerateConfig()
+    output_dir(Path(args.out))
     with executor_from_args(args, scenes) as executor:
         result = bench_paper(Path(args.out), scenes=scenes, budget=args.budget or defaults.budget,
                              fusion=args.fusion or defaults.fusion, executor=executor, ap_method=args.ap_method)

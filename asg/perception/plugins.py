@@ -11,7 +11,7 @@ returns an object with
 and optionally ``attention(frame) -> {agent_id: weight}`` (weights summing to 1), which the
 collaborator search then uses instead of the shipped AttFuse's attention. ``asg generate``,
 ``asg evaluate``, ``asg dataset build challenging`` and the benchmarks take the name as
-``--fusion NAME``. The five shipped models are registered in the same group by asg itself.
+``--fusion NAME``. The shipped models are not in the group: they are asg's fusion registry (FUSIONS).
 Worked example: docs/plugins.md; a bad plugin (import error, an exit, wrong shapes, non-finite
 numbers, more than MAX_BOXES boxes, a call running over CALL_TIME_LIMIT_S) is one line naming it,
 exit 2. A ``--detector module:function`` factory's detectors get the same checks (CheckedDetector).

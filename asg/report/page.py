@@ -68,13 +68,26 @@ def _refuse_links(root: Path) -> None:
                                  "only files the folder holds: copy the file in or remove the link")
 
 
-def _output_file(out: Path) -> Path:
+def _output_file(out: Path, root: Path) -> Path:
     """``out`` if an HTML file can be written there, else one InputError (a folder or a file in the
-    way, /proc, no permission)."""
+    way, /proc, no permission, a device node, FIFO or socket, a symbolic link, or a file of the run
+    itself other than its report.html: a special file or an input is never an output)."""
+    import stat
+
     from sumo_scenarios.checks import output_dir
 
+    if out.is_symlink():
+        raise InputError(f"--out {out} is a symbolic link; give the HTML file's own path")
     if out.is_dir():
         raise InputError(f"--out {out} is a folder; give an HTML file name")
+    if out.exists() and not stat.S_ISREG(out.stat().st_mode):
+        raise InputError(f"--out {out} is a special file (a device, FIFO or socket); give an HTML file name")
+    try:
+        inside_run = out.resolve().is_relative_to(root.resolve())
+    except OSError:
+        inside_run = False
+    if inside_run and out.exists() and out.name != "report.html":
+        raise InputError(f"--out {out} is a file of the run folder {root}; give a new HTML file name")
     output_dir(out.parent)
     return out
 
@@ -82,7 +95,7 @@ def _output_file(out: Path) -> Path:
 def write_report(root: Path, out: Path | None = None, scenes_shown: int = 6) -> Path:
     root = Path(root)
     _refuse_links(root)
-    out = _output_file(Path(out)) if out is not None else root / "report.html"
+    out = _output_file(Path(out), root) if out is not None else root / "report.html"
     runs = run_folders(root)
     tables = sorted(p for p in root.glob("*.json") if _is_table(p))
     trainings = training_folders(root)

@@ -61,7 +61,7 @@ class OpenCOODDetector:
         self.model = module("tools.train_utils").create_model(hypes)
         load_checkpoint(self.model, checkpoint_of(folder))
         self.model.eval()
-        self._infer = getattr(module("tools.inference_utils"), f"inference_{self.kind}_fusion")
+        self.infer = getattr(module("tools.inference_utils"), f"inference_{self.kind}_fusion")
         self._corner_to_center = module("utils.box_utils").corner_to_center
 
     def base_data(self, frame: CooperativeFrame) -> tuple[OrderedDict, float]:
@@ -87,7 +87,7 @@ class OpenCOODDetector:
         try:
             batch = self.dataset.collate_batch_test([self.dataset[0]])
             with torch.no_grad():
-                corners, scores, _ = self._infer(batch, self.model, self.dataset)
+                corners, scores, _ = self.infer(batch, self.model, self.dataset)
         finally:
             np.random.set_state(state)
         return corners, scores, lowered_m

@@ -1,0 +1,76 @@
+"""Train an OpenCOOD model with OpenCOOD's own trainer (opencood/tools/train.py, unmodified) on asg's
+``detector-train`` set exported in the OPV2V layout; resumable (rerun the same command).
+
+    python docs/experiments/opencood_train.py MODEL_DIR TRAIN_EXPORT VAL_EXPORT [--fusion intermediate|fcooper]
+        [--epochs 15] [--layers 3,5,8]
+
+MODEL_DIR gets OpenCOOD's stock hypes of the fusion (point_pillar_intermediate_fusion.yaml: AttFuse;
+point_pillar_fcooper.yaml: F-Cooper) with three changes, each written into its config.yaml:
+- the data folders (``root_dir``, ``validate_dir``);
+- the range, [-51.2, 51.2] m in x and y (the stock [-140.8, 140.8] x [-40, 40] would leave out
+  the corners of asg's 48 m evaluation square, and its ground truth beyond 40 m to the side);
+- ``--layers``: the backbone stages' depths, only when given (the stock depths are 3, 5, 8).
+Then OpenCOOD's trainer runs with ``--model_dir MODEL_DIR``: it saves ``net_epochN.pth`` after every
+epoch and, rerun, resumes from the highest N (the model's weights; its optimizer restarts, as
+OpenCOOD's own resume does). ``MODEL_DIR`` is then a target: ``--fusion opencood:MODEL_DIR``.
+
+The trainer is run through ``runpy`` after asg's runtime preparation (asg/perception/opencood/
+runtime.py: opencoodx's box_overlaps.pyx compiled, matplotlib's get_cmap restored), which
+``python -m opencood.tools.train`` lacks. Its log: MODEL_DIR/train.log (append).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import runpy
+import sys
+from pathlib import Path
+
+import yaml
+
+from asg.perception.opencood.folder import HypesLoader
+from asg.perception.opencood.runtime import module, opencood
+
+STOCK = {"intermediate": "point_pillar_intermediate_fusion.yaml", "fcooper": "point_pillar_fcooper.yaml"}
+RANGE_M = [-51.2, -51.2, -3.0, 51.2, 51.2, 1.0]
+
+
+def write_config(model_dir: Path, fusion: str, train: Path, val: Path, epochs: int, layers: list[int] | None) -> Path:
+    """MODEL_DIR/config.yaml from OpenCOOD's stock hypes (kept if it exists: a resumed run)."""
+    path = model_dir / "config.yaml"
+    if path.is_file():
+        return path
+    stock = Path(module("hypes_yaml").__file__).parent / STOCK[fusion]
+    hypes = yaml.load(stock.read_text(), Loader=HypesLoader)
+    hypes = yaml.safe_load(yaml.safe_dump(hypes))
+    hypes.update(root_dir=str(train), validate_dir=str(val))
+    hypes["train_params"]["epoches"] = epochs
+    hypes["preprocess"]["cav_lidar_range"] = list(RANGE_M)
+    hypes["postprocess"]["anchor_args"]["cav_lidar_range"] = list(RANGE_M)
+    hypes["model"]["args"]["lidar_range"] = list(RANGE_M)
+    if layers:
+        hypes["model"]["args"]["base_bev_backbone"]["layer_nums"] = layers
+    model_dir.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(hypes, sort_keys=False))
+    return path
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("model_dir", type=Path)
+    p.add_argument("train", type=Path)
+    p.add_argument("val", type=Path)
+    p.add_argument("--fusion", choices=sorted(STOCK), default="intermediate")
+    p.add_argument("--epochs", type=int, default=15)
+    p.add_argument("--layers", default=None, help="backbone stage depths, e.g. 1,2,2 (default OpenCOOD's 3,5,8)")
+    args = p.parse_args()
+    layers = [int(x) for x in args.layers.split(",")] if args.layers else None
+    config = write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers)
+    opencood()  # box_overlaps compiled, get_cmap restored: the trainer imports as shipped
+    sys.argv = ["opencood.tools.train", "--hypes_yaml", str(config), "--model_dir", str(args.model_dir)]
+    with open(args.model_dir / "train.log", "a") as log, contextlib.redirect_stdout(log):
+        runpy.run_module("opencood.tools.train", run_name="__main__")
+
+
+if __name__ == "__main__":
+    main()
