@@ -208,7 +208,9 @@ def test_train_validate_only_updates_the_card_without_training(capsys, monkeypat
     import asg.training.command as train_mod
 
     calls = []
-    monkeypatch.setattr(train_mod, "card_validation", lambda name, log: calls.append(name) or {"weights": f"{name}.pt"})
+    monkeypatch.setattr(train_mod, "card_validation",
+                        lambda name, log, weights_dir: calls.append(name) or {"weights": f"{name}.pt"})
+    monkeypatch.setattr(train_mod, "seed_run_folder", lambda run_dir, *names: None)
     monkeypatch.setattr(train_mod, "train", lambda *a, **k: pytest.fail("--validate-only must not train"))
     assert main(["train", "--fusion", "late", "--validate-only"]) == 0
     assert calls == ["single"]  # late shares the single-agent weights

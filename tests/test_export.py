@@ -293,3 +293,14 @@ def test_export_of_an_rsu_ego_run_exits_zero(capsys, scenes_dir, tmp_path, fmt):
     assert code == 0, err
     assert "error" not in err
     assert len([p for p in (tmp_path / "o").iterdir() if not p.name.startswith(".")]) >= 1
+
+
+def test_scenes_of_one_id_are_exported_apart(tmp_path, cross_map):
+    """A data set may hold two scenes of one id (detector-train: the same town, seed and time at two
+    densities); the export gives the second its own folder instead of merging their agents."""
+    from asg.io.export import unique_ids
+    from conftest import car, make_scene, rsu
+
+    scene = make_scene(cross_map, [rsu("r", 8.0, 8.0), car("a", -10.0, -1.6)], collaborators=["a"])
+    ids = [s.scene_id for s in unique_ids(iter([scene, scene, scene]))]
+    assert ids == [scene.scene_id, f"{scene.scene_id}-2", f"{scene.scene_id}-3"]

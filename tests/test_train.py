@@ -390,3 +390,25 @@ def test_a_detector_builds_and_trains_with_its_own_config_file(monkeypatch, tmp_
     assert card["network"]["filters"] == (64, 128, 256) and card["network"]["upsample_channels"] == 64
     # settings a caller gives apart from the file (as the size experiments do) are what the card says
     assert card_settings_of("single", replace(cfg, filters=(16, 32, 64)))["network"]["filters"] == (16, 32, 64)
+
+
+def test_training_reads_and_writes_its_run_folder_and_installs_only_on_request(tmp_path, monkeypatch, capsys):
+    """The first run copies the weights it continues from into runs/train/NAME/; the package is never
+    written; --install makes the run's weights the ones every command loads (ASG_HOME/weights)."""
+    import asg.training.command as train_mod
+    from asg.cli import main
+    from asg.perception.weights_io import WEIGHTS_DIR, seed_run_folder, weights_path
+
+    monkeypatch.setenv("ASG_HOME", str(tmp_path / "home"))
+    monkeypatch.setattr(train_mod, "runs_dir", lambda: tmp_path / "runs")
+    shipped = {p.name: p.stat().st_mtime_ns for p in WEIGHTS_DIR.iterdir()}
+    run_dir = tmp_path / "runs" / "train" / "single"
+    assert weights_path("single") == WEIGHTS_DIR / "single.pt"
+    assert main(["train", "--fusion", "late", "--install"]) == 2  # nothing trained yet
+    seed_run_folder(run_dir, "single")
+    assert (run_dir / "single.pt").read_bytes() == (WEIGHTS_DIR / "single.pt").read_bytes()
+    assert (run_dir / "single.json").is_file()
+    assert main(["train", "--fusion", "late", "--install"]) == 0
+    assert weights_path("single") == tmp_path / "home" / "weights" / "single.pt"
+    assert {p.name: p.stat().st_mtime_ns for p in WEIGHTS_DIR.iterdir()} == shipped
+    capsys.readouterr()

@@ -19,8 +19,61 @@ _MISMATCH_HINT = ("; use the --fusion they were trained for (each names its sett
                   "with (e.g. attfuse_fusion), or retrain")
 
 
+def user_weights_dir() -> Path:
+    """Where a user's own trained weights are installed (``asg train --install``): the user's asg
+    folder (``ASG_HOME``, else the platform's user data folder), ``weights/``."""
+    from sumo_scenarios.paths import user_home
+
+    return user_home() / "weights"
+
+
 def weights_path(name: str) -> Path:
-    return WEIGHTS_DIR / f"{name}.pt"
+    """The weights file ``NAME.pt`` the detectors load: the user's installed one if there is one
+    (:func:`user_weights_dir`), else the one shipped in the package."""
+    user = user_weights_dir() / f"{name}.pt"
+    return user if user.is_file() else WEIGHTS_DIR / f"{name}.pt"
+
+
+#: the files of one set of weights: the weights, their model card, their point stage
+def weights_files(folder: Path, name: str) -> list[Path]:
+    return [folder / f"{name}.pt", folder / f"{name}.json", folder / f"{name}{STAGE_SUFFIX}"]
+
+
+def seed_run_folder(run_dir: Path, *names: str) -> None:
+    """Copy into the training run folder ``run_dir`` the weights it starts from (each of ``names``:
+    the files of :func:`weights_files`, from where :func:`weights_path` finds them), unless it holds
+    them already: training then reads and writes there, never in the package."""
+    import shutil
+
+    from sumo_scenarios.atomic import atomic_path
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        if (run_dir / f"{name}.pt").is_file():
+            continue
+        for src, dst in zip(weights_files(weights_path(name).parent, name), weights_files(run_dir, name)):
+            if src.is_file():
+                with atomic_path(dst) as tmp:
+                    shutil.copyfile(src, tmp)
+
+
+def install_weights(run_dir: Path, name: str) -> Path:
+    """Install the weights ``name`` trained in ``run_dir`` (with their card and point stage) into
+    :func:`user_weights_dir`, where every command then loads them; the installed weights file.
+    The package's shipped files are never written."""
+    import shutil
+
+    from sumo_scenarios.atomic import atomic_path
+
+    if not (run_dir / f"{name}.pt").is_file():
+        raise InputError(f"{run_dir / f'{name}.pt'}: no trained weights to install; run 'asg train' first")
+    target = user_weights_dir()
+    target.mkdir(parents=True, exist_ok=True)
+    for src, dst in zip(weights_files(run_dir, name), weights_files(target, name)):
+        if src.is_file():
+            with atomic_path(dst) as tmp:
+                shutil.copyfile(src, tmp)
+    return target / f"{name}.pt"
 
 
 #: the point stage's weights beside a detector's: NAME.pt -> NAME.stage.pt

@@ -37,8 +37,8 @@ def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: 
 
 
 def card_validation(name: str, log: Callable[[str], None] = print, set_name: str = "normal-val",
-                    weights_dir: Path = WEIGHTS_DIR) -> dict:
-    """Evaluate the ``name`` weights in ``weights_dir`` (default the shipped ones) on ``set_name``
+                    *, weights_dir: Path) -> dict:
+    """Evaluate the ``name`` weights in ``weights_dir`` (a training run folder) on ``set_name``
     (every fusion that uses them) and record the APs in that folder's model card."""
     from ..evaluation import evaluate
 

@@ -36,7 +36,7 @@ from ..perception.branch_boxes import best_match
 from ..perception.point_stage import (MIN_IOU, PointStage, box_features, box_points, refine, residual_targets,
                                       stage_loss)
 from .config import train_block, weights_for
-from ..perception.weights_io import WEIGHTS_DIR, stage_path_of
+from ..perception.weights_io import seed_run_folder, stage_path_of
 from ..sensors import load_lidar_spec, simulate_frame
 
 BLOCK = "point_stage"
@@ -198,11 +198,15 @@ def mean_iou(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> float:
 
 
 def fit_point_stage(fusion: str, log: Callable[[str], None] = print, threads: int = 2, *,
-                    fit_config: PointStageFitConfig | None = None, weights_dir: Path = WEIGHTS_DIR,
+                    fit_config: PointStageFitConfig | None = None, weights_dir: Path | None = None,
                     out_dir: Path | None = None) -> Path:
-    """Fit and write the point stage of ``fusion``'s weights (in ``weights_dir``); its path."""
+    """Fit and write the point stage of ``fusion``'s weights (in ``weights_dir``, by default the
+    training run folder runs/train/NAME/, filled with the installed or shipped weights); its path."""
     fcfg = fit_config or load_point_stage_config()
     name = weights_for(fusion)
+    if weights_dir is None:
+        weights_dir = runs_dir() / "train" / name
+        seed_run_folder(weights_dir, name)
     weights = weights_dir / f"{name}.pt"
     if not weights.is_file():
         raise InputError(f"{weights}: no trained {name} weights to fit a point stage to; train them first")

@@ -24,7 +24,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import runs_dir
 
 from ..perception.fusion import build_network, detector_config_of, feed_of
-from ..perception.weights_io import WEIGHTS_DIR
+from ..perception.weights_io import seed_run_folder
 from .branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
 from .cards import card_validation, init_record, previous_training, write_card
 from .checkpoint import load_checkpoint
@@ -35,19 +35,24 @@ from .loop import (BRANCH_KEYS, Batches, Steps, augment_record, corner_record, i
 
 def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, log: Callable[[str], None] = print,
           progress: Callable[[int, int, float], None] | None = None, threads: int = 2, *,
-          train_config: TrainConfig | None = None, detector_config=None, weights_dir: Path = WEIGHTS_DIR,
+          train_config: TrainConfig | None = None, detector_config=None, weights_dir: Path | None = None,
           validate: bool = True, init_from: str | None = None, iou_branch: bool = False,
           branch_config: BranchFitConfig | None = None) -> Path:
     """Train (or resume) the weights behind ``fusion``; returns the written weights file.
 
-    Configs default to configs/detectors/{train,pointpillars}.yaml and the weights to the shipped
-    ones (asg/perception/weights/); ``validate`` records normal-val AP in the model card.
+    Configs default to configs/detectors/{train,pointpillars}.yaml; the weights are read from and
+    written to ``weights_dir``, by default the run folder ``out_dir`` (runs/train/NAME/), which
+    the first run fills with the weights it continues from (the installed or shipped ones): never
+    the package. ``validate`` records normal-val AP in the model card.
     ``init_from`` (a weights name, e.g. "single"): start a new sequence of chunks from those
     weights instead of continuing this model's own (see :func:`init_from_weights`).
     ``iou_branch``: fit the IoU and refinement branches alone on the frozen detector
     (:func:`fit_branch_weights`, train.yaml's ``iou_branch`` block or ``branch_config``).
     """
     name = weights_for(fusion)
+    if weights_dir is None:
+        weights_dir = out_dir = out_dir or runs_dir() / "train" / name
+        seed_run_folder(weights_dir, name, *([init_from] if init_from else []))
     if iou_branch:
         if init_from:
             raise InputError("--iou-branch fits the branches of this model's own weights; it cannot be combined with --init-from")
@@ -127,7 +132,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
 def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[str], None] = print,
                        progress: Callable[[int, int, float], None] | None = None, threads: int = 2, *,
                        branch_config: BranchFitConfig | None = None, detector_config=None,
-                       weights_dir: Path = WEIGHTS_DIR, validate: bool = True) -> Path:
+                       weights_dir: Path | None = None, validate: bool = True) -> Path:
     """Fit the IoU and refinement branches of the trained ``name`` weights (frozen) and write them
     back with the model card (see :mod:`.branch_fit`); ``progress(view, views, nan)`` during the
     collection. The candidates' cache in ``out_dir`` (runs/train/NAME/) makes an interrupted
@@ -136,6 +141,9 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
 
     fcfg = branch_config or load_branch_config()
     cfg = detector_config or detector_config_of(name)
+    if weights_dir is None:
+        weights_dir = out_dir = out_dir or runs_dir() / "train" / name
+        seed_run_folder(weights_dir, name)
     previous = previous_training(name, weights_dir)
     if not previous.get("chunks"):
         raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit the branches to; train them first")

@@ -41,7 +41,7 @@ from ..perception.data import Augmentation, make_sample
 from ..training.loop import BRANCH_KEYS, Batches, Steps, augment_record, corner_record, make_scheduler, draw_examples, run_steps
 from ..perception.fusion import build_network, detector_config_of, feed_of
 from ..training.config import FinetuneConfig, load_finetune_config, weights_for
-from ..perception.weights_io import WEIGHTS_DIR, load_state
+from ..perception.weights_io import load_state, weights_path
 
 
 class MixedBatches:
@@ -87,7 +87,7 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
     fcfg = config or load_finetune_config()
     total = steps or fcfg.steps
     out = Path(out) if out is not None else default_out(fusion)
-    start = Path(weights) if weights is not None else WEIGHTS_DIR / f"{name}.pt"
+    start = Path(weights) if weights is not None else weights_path(name)
     challenging_scenes(on)  # one clear line if the set is not built
     from ..datasets import check_set_name
     from ..generator.run import file_digest

@@ -44,7 +44,7 @@ from .finetune import fit_chunk, mixed_sources
 from ..io.run_record import claim
 from ..objective.ap import AP_KEYS, both_yardsticks
 from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
-from ..perception.weights_io import WEIGHTS_DIR
+from ..perception.weights_io import weights_path
 from ..scene import Scene, load_scene
 
 #: the train.yaml block of ``asg harden``
@@ -208,7 +208,7 @@ def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
     from ..perception import check_weights_file
 
     if weights is None:
-        return WEIGHTS_DIR / f"{name}.pt"
+        return weights_path(name)
     path = Path(weights)
     if path.suffix == ".json" and path.is_file():
         try:

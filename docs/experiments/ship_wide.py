@@ -44,7 +44,7 @@ def main(out: Path) -> None:
     shutil.copyfile(source, WEIGHTS_DIR / f"{NAME}.pt")
     (WEIGHTS_DIR / f"{NAME}.json").write_text(json.dumps(card, indent=1))
     print(f"shipped {source} as {NAME} ({file_digest(source)[:16]})")
-    card_validation(NAME)
+    card_validation(NAME, weights_dir=WEIGHTS_DIR)
 
 
 if __name__ == "__main__":

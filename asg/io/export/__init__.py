@@ -34,6 +34,18 @@ def source_scenes(source: Path | str) -> Iterator[Scene]:
     return scenes_of(str(source))
 
 
+def unique_ids(scenes: Iterator[Scene]) -> Iterator[Scene]:
+    """The scenes, a repeated id made unique by its repeat number (``ID-2``, ``ID-3``): a data set may
+    hold two scenes of one id (the same town, seed and time at two traffic densities), which would
+    otherwise be written into one folder or file."""
+    from dataclasses import replace
+
+    seen: dict[str, int] = {}
+    for scene in scenes:
+        k = seen[scene.scene_id] = seen.get(scene.scene_id, 0) + 1
+        yield scene if k == 1 else replace(scene, scene_id=f"{scene.scene_id}-{k}")
+
+
 def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
            progress: Callable[[int], None] | None = None) -> int:
     """Write every scene of ``source`` in format ``fmt`` under ``out``; returns the scene count."""
@@ -47,7 +59,7 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     module, writer_class = WRITERS[fmt]
     writer = getattr(importlib.import_module(f".{module}", __package__), writer_class)(out, net)
     n = 0
-    for n, scene in enumerate(source_scenes(source), start=1):
+    for n, scene in enumerate(unique_ids(source_scenes(source)), start=1):
         writer.write(scene)
         if progress:
             progress(n)
