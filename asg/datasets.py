@@ -11,6 +11,7 @@ renders in tens of milliseconds), which keeps a set at a few MB.
 from __future__ import annotations
 
 import gzip
+import zlib
 import json
 import shutil
 from dataclasses import replace
@@ -161,23 +162,63 @@ def dataset_path(name: str) -> Path:
     return data_root() / name
 
 
+#: a data set's frame line longer than this is refused (a scene of 200 agents is about 60 kB)
+MAX_FRAME_LINE_BYTES = 16 * 1024 * 1024
+#: ...and an index.json larger than this
+MAX_INDEX_BYTES = 64 * 1024 * 1024
+
+
 def iter_frames(name_or_dir: str | Path, split: str | None = None) -> Iterator[Scene]:
-    """Scenes of a built data set (a name under the data root, or a folder), optionally one split."""
+    """Scenes of a built data set (a name under the data root, or a folder), optionally one split.
+    A damaged folder (a symbolic link, a garbage, truncated or oversized file, a malformed line)
+    is one InputError naming the file."""
     p = Path(name_or_dir)
     folder = p if (p / "index.json").is_file() else dataset_path(str(name_or_dir))
     if not (folder / "index.json").is_file():
         raise InputError(f"data set '{name_or_dir}' is not built; run 'asg dataset build {name_or_dir}'")
-    index = json.loads((folder / "index.json").read_text())
+    index = _read_index(folder)
     wanted = None
     if split is not None:
         if split not in index["splits"]:
             raise InputError(f"data set '{name_or_dir}' has no split '{split}'; splits: {', '.join(index['splits'])}")
         wanted = set(index["splits"][split])
-    with gzip.open(folder / "frames.jsonl.gz", "rt", encoding="utf-8") as fh:
-        for line in fh:
-            d = json.loads(line)
-            if wanted is None or d["scene_id"] in wanted:
-                yield Scene.from_dict(d, str(folder))
+    frames = _regular_file(folder / "frames.jsonl.gz")
+    try:
+        with gzip.open(frames, "rb") as fh:
+            for number, line in enumerate(iter(lambda: fh.readline(MAX_FRAME_LINE_BYTES + 1), b""), start=1):
+                if len(line) > MAX_FRAME_LINE_BYTES:
+                    raise InputError(f"{frames}: line {number} is longer than {MAX_FRAME_LINE_BYTES // 2**20} MB; "
+                                     "not a data set asg wrote: rebuild it")
+                d = json.loads(line.decode("utf-8"))
+                if not isinstance(d, dict) or not isinstance(d.get("scene_id"), str):
+                    raise InputError(f"{frames}: line {number} is not a scene; rebuild the data set")
+                if wanted is None or d["scene_id"] in wanted:
+                    yield Scene.from_dict(d, str(folder))
+    except (OSError, EOFError, zlib.error, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise InputError(f"{frames}: damaged ({type(exc).__name__}); rebuild the data set with 'asg dataset build'") from None
+
+
+def _regular_file(path: Path) -> Path:
+    """``path`` if it is a regular file, not a symbolic link (a data set's files never are)."""
+    if path.is_symlink() or not path.is_file():
+        raise InputError(f"{path}: not a regular file of a data set (a link, a special file or missing); "
+                         "rebuild the data set")
+    return path
+
+
+def _read_index(folder: Path) -> dict:
+    """A data set's index.json, checked: a mapping whose ``splits`` maps names to lists of ids."""
+    path = _regular_file(folder / "index.json")
+    try:
+        if path.stat().st_size > MAX_INDEX_BYTES:
+            raise ValueError("too large")
+        index = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise InputError(f"{path}: damaged ({type(exc).__name__}); rebuild the data set") from None
+    splits = index.get("splits") if isinstance(index, dict) else None
+    if not isinstance(splits, dict) or not all(isinstance(v, list) for v in splits.values()):
+        raise InputError(f"{path}: no splits of scene ids; rebuild the data set")
+    return index
 
 
 #: --set names: the normal set's splits (the paper attacks its train split, reports fine-tuning on val)

@@ -871,3 +871,45 @@ def test_empty_and_multi_line_names_are_one_line(argv, words, capsys):
     code, err = run(capsys, *argv)
     assert code == 2
     assert_one_line_error(err, words)
+
+
+def _damaged_set(tmp_path, how: str):
+    """A data set folder (index.json + frames.jsonl.gz) damaged as ``how`` says."""
+    import gzip
+    import json
+
+    folder = tmp_path / how
+    folder.mkdir()
+    (folder / "index.json").write_text(json.dumps({"name": how, "frames": 1, "splits": {"all": ["s0"]}}))
+    frames = folder / "frames.jsonl.gz"
+    if how == "garbage":
+        frames.write_bytes(b"\x00not gzip at all" * 10)
+    elif how == "truncated":
+        frames.write_bytes(gzip.compress(b'{"scene_id": "s0", "agents": []}\n' * 100)[:40])
+    elif how == "symlink":
+        target = tmp_path / "elsewhere.gz"
+        target.write_bytes(gzip.compress(b"{}\n"))
+        frames.symlink_to(target)
+    elif how == "one-huge-line":
+        with gzip.open(frames, "wb", compresslevel=1) as fh:
+            for _ in range(20):
+                fh.write(b"x" * (1 << 20))
+    elif how == "not-a-scene":
+        frames.write_bytes(gzip.compress(b"[1, 2, 3]\n"))
+    elif how == "bad-index":
+        (folder / "index.json").write_text("{\"splits\": 3}")
+        frames.write_bytes(gzip.compress(b"{}\n"))
+    return folder
+
+
+@pytest.mark.parametrize("how", ["garbage", "truncated", "symlink", "one-huge-line", "not-a-scene", "bad-index"])
+@pytest.mark.parametrize("command", ["evaluate", "export"])
+def test_a_damaged_data_set_is_one_line(how, command, capsys, tmp_path):
+    from test_cli import assert_one_line_error, run
+
+    folder = _damaged_set(tmp_path, how)
+    argv = (["evaluate", "--fusion", "early", "--set", str(folder)] if command == "evaluate"
+            else ["export", str(folder), "--format", "sumo", "--out", str(tmp_path / "out")])
+    code, err = run(capsys, *argv)
+    assert code == 2, err
+    assert_one_line_error(err, "")
