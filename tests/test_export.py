@@ -61,8 +61,9 @@ def test_opv2v_reads_back_as_opencood_reads_it(scenes_dir, tmp_path):
             meta = yaml.safe_load((scenario / str(ids[agent_id]) / "000000.yaml").read_text())
             cloud = pcd_to_np(scenario / str(ids[agent_id]) / "000000.pcd")
             ours = frame.clouds[agent_id]
-            # the ego's frame at a car's sensor height: its points raised, its lidar_pose lowered by this
-            drop = record["ego_frame_lowered_m"] if agent_id == scene.ego_id else 0.0
+            # each agent's frame at a car's sensor height: its points raised, its lidar_pose lowered by this
+            drop = record["frames_lowered_m"][ids[agent_id]]
+            assert agent_id != scene.ego_id or drop == record["ego_frame_lowered_m"]
             assert cloud.shape == ours.shape
             assert np.allclose(cloud[:, 0], ours[:, 0], atol=1e-4) and np.allclose(cloud[:, 1], -ours[:, 1], atol=1e-4)
             assert np.allclose(cloud[:, 2], ours[:, 2] + drop, atol=1e-4)

@@ -217,3 +217,36 @@ def test_an_opencood_model_is_evaluated_and_its_attention_read(capsys, scenes, t
     assert not has_own_attention(fc) and fc.attention_weights(frame) is None
     boxes, scores = fc.detect(frame)
     assert boxes.shape[1:] == (7,) and scores.shape == (len(boxes),)
+
+
+def test_under_late_fusion_every_agent_frame_carries_its_boxes(scenes, tmp_path):
+    """OpenCOOD's late fusion labels each agent in its own frame, keeping boxes within its ground-
+    truth range around that agent's LiDAR (z in [-3, 1] m): a collaborating RSU, 4.5 m up, kept
+    none until every high sensor's frame was lowered to a car's sensor height. Checked with
+    OpenCOOD's own LateFusionDataset on the export: every agent with vehicles in its range has boxes."""
+    from asg.io.export.opv2v import ScenarioWriter
+    from asg.perception.opencood.folder import read_hypes
+    from asg.perception.opencood.runtime import module
+    from asg.scene.neighbours import with_nearest_collaborators
+
+    base = scenes["rsu", 2][0]
+    car_ego = next(s for s in scenes["vehicle", 2])
+    # a vehicle ego with the RSU as a collaborator (opencoodx reads folder -1 as its ego, so the
+    # RSU's own frame is read here as OpenCOOD's first agent: its labels are what is checked)
+    with_rsu = replace(car_ego, scene_id=car_ego.scene_id + "-v", collaborators=(base.ego_id, *car_ego.collaborators[:1]))
+    export = tmp_path / "export"
+    writer = ScenarioWriter(export)
+    for s in (base, with_rsu):
+        writer.write(s)
+    model_dir = make_model_dir(tmp_path / "late", "late")
+    hypes = read_hypes(model_dir)
+    hypes.update(root_dir=str(export), validate_dir=str(export))
+    dataset = module("data_utils.datasets").build_dataset(hypes, visualize=False, train=True)
+    checked = []
+    for i in range(len(dataset)):
+        for cav_id, cav in dataset.retrieve_base_data(i).items():
+            processed = dataset.get_item_single_car(cav)
+            boxes = processed["object_bbx_center"][processed["object_bbx_mask"] == 1]
+            assert len(boxes) > 0, (i, cav_id)
+            checked.append(cav_id)
+    assert len(checked) == 6 and checked.count("0") == 2 and "-1" in checked  # both egos, the RSU collaborator

@@ -56,20 +56,24 @@ def mirrored_pose(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> list[fl
     return [float(x_m), float(-y_m), float(z_m), 0.0, float(-math.degrees(yaw_rad)), 0.0]
 
 
-def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | None = None) -> tuple[dict, float]:
+def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | None = None) -> tuple[dict, dict]:
     """Each sensing agent's view as OpenCOOD reads it from this layout, in memory: ({agent id:
-    (meta, cloud)}, how far the ego's frame is lowered in m). ``meta``: the agent's yaml
+    (meta, cloud)}, {agent id: how far its frame is lowered, m}). ``meta``: the agent's yaml
     (lidar_pose, true_ego_pos, ego_speed, vehicles: {OPV2V id: box entry}, every vehicle but itself);
-    ``cloud``: (N, 4) float32 x, y, z, intensity in its sensor frame, mirrored (and the ego's raised),
-    intensity quantised to the PCD's 8-bit colour. ``scene``: the scene's agents (the boxes, the
-    speeds); without it (a detector's input) no vehicles are listed and the bodies are the sensors."""
-    ego_pose = frame.poses[frame.ego_id]
-    lowered_m = ego_frame_drop_m(ego_pose.z_m, frame.ground_z_m.get(frame.ego_id, ego_pose.z_m))
+    ``cloud``: (N, 4) float32 x, y, z, intensity in its sensor frame, mirrored, intensity quantised
+    to the PCD's 8-bit colour. Every agent whose sensor stands high (an RSU's pole, a truck's roof)
+    has its frame lowered to a car's sensor height (asg.sensors.ego_frame): its cloud raised, its
+    lidar_pose lowered by the same, so that OpenCOOD's ground-truth range around each agent's LiDAR
+    (late fusion's per-agent labels) keeps its vehicles, and every projection between agents stays
+    exact. ``scene``: the scene's agents (the boxes, the speeds); without it (a detector's input) no
+    vehicles are listed and the bodies are the sensors."""
+    drops = {a: ego_frame_drop_m(frame.poses[a].z_m, frame.ground_z_m.get(a, frame.poses[a].z_m))
+             for a in frame.sensing_ids}
     vehicles = {} if scene is None else {a.agent_id: _vehicle_entry(a) for a in scene.agents if a.kind == "vehicle"}
     views = {}
     for agent_id in frame.sensing_ids:
         pose = frame.poses[agent_id]
-        drop_m = lowered_m if agent_id == frame.ego_id else 0.0  # the ego's frame at a car's sensor height
+        drop_m = drops[agent_id]
         cloud = frame.clouds[agent_id].astype(np.float32)
         cloud[:, 1] = -cloud[:, 1]
         cloud[:, 2] += drop_m
@@ -84,7 +88,7 @@ def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | Non
                 "ego_speed": float(speed_mps * KMH_PER_MPS),
                 "vehicles": {ids[v]: entry for v, entry in vehicles.items() if v != agent_id}}
         views[agent_id] = (meta, cloud)
-    return views, lowered_m
+    return views, drops
 
 
 def _vehicle_entry(agent) -> dict:

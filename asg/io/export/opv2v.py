@@ -6,10 +6,11 @@ ego (:func:`opv2v_ids`): the ego 0, other vehicles ``1000 + i``, a collaborating
 ones ``9001, ...``). ``DIR/SCENE/ids.yaml`` maps our ids to these and names our ego and the one
 OpenCOOD will take (the same).
 
-The ego's view is written in a frame at a car's sensor height (asg.sensors.ego_frame): an RSU or a
-truck ego's cloud is raised and its ``lidar_pose`` lowered by ``ego_frame_lowered_m`` (ids.yaml),
-so that OpenCOOD's fixed ground-truth range (z in [-3, 1] m around the ego's LiDAR) keeps every
-vehicle.
+Every view is written in a frame at a car's sensor height (asg.sensors.ego_frame): an RSU's or a
+truck's cloud is raised and its ``lidar_pose`` lowered by the same (ids.yaml: the ego's
+``ego_frame_lowered_m``, every agent's ``frames_lowered_m``), so that OpenCOOD's fixed ground-truth
+range (z in [-3, 1] m around each agent's LiDAR) keeps every vehicle, for the ego and, under late
+fusion, for each collaborator in its own frame.
 
 Frames: OPV2V's worlds are CARLA's, left-handed (x forward, y right); ours are right-handed (SUMO's
 x east, y north; sensors x forward, y left). The export mirrors y: world ``(x, y, z)`` is written as
@@ -45,7 +46,7 @@ class ScenarioWriter:
         frame = simulate_frame(scene, self.spec)
         ids = opv2v_ids(scene, frame.sensing_ids)
         folder = inside(self.out, self.out / scene.scene_id)
-        views, lowered_m = agent_views(frame, ids, scene)
+        views, drops = agent_views(frame, ids, scene)
         for agent_id, (meta, cloud) in views.items():
             agent_dir = folder / str(ids[agent_id])
             agent_dir.mkdir(parents=True, exist_ok=True)
@@ -56,7 +57,8 @@ class ScenarioWriter:
             {"scene_id": scene.scene_id, "ego": ids[scene.ego_id], "opencood_ego": picked,
              "sensing": [ids[a] for a in frame.sensing_ids],
              "ids": dict(ids), "frame": "CARLA left-handed: y and yaw mirrored from SUMO",
-             "ego_frame_lowered_m": lowered_m},
+             "ego_frame_lowered_m": drops[scene.ego_id],
+             "frames_lowered_m": {ids[a]: d for a, d in drops.items()}},
             sort_keys=False))
 
     def close(self) -> None:

@@ -68,13 +68,13 @@ class OpenCOODDetector:
         """The frame as OpenCOOD's ``retrieve_base_data`` returns it from the OPV2V export (ego first,
         the others in its folder order), and how far the ego's frame is lowered (m)."""
         ids = frame_ids(frame)
-        views, lowered_m = agent_views(frame, ids)
+        views, drops = agent_views(frame, ids)
         order = [frame.ego_id] + sorted((a for a in frame.sensing_ids if a != frame.ego_id), key=lambda a: str(ids[a]))
         data = OrderedDict()
         for a in order:
             meta, cloud = views[a]
             data[str(ids[a])] = OrderedDict(ego=a == frame.ego_id, params=meta, lidar_np=cloud)
-        return data, lowered_m
+        return data, drops[frame.ego_id]
 
     def _run(self, frame: CooperativeFrame):
         """(corners (K, 8, 3) or None, scores (K,) or None) in OpenCOOD's ego frame, and the drop (m)."""
