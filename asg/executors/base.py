@@ -132,7 +132,8 @@ def build_executor(name: str, workers: int, threads: int = 1, address: str | Non
     """The executor registered as ``name``; InputError naming the known ones on a miss."""
     entry = EXECUTORS.entry(name)
     if address is not None and not entry.takes_address:
-        raise InputError(f"--address applies to an executor of a cluster, not to --executor {name}")
+        clusters = " or ".join(n for n in EXECUTORS.names() if EXECUTORS.entry(n).takes_address)
+        raise InputError(f"--address applies to --executor {clusters} only")
     return entry(workers=workers, threads=threads, address=address)
 
 
