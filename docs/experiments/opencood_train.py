@@ -68,7 +68,7 @@ def main() -> None:
     config = write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers)
     opencood()  # box_overlaps compiled, get_cmap restored: the trainer imports as shipped
     sys.argv = ["opencood.tools.train", "--hypes_yaml", str(config), "--model_dir", str(args.model_dir)]
-    with open(args.model_dir / "train.log", "a") as log, contextlib.redirect_stdout(log):
+    with open(args.model_dir / "train.log", "a", buffering=1) as log, contextlib.redirect_stdout(log):
         runpy.run_module("opencood.tools.train", run_name="__main__")
 
 
