@@ -3,6 +3,7 @@ OpenCOOD's own inference (its dataset reading ``asg export --format opv2v``, its
 post-processor), and bad folders are one line."""
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -250,3 +251,25 @@ def test_under_late_fusion_every_agent_frame_carries_its_boxes(scenes, tmp_path)
             assert len(boxes) > 0, (i, cav_id)
             checked.append(cav_id)
     assert len(checked) == 6 and checked.count("0") == 2 and "-1" in checked  # both egos, the RSU collaborator
+
+
+@pytest.mark.slow
+def test_generate_attacks_an_opencood_model_and_records_its_files(capsys, tmp_path):
+    """``asg generate --fusion opencood:DIR`` runs end to end (ACS-A from its own attention), its
+    run folder records the model folder's digests, and a rerun after its checkpoint changed is refused."""
+    import torch
+
+    model = make_model_dir(tmp_path / "m", "intermediate", score_threshold=0.9)
+    out = tmp_path / "gen"
+    argv = ["generate", "--fusion", f"opencood:{model}", "--town", "fiveleg", "--count", "1", "--budget", "2",
+            "--out", str(out)]
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["scenes"]) == 1 and summary["scenes"][0]["evaluations"] >= 2
+    record = json.loads((out / "run.json").read_text())
+    assert set(record["opencood_sha256"]) == {"config", "checkpoint"}
+    capsys.readouterr()
+    state = torch.load(model / "net_epoch1.pth", weights_only=True)
+    torch.save({k: v + 1 if v.is_floating_point() else v for k, v in state.items()}, model / "net_epoch1.pth")
+    assert main(argv) == 2
+    assert "--force" in capsys.readouterr().err
