@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from asg.perception.point_stage import (POINTS, PointStage, apply_residuals, box_points, refine,
+                                        residual_targets)
 
 #: torch's kernels decide these outcomes: CI runs this file again on AVX2 and default kernels
 pytestmark = pytest.mark.numeric
-                                        residual_targets)
 
 
 def _box_surface_points(box: np.ndarray, step_m: float = 0.1) -> np.ndarray:
