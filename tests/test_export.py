@@ -114,6 +114,7 @@ def test_kitti_labels_convert_back_to_the_ego_ground_truth(scenes_dir, tmp_path)
     export(folder, "kitti", tmp_path)
     ids = yaml.safe_load((tmp_path / "ids.yaml").read_text())
     lowered = yaml.safe_load((tmp_path / "ego_frame.yaml").read_text())["lowered_m"]
+    advised = yaml.safe_load((tmp_path / "point_cloud_range.yaml").read_text())["POINT_CLOUD_RANGE"]
     assert (tmp_path / "ImageSets" / "val.txt").read_text().split() == sorted(ids)
     openpcdet_info_builder_reads(tmp_path, len(ids))
     spec = load_lidar_spec("v2xp")
@@ -133,6 +134,10 @@ def test_kitti_labels_convert_back_to_the_ego_ground_truth(scenes_dir, tmp_path)
         want = frame.ego_boxes[in_range(frame.ego_boxes)].copy()
         want[:, 2] += lowered[name]  # an RSU ego's view in a frame at a car's sensor height
         _assert_same_boxes(back, want, atol=0.011)
+        # the range the export advises covers every label's centre (KITTI's stock one is front-only)
+        lo, hi = np.array(advised[:3]), np.array(advised[3:])
+        centres = np.asarray(back)[:, :3]
+        assert np.all((centres >= lo) & (centres <= hi)), centres
 
 
 def test_openscenario_validates_against_the_schema(scenes_dir, tmp_path):

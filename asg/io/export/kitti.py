@@ -19,7 +19,8 @@ cloud fused: ``DIR/training/{velodyne,label_2,calib,image_2}/NNNNNN.*`` and
   info builder reads KITTI's image shape (its field of view and 2D boxes follow from it).
 - ``ImageSets``: ``train.txt`` and ``val.txt`` both list every frame (split them as you need;
   asg does not), ``test.txt`` is empty.
-``DIR/ids.yaml`` maps each NNNNNN to its scene id.
+``DIR/ids.yaml`` maps each NNNNNN to its scene id; ``DIR/point_cloud_range.yaml`` gives the OpenPCDet
+``POINT_CLOUD_RANGE`` that covers every label (KITTI's stock one is front-only).
 """
 from __future__ import annotations
 
@@ -44,6 +45,9 @@ IMAGE_WH = (1242, 375)
 TR_VELO_TO_CAM = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0]])
 #: fused points in a box -> KITTI occlusion level: at least 50, 10, 1 points, or none
 OCCLUSION_POINTS = (50, 10, 1)
+#: the OpenPCDet POINT_CLOUD_RANGE that covers every label (360 degrees, the evaluation square
+#: rounded up to a grid of 0.16 m voxels divisible by 8: 640 cells), z as the stock range
+POINT_CLOUD_RANGE = [-51.2, -51.2, -3.0, 51.2, 51.2, 1.0]
 
 
 class KittiWriter:
@@ -86,6 +90,12 @@ class KittiWriter:
             write_text_atomic(self.out / "ImageSets" / f"{split}.txt", listed)
         write_text_atomic(self.out / "ids.yaml", yaml.safe_dump(self.ids))
         write_text_atomic(self.out / "ego_frame.yaml", yaml.safe_dump({"lowered_m": self.lowered_m}))
+        write_text_atomic(self.out / "point_cloud_range.yaml", yaml.safe_dump({
+            "POINT_CLOUD_RANGE": POINT_CLOUD_RANGE,
+            "note": ("covers every label: they are 360 degrees around the ego, within 48 m in x and y; KITTI's stock "
+                     "range [0, -39.68, -3, 69.12, 39.68, 1] keeps only those in front (x >= 0). Set FOV_POINTS_ONLY: "
+                     "False. Labels outside the placeholder camera's image have a 2D box of 0 0 0 0, which "
+                     "OpenPCDet's KITTI evaluation rates difficulty -1 and ignores.")}, sort_keys=False))
 
 
 def label_line(box: np.ndarray, type_id: str, points: int) -> str:
