@@ -34,3 +34,11 @@ def test_ap_bootstrap_builds_any_shipped_fusion_named_before_a_weights_path(monk
                                  "e=early:w.pt", "late"])
     assert built == {"hw": ("attfuse-wide", "run/round-1/weights.pt"), "ft": ("attfuse", "run/weights.pt"),
                      "e": ("early", "w.pt"), "late": ("late", None)}
+
+
+def test_the_tables_index_lists_every_table_file():
+    """docs/results/tables/README.md names every JSON of the folder (an index that cannot drift)."""
+    root = Path(__file__).resolve().parent.parent / "docs" / "results" / "tables"
+    index = (root / "README.md").read_text()
+    missing = [str(f.relative_to(root)) for f in root.rglob("*.json") if f"]({f.relative_to(root)})" not in index]
+    assert not missing, missing
