@@ -1,4 +1,4 @@
-"""V2X detectors: PointPillars with No / Late / Early / AttFuse fusion (the only torch user in asg)."""
+"""V2X detectors: the shipped PointPillars fusion models (fusion/), detector plugins, OpenCOOD model folders (opencood/), their networks and weights."""
 from .numerics import flush_subnormals_in_all_threads
 
 flush_subnormals_in_all_threads()  # before any parallel torch operation starts the thread pool
