@@ -273,3 +273,46 @@ def test_generate_attacks_an_opencood_model_and_records_its_files(capsys, tmp_pa
     torch.save({k: v + 1 if v.is_floating_point() else v for k, v in state.items()}, model / "net_epoch1.pth")
     assert main(argv) == 2
     assert "--force" in capsys.readouterr().err
+
+
+def test_asgs_ap_equals_opencoods_evaluation_on_the_adapters_detections(scenes, tmp_path):
+    """asg's AP of an OpenCOOD model's detections (with ground-truth boxes jittered among them, so
+    that AP lands between 0 and 1) equals OpenCOOD's own eval_utils: per frame (its tp/fp lists
+    concatenated, no sort across frames) and with the detections sorted across frames; to 0.1 point
+    at IoU 0.3, 0.5 and 0.7."""
+    import torch
+
+    from asg.objective.ap import average_precision
+    from asg.perception.data import Sample
+    from asg.perception.opencood.runtime import module
+    from asg.sensors import load_lidar_spec, simulate_frame
+
+    eval_utils, box_utils = module("utils.eval_utils"), module("utils.box_utils")
+    det = build_detector(f"opencood:{make_model_dir(tmp_path / 'm', 'early', score_threshold=THRESHOLD)}")
+    rng = np.random.default_rng(5)
+    frames = []
+    for s in scenes["rsu", 2] + scenes["vehicle", 1]:
+        sample = Sample(s.scene_id, simulate_frame(s, load_lidar_spec()))
+        boxes, scores = det.detect(sample.frame)
+        gt = sample.gt_eval()
+        jitter = gt + rng.normal(0, 1, gt.shape) * [0.3, 0.3, 0.05, 0.1, 0.05, 0.05, 0.05]
+        frames.append((np.vstack([boxes, jitter]), np.concatenate([scores, rng.uniform(0.3, 1.0, len(gt))]), gt))
+
+    def corners(b):
+        return torch.from_numpy(box_utils.boxes_to_corners_3d(np.asarray(b, dtype=np.float64), order="lwh"))
+
+    for t in (0.3, 0.5, 0.7):
+        stat = {t: {"tp": [], "fp": [], "gt": 0}}
+        ranked = []  # (score, tp, fp) of every detection, for the sort across frames
+        for pred, score, gt in frames:
+            before = len(stat[t]["tp"])
+            eval_utils.caluclate_tp_fp(corners(pred), torch.from_numpy(score), corners(gt), stat, t)
+            order = np.argsort(-score)
+            ranked += [(score[order[i]], stat[t]["tp"][before + i], stat[t]["fp"][before + i]) for i in range(len(order))]
+        per_frame = eval_utils.calculate_ap({t: {k: list(v) if isinstance(v, list) else v for k, v in stat[t].items()}}, t)[0]
+        ranked.sort(key=lambda r: -r[0])
+        sorted_stat = {t: {"tp": [r[1] for r in ranked], "fp": [r[2] for r in ranked], "gt": stat[t]["gt"]}}
+        global_sort = eval_utils.calculate_ap(sorted_stat, t)[0]
+        assert 0.05 < per_frame < 0.95, per_frame  # a case that tells the orderings apart
+        assert abs(average_precision(frames, t, "per-frame") - per_frame) < 1e-3
+        assert abs(average_precision(frames, t, "global") - global_sort) < 1e-3
