@@ -86,6 +86,16 @@ def has_own_attention(model) -> bool:
     return bool(getattr(model, "has_attention", False))
 
 
+def target_lacks_attention(fusion: str) -> bool:
+    """Is ``fusion`` a shipped model or an OpenCOOD model without the attention ACS-A reads (so
+    that ACS-A borrows the shipped AttFuse's)? False for a plugin (its own wrapper says)."""
+    if fusion in FUSIONS:
+        return not has_own_attention(FUSIONS.entry(fusion))
+    if is_opencood(fusion):
+        return not has_own_attention(build_opencood_detector(fusion))
+    return False
+
+
 def shipped_weights_of(fusion: str, target: bool = True, acs_attention: bool = False) -> dict[str, Path]:
     """{weights name: file} of the shipped weights a generator run of ``fusion`` loads: the target's
     own (a shipped model's, when ``target``: it is given no weights file) and, with attention-based
