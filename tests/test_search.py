@@ -106,7 +106,7 @@ def test_unknown_setting_is_named():
 
 
 def test_unknown_algorithm():
-    with pytest.raises(InputError, match="unknown search 'annealing'.*bo, ga, ng, rs"):
+    with pytest.raises(InputError, match="unknown search algorithm 'annealing'.*bo, ga, ng, rs"):
         build_optimizer("annealing", 9, 10, np.random.default_rng(0))
 
 

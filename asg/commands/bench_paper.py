@@ -68,7 +68,8 @@ def _table_names(args: argparse.Namespace) -> tuple[str, ...]:
         return TABLES
     names = tuple(t.strip() for t in args.table.split(","))
     if not names or any(n not in TABLES for n in names) or len(set(names)) != len(names):
-        raise InputError(f"--table takes distinct table names ({', '.join(TABLES)}) or all, got {args.table!r}")
+        raise InputError(f"--table {args.table!r}: an unknown table, an empty list or a table twice; give distinct "
+                         f"names of {', '.join(TABLES)}, or all")
     return names
 
 
