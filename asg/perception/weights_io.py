@@ -43,37 +43,35 @@ def seed_run_folder(run_dir: Path, *names: str) -> None:
     """Copy into the training run folder ``run_dir`` the weights it starts from (each of ``names``:
     the files of :func:`weights_files`, from where :func:`weights_path` finds them), unless it holds
     them already: training then reads and writes there, never in the package."""
-    import shutil
-
-    from sumo_scenarios.atomic import atomic_path
-
     run_dir.mkdir(parents=True, exist_ok=True)
     for name in names:
-        if (run_dir / f"{name}.pt").is_file():
-            continue
-        for src, dst in zip(weights_files(weights_path(name).parent, name), weights_files(run_dir, name)):
-            if src.is_file():
-                with atomic_path(dst) as tmp:
-                    shutil.copyfile(src, tmp)
+        if not (run_dir / f"{name}.pt").is_file():
+            _copy_weights(weights_path(name).parent, run_dir, name)
 
 
 def install_weights(run_dir: Path, name: str) -> Path:
     """Install the weights ``name`` trained in ``run_dir`` (with their card and point stage) into
     :func:`user_weights_dir`, where every command then loads them; the installed weights file.
     The package's shipped files are never written."""
-    import shutil
-
-    from sumo_scenarios.atomic import atomic_path
-
     if not (run_dir / f"{name}.pt").is_file():
         raise InputError(f"{run_dir / f'{name}.pt'}: no trained weights to install; run 'asg train' first")
     target = user_weights_dir()
     target.mkdir(parents=True, exist_ok=True)
-    for src, dst in zip(weights_files(run_dir, name), weights_files(target, name)):
+    _copy_weights(run_dir, target, name)
+    return target / f"{name}.pt"
+
+
+def _copy_weights(source: Path, target: Path, name: str) -> None:
+    """Copy the files of the weights ``name`` (:func:`weights_files`) that ``source`` holds into
+    ``target``, each written atomically."""
+    import shutil
+
+    from sumo_scenarios.atomic import atomic_path
+
+    for src, dst in zip(weights_files(source, name), weights_files(target, name)):
         if src.is_file():
             with atomic_path(dst) as tmp:
                 shutil.copyfile(src, tmp)
-    return target / f"{name}.pt"
 
 
 #: the point stage's weights beside a detector's: NAME.pt -> NAME.stage.pt

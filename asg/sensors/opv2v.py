@@ -31,13 +31,28 @@ def opv2v_ids(scene: Scene, sensing_ids: tuple[str, ...] | None = None) -> dict[
     (a second negative folder would be the rule's ego); RSUs that do not sense -2, -3, ... (no
     folder). ``sensing_ids``: default the ego and its collaborators."""
     sensing = sensing_ids if sensing_ids is not None else (scene.ego_id, *scene.collaborators)
-    ids = {scene.ego_id: EGO_ID}
     vehicles = [a.agent_id for a in scene.agents if a.kind == "vehicle" and a.agent_id != scene.ego_id]
-    ids.update({a: VEHICLE_ID_BASE + i for i, a in enumerate(vehicles)})
     sensing_rsus = [a for a in sensing if a != scene.ego_id and scene.agent(a).kind == "rsu"]
-    ids.update({a: (-1 if i == 0 else EXTRA_RSU_ID_BASE + i) for i, a in enumerate(sensing_rsus)})
+    ids = _numbered(scene.ego_id, vehicles, sensing_rsus)
     quiet = [a.agent_id for a in scene.agents if a.kind == "rsu" and a.agent_id not in ids]
     ids.update({a: -2 - i for i, a in enumerate(quiet)})
+    return ids
+
+
+def frame_ids(frame: CooperativeFrame) -> dict[str, int]:
+    """:func:`opv2v_ids` of a frame's sensing agents, from the frame alone (its ground truth lists
+    the scene's other vehicles in the scene's order)."""
+    sensing_rsus = [a for a in frame.sensing_ids if a != frame.ego_id and frame.agent_kinds.get(a, "vehicle") == "rsu"]
+    ids = _numbered(frame.ego_id, frame.gt_ids, sensing_rsus)
+    return {a: ids[a] for a in frame.sensing_ids}
+
+
+def _numbered(ego_id: str, vehicles, sensing_rsus) -> dict[str, int]:
+    """The ego EGO_ID, ``vehicles`` (the other vehicles, in the scene's order) 1000 + i, the first of
+    ``sensing_rsus`` -1, further ones 9001, ... (see :func:`opv2v_ids`)."""
+    ids = {ego_id: EGO_ID}
+    ids.update({a: VEHICLE_ID_BASE + i for i, a in enumerate(vehicles)})
+    ids.update({a: (-1 if i == 0 else EXTRA_RSU_ID_BASE + i) for i, a in enumerate(sensing_rsus)})
     return ids
 
 

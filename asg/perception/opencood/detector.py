@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...sensors.opv2v import EGO_ID, EXTRA_RSU_ID_BASE, VEHICLE_ID_BASE, agent_views
+from ...sensors.opv2v import agent_views, frame_ids
 from ...sensors.frame import CooperativeFrame
 from ..data import in_range
 from .folder import FUSION_KINDS, MODELS, checkpoint_of, load_checkpoint, read_hypes
@@ -18,23 +18,6 @@ from .runtime import module
 #: OpenCOOD shuffles each agent's cloud with numpy's global generator before voxelising (which points
 #: a full pillar keeps): the adapter seeds it with this for every frame, restoring the caller's state
 FRAME_SEED = 0
-
-
-def frame_ids(frame: CooperativeFrame) -> dict[str, int]:
-    """OPV2V ids of the frame's sensing agents, as ``asg export --format opv2v`` numbers them
-    (asg.sensors.opv2v.opv2v_ids): the ego 0, vehicles 1000 + their rank among the scene's
-    vehicles, the first other RSU -1, further ones 9001, ..."""
-    rank = {a: i for i, a in enumerate(frame.gt_ids)}
-    ids, rsus = {frame.ego_id: EGO_ID}, 0
-    for a in frame.sensing_ids:
-        if a == frame.ego_id:
-            continue
-        if frame.agent_kinds.get(a, "vehicle") == "rsu":
-            ids[a] = -1 if rsus == 0 else EXTRA_RSU_ID_BASE + rsus
-            rsus += 1
-        else:
-            ids[a] = VEHICLE_ID_BASE + rank.get(a, len(rank))
-    return ids
 
 
 class OpenCOODDetector:
@@ -77,7 +60,8 @@ class OpenCOODDetector:
         return data, drops[frame.ego_id]
 
     def _run(self, frame: CooperativeFrame):
-        """(corners (K, 8, 3) or None, scores (K,) or None) in OpenCOOD's ego frame, and the drop (m)."""
+        """(corners (K, 8, 3) or None, scores (K,) or None) in OpenCOOD's ego frame, the base data it ran
+        on (:meth:`base_data`) and the ego frame's drop (m)."""
         import torch
 
         data, lowered_m = self.base_data(frame)
@@ -90,12 +74,12 @@ class OpenCOODDetector:
                 corners, scores, _ = self.infer(batch, self.model, self.dataset)
         finally:
             np.random.set_state(state)
-        return corners, scores, lowered_m
+        return corners, scores, data, lowered_m
 
     def detect(self, frame: CooperativeFrame) -> tuple[np.ndarray, np.ndarray]:
         """Boxes (K, 7) x, y, z (centre), l, w, h, yaw in the ego's sensor frame and scores (K,),
         within the evaluation range."""
-        corners, scores, lowered_m = self._run(frame)
+        corners, scores, _, lowered_m = self._run(frame)
         if corners is None or len(corners) == 0:
             return np.zeros((0, 7)), np.zeros(0)
         boxes = self._corner_to_center(corners.detach().cpu().numpy().astype(np.float64), order="lwh")
@@ -122,11 +106,10 @@ class OpenCOODDetector:
         attention_type = module("models.fuse_modules.self_attn").ScaledDotProductAttention
         hooks = [m.register_forward_pre_hook(keep) for m in self.model.modules() if isinstance(m, attention_type)]
         try:
-            self._run(frame)
+            _, _, data, _ = self._run(frame)
         finally:
             for h in hooks:
                 h.remove()
-        data, _ = self.base_data(frame)
         kept = self._agents_in_range(frame, data)
         weights = np.mean([r for r in rows if len(r) == len(kept)], axis=0) if rows else np.ones(len(kept)) / len(kept)
         out = {a: 0.0 for a in frame.sensing_ids}
