@@ -14,7 +14,8 @@ from typing import NamedTuple, Sequence
 
 from sumo_scenarios.errors import InputError
 
-from . import __version__
+from . import __version__, interrupts
+from .interrupts import Terminated
 from .executors.base import WorkerLost
 
 
@@ -119,14 +120,6 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-class Terminated(Exception):
-    """SIGTERM arrived: unwind like Ctrl-C, so that every temporary file is removed."""
-
-
-def _on_sigterm(signum, frame) -> None:
-    raise Terminated()
-
-
 #: errno values of output problems a user can fix (disk full, read-only, no permission, quota)
 _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.ENOTDIR, errno.EISDIR}
 
@@ -155,10 +148,21 @@ def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset(
         signal.pthread_sigmask(signal.SIG_UNBLOCK, held_signals)
         parser.print_help()
         return 2
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    with interrupts.handled():
+        return _run(args, held_signals)
+
+
+def _run(args, held_signals: frozenset) -> int:
+    """``args.func(args)``'s exit code, with every way it can end told in one line."""
     try:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, held_signals)  # a signal held since the start ends it here
-        return int(args.func(args) or 0)
+        try:
+            code = int(args.func(args) or 0)
+        except BaseException:
+            interrupts.raise_if_taken()  # a signal taken on the way is the cause, whatever it broke
+            raise
+        interrupts.raise_if_taken()  # taken, and swallowed by third-party code: the run still ends on it
+        return code
     except InputError as exc:
         sys.stderr.write(f"asg: error: {exc}\n")
         return 2
@@ -177,8 +181,6 @@ def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset(
     except Terminated:
         sys.stderr.write("asg: terminated; nothing half-written was left behind (rerun the command to resume)\n")
         return 143
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # prefer ``python -m asg``, which holds signals while this module imports

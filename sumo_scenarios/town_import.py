@@ -50,7 +50,8 @@ MAX_FILE_BYTES = 2 * 1024**3
 #: which spent a minute on a road 1e12 m long and dropped one at 1e300 without a word
 _NUMBER_LIMITS = {
     "road": {"length": (0.0, MAX_COORD_M)},
-    "geometry": {k: (-MAX_COORD_M, MAX_COORD_M) for k in ("s", "x", "y", "length")},
+    "geometry": {"s": (0.0, MAX_COORD_M), "x": (-MAX_COORD_M, MAX_COORD_M), "y": (-MAX_COORD_M, MAX_COORD_M),
+                 "length": (0.0, MAX_COORD_M)},  # a negative length made netconvert grow past 9 GB
     "node": {"lat": (-90.0, 90.0), "lon": (-180.0, 180.0)},
 }
 #: a town's name: letters, digits, _ and - (it becomes NAME.net.xml and is given as --town NAME)

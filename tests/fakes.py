@@ -176,3 +176,58 @@ def none_attention_factory(cfg):
     """A factory whose ACS model's attention_weights returns None."""
     det = _NoAttention()
     return det, det
+
+
+def _swallow_forever(boxes, scores):
+    """Never returns: swallows every exception (the time limit's TimeoutErrors included)."""
+    import time
+
+    while True:
+        try:
+            time.sleep(0.05)
+        except BaseException:  # noqa: B036  (the misbehaviour under test)
+            pass
+
+
+def stuck_with_short_limit_factory(cfg):
+    """A detector that never returns and swallows every exception, in a process whose time limit is
+    1 s and which gives up after 2 swallowed TimeoutErrors (set where the factory runs)."""
+    import asg.perception.plugins as plugins
+
+    plugins.CALL_TIME_LIMIT_S, plugins.STUCK_ALARMS = 1.0, 2
+    return _misbehaving(_swallow_forever)(cfg)
+
+
+class _SwallowsOneSignal(OracleDetector):
+    """The oracle whose first detect() sends its process ``sig`` inside ``except BaseException``."""
+
+    def __init__(self, sig):
+        self.sig = sig
+        super().__init__()
+
+    def detect(self, frame):
+        import os
+        import time
+
+        if self.sig is not None:
+            sig, self.sig = self.sig, None
+            try:
+                os.kill(os.getpid(), sig)
+                time.sleep(1.0)  # the handler runs here, and its exception is swallowed
+            except BaseException:  # noqa: B036  (the misbehaviour under test)
+                pass
+        return super().detect(frame)
+
+
+def sigint_swallowed_factory(cfg):
+    import signal
+
+    det = _SwallowsOneSignal(signal.SIGINT)
+    return det, det
+
+
+def sigterm_swallowed_factory(cfg):
+    import signal
+
+    det = _SwallowsOneSignal(signal.SIGTERM)
+    return det, det

@@ -2,10 +2,12 @@
 registers detectors in the ``asg.detectors`` entry point group; asg evaluates and attacks it by
 name, and names a broken plugin in one line (exit 2)."""
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from asg.cli import main
@@ -109,3 +111,24 @@ def test_a_factory_without_attention_under_the_default_acs(capsys, tmp_path):
     assert code == 2
     assert_one_line_error(err, "no attention weights", "--acs random")
     assert not list((tmp_path / "none").glob("scenes/*/result.json"))
+
+
+@pytest.mark.parametrize("boxes, scores, needle", [
+    (np.array([[5.0, 0, 0, 4.0, 2.0, 1.5, 0]]) + 1j, np.ones(1), "not real numbers"),
+    (np.array([[5.0, 0, 0, 4.0, 2.0, 1.5, 0]]), np.ones(1, dtype=complex), "not real numbers"),
+    (np.array([[5.0, 0, 0, 1e300, 2.0, 1.5, 0]]), np.ones(1), "at most 100 m long"),
+    (np.array([[1e300, 0, 0, 4.0, 2.0, 1.5, 0]]), np.ones(1), "within 10000 m"),
+    (np.array([[5.0, 0, 0, 4.0, 2.0, 1.5, 1e300]]), np.ones(1), "|yaw|"),
+    (np.array([[5.0, 0, 0, 4.0, 2.0, 1.5, 0]], dtype=object), np.ones(1), "not real numbers"),
+])
+def test_detections_that_are_not_boxes_are_one_line(boxes, scores, needle):
+    """Complex numbers (their imaginary part would be dropped) and numbers no box has (1e300
+    overflows the IoU) are refused, naming the plugin."""
+    from asg.perception.plugins import check_detections
+    from sumo_scenarios.errors import InputError
+
+    with pytest.raises(InputError, match=re.escape(needle)) as exc:
+        check_detections("mine", (boxes, scores))
+    assert "'mine'" in str(exc.value) and "\n" not in str(exc.value)
+    good = check_detections("mine", (np.array([[5.0, 0, 0, 4.0, 2.0, 1.5, 0.3]]), np.array([0.9])))
+    assert good[0].dtype == np.float64 and good[0][0, 6] == 0.3

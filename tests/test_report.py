@@ -1,5 +1,6 @@
 """``asg report``: one self-contained page that headless Chromium (Debian's chromium package)
 opens with every inline image decoded; no network reference in it."""
+import os
 import re
 import shutil
 import subprocess
@@ -103,16 +104,31 @@ def test_tampered_run_folders_are_one_line(capsys, tmp_path):
         "object array": lambda o: np.savez(o / "scenes" / "s0" / "detections.npz", x=np.array([{}], dtype=object)),
         "history text": lambda o: (o / "scenes" / "s0" / "history.csv").write_text("step,loss\n1,abc\n"),
         "history without loss": lambda o: (o / "scenes" / "s0" / "history.csv").write_text("step\n1\n"),
+        # never blocks on, follows or exhausts memory on a file where a json belongs
+        "summary a FIFO": lambda o: _replace_with_fifo(o / "summary.json"),
+        "a card a FIFO": lambda o: os.mkfifo(o / "card.json"),
+        "a sub-run's summary a FIFO": lambda o: (shutil.copytree(o, o / "sub"), _replace_with_fifo(o / "sub" / "summary.json")),
+        "summary a link to /dev/zero": lambda o: ((o / "summary.json").unlink(), (o / "summary.json").symlink_to("/dev/zero")),
+        "zero.json a link to /dev/zero": lambda o: (o / "zero.json").symlink_to("/dev/zero"),
+        "summary nested 200,000 deep": lambda o: (o / "summary.json").write_text("[" * 200_000 + "]" * 200_000),
     }
+    template = oracle_run(tmp_path / "template", 1, "--budget", "2")
+    capsys.readouterr()
     for name, edit in cases.items():
-        out = oracle_run(tmp_path / name.replace(" ", "_"), 1, "--budget", "2")
-        capsys.readouterr()
+        out = tmp_path / name.replace(" ", "_") / "run"
+        shutil.copytree(template, out)
         edit(out)
         code, err = run(capsys, "report", str(out))
         if code == 0:  # what is missing is simply not drawn
+            assert not name.startswith("summary"), name  # the run's own summary is never skipped
             continue
         assert code == 2, name
         assert_one_line_error(err, str(out))
+
+
+def _replace_with_fifo(path):
+    path.unlink()
+    os.mkfifo(path)
 
 
 def test_the_final_view_marks_inserted_vehicles(cross_map):

@@ -913,3 +913,35 @@ def test_a_damaged_data_set_is_one_line(how, command, capsys, tmp_path):
     code, err = run(capsys, *argv)
     assert code == 2, err
     assert_one_line_error(err, "")
+
+
+@pytest.mark.parametrize("factory, code, word", [("fakes:sigint_swallowed_factory", 130, "interrupted"),
+                                                 ("fakes:sigterm_swallowed_factory", 143, "terminated")],
+                         ids=["SIGINT", "SIGTERM"])
+def test_a_signal_swallowed_by_code_it_interrupts_still_ends_the_run(capsys, tmp_path, factory, code, word):
+    """A Ctrl-C or SIGTERM whose exception third-party code swallows (``except BaseException``, as
+    trimesh's optional imports do) still ends the command with its exit code, before the next step."""
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("s0"))
+    out = tmp_path / "run"
+    assert main(["generate", "--scenes", str(scenes), "--detector", factory, "--budget", "20", "--workers", "1",
+                 "--out", str(out)]) == code
+    err = capsys.readouterr().err
+    assert word in err and "Traceback" not in err
+    assert not list(out.rglob("final.yaml"))  # ended at once: no scene finished its search
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_detector_that_never_returns_and_swallows_every_exception_is_stopped(tmp_path, workers):
+    """detect() loops forever inside ``except BaseException``: no raise can end it, so after the time
+    limit and a few swallowed TimeoutErrors the process gives up, in one line, exit 2 (with two
+    workers, the worker's line is said by the command)."""
+    scenes = tmp_path / "scenes"
+    _write(scenes, _scene_dict("s0"))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-m", "asg", "generate", "--scenes", str(scenes), "--detector",
+                           "fakes:stuck_with_short_limit_factory", "--budget", "3", "--workers", workers,
+                           "--out", str(tmp_path / "run")], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert_one_line_error(proc.stderr, "ran over 1 s")
+    assert "catches every exception" in proc.stderr

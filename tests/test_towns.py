@@ -1,4 +1,5 @@
 
+import sys
 import pytest
 from shapely.geometry import Polygon
 
@@ -229,13 +230,27 @@ def test_absurd_numbers_in_a_map_are_refused_before_netconvert(capsys, tmp_path,
     assert not (user_home / "towns").exists()
 
 
-def test_an_opendrive_road_of_absurd_length_is_refused_at_once(capsys, tmp_path, user_home):
+@pytest.mark.parametrize("length", ["1e12", "-5"])
+def test_an_opendrive_road_of_absurd_length_is_refused_at_once(capsys, tmp_path, user_home, length):
+    """A length of 1e12 kept netconvert busy for a minute; a negative one grew it to 9 GB."""
     xodr = tmp_path / "long.xodr"
     xodr.write_text('<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="4"/>'
-                    '<road id="1" length="1e12" junction="-1"><planView><geometry s="0" x="0" y="0" hdg="0" '
-                    'length="1e12"><line/></geometry></planView></road></OpenDRIVE>')
+                    '<road id="1" length="10" junction="-1"><planView><geometry s="0" x="0" y="0" hdg="0" '
+                    f'length="{length}"><line/></geometry></planView></road></OpenDRIVE>')
     code, out = _cli(capsys, "towns", "import", str(xodr), "--name", "long")
-    assert code == 2 and "length=" in out.err
+    assert code == 2 and "length=" in out.err and len(out.err.strip().splitlines()) == 1
+
+
+def test_a_sumo_program_that_outgrows_its_memory_is_one_line(monkeypatch):
+    """Whatever input makes a SUMO program explode, its memory is capped and the end is one line."""
+    from sumo_scenarios import sumo_tools
+    from sumo_scenarios.errors import InputError
+
+    monkeypatch.setattr(sumo_tools, "MAX_TOOL_MEMORY_BYTES", 64 * 1024**2)
+    hungry = [sys.executable, "-c", "import sys; b = bytearray(256 * 1024**2); sys.exit(0)"]
+    with pytest.raises(InputError) as exc:
+        sumo_tools.run(hungry, "a hungry program")
+    assert "a hungry program ran out of its 0.0625 GiB" in str(exc.value) and "\n" not in str(exc.value)
 
 
 def test_asg_home_where_no_folder_can_be_is_one_line(capsys, tmp_path, monkeypatch):

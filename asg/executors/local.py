@@ -14,12 +14,18 @@ from __future__ import annotations
 import ctypes
 import multiprocessing
 import os
+import shutil
 import signal
 import sys
+import tempfile
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 from typing import Any, Iterator, Sequence
 
+from sumo_scenarios.errors import InputError
+
+from .. import interrupts
 from .base import EXECUTORS, MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, quiet_third_party_warnings, signals_deferred
 from .launcher import spawned_ignoring_sigint
 
@@ -39,8 +45,9 @@ class _WorkerTerminated(BaseException):
     """SIGTERM inside an item: unwinds it (its context managers remove its temporary files)."""
 
 
-def _worker_init(threads: int, job: Job, parent_pid: int) -> None:
+def _worker_init(threads: int, job: Job, parent_pid: int, last_word_path: str) -> None:
     global _STATE
+    interrupts.leave_last_word_in(last_word_path)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
     sys.unraisablehook = _unraisable_in_worker
@@ -128,6 +135,7 @@ class LocalExecutor(Executor):
             try:
                 state = job.setup(*job.setup_args)
                 for item in items:
+                    interrupts.raise_if_taken()  # a signal swallowed inside the last item ends the run here
                     yield item, job.run(state, item)
             finally:
                 torch.set_num_threads(before[0])
@@ -138,21 +146,25 @@ class LocalExecutor(Executor):
         pool = None
         finished: list[int] = []
         broken = False
+        last_word = Path(tempfile.mkdtemp(prefix="asg-pool-")) / "last-word"
         try:
             # a worker half-spawned by an interrupted start would print a traceback; a Ctrl-C to the
             # group while a worker's interpreter starts would too, so workers are born ignoring it
             with signals_deferred(), spawned_ignoring_sigint():
                 pool = ProcessPoolExecutor(max_workers=min(self.workers, len(pending)),
                                            mp_context=multiprocessing.get_context("spawn"),
-                                           initializer=_worker_init, initargs=(self.threads, job, os.getpid()))
+                                           initializer=_worker_init, initargs=(self.threads, job, os.getpid(), str(last_word)))
                 futures = {pool.submit(_worker_run, job, item): i for i, item in pending.items()}
             todo = set(futures)
             while todo:
                 done, todo = wait(todo, return_when=FIRST_COMPLETED)
+                interrupts.raise_if_taken()
                 for fut in done:
                     try:
                         result = fut.result()
                     except BrokenProcessPool:
+                        if last_word.is_file():  # a worker gave up on code that would not stop
+                            raise InputError(last_word.read_text()) from None
                         broken = True
                         continue
                     finished.append(futures[fut])
@@ -162,6 +174,7 @@ class LocalExecutor(Executor):
         finally:
             if pool is not None:
                 _stop(pool)
+            shutil.rmtree(last_word.parent, ignore_errors=True)
         return finished, broken
 
 

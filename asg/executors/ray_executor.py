@@ -23,6 +23,7 @@ from typing import Any, Iterator, Sequence
 
 from sumo_scenarios.errors import InputError
 
+from ..interrupts import raise_if_taken
 from .base import EXECUTORS, MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, signals_deferred
 from .fatal_signals import fatal_handlers_kept, restore_fatal_handlers
 
@@ -152,6 +153,7 @@ class RayExecutor(Executor):
                 while not ready:  # in slices: a signal is handled between two, not inside Ray's C++ wait
                     with signals_deferred():  # (a handler's exception there becomes a SystemError)
                         ready, _ = ray.wait(list(running), num_returns=1, timeout=WAIT_SLICE_S)
+                raise_if_taken()
                 ref = ready[0]
                 actor, i = running.pop(ref)
                 try:

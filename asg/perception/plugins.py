@@ -27,6 +27,7 @@ import numpy as np
 
 from sumo_scenarios.errors import InputError
 
+from .. import interrupts
 from ..registry import DETECTOR_ENTRY_POINTS, detector_entry_names
 from ..sensors.frame import CooperativeFrame
 from .data import in_range
@@ -35,6 +36,12 @@ from .data import in_range
 MAX_BOXES = 1000
 #: ...and one whose ``detect`` (or ``attention``) call takes longer than this (s) is stopped
 CALL_TIME_LIMIT_S = 120.0
+#: bounds of a detection (ego frame): beyond them a number is garbage, not a box (1e300 overflows the IoU)
+MAX_BOX_CENTRE_M = 10_000.0
+MAX_BOX_SIZE_M = 100.0
+MAX_BOX_YAW_RAD = 1_000.0
+#: TimeoutErrors (one a second past the limit) a call may swallow before the process gives up on it
+STUCK_ALARMS = 10
 
 
 @dataclass(frozen=True)
@@ -150,7 +157,14 @@ def guarded_call(where: str, what: str, fn, *args):
 
     timed = threading.current_thread() is threading.main_thread()
 
+    alarms = 0
+
     def too_long(*_):
+        nonlocal alarms
+        alarms += 1
+        if alarms > STUCK_ALARMS:  # every TimeoutError swallowed: no raise can end this call
+            interrupts.give_up(f"{overtime} (it swallowed {STUCK_ALARMS} TimeoutErrors: it catches "
+                               "every exception; let a detector's exceptions through)")
         raise TimeoutError
 
     import time
@@ -209,10 +223,12 @@ def _checked(where: str, out) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(out, (tuple, list)) or len(out) != 2:
         raise InputError(f"{where}: detect() must return (boxes, scores), got {type(out).__name__}")
     try:
-        boxes = np.asarray(out[0], dtype=np.float64)
-        scores = np.asarray(out[1], dtype=np.float64)
+        raw = [np.asarray(v) for v in out]
+        if any(v.dtype.kind not in "biuf" for v in raw):  # complex numbers would lose their imaginary part
+            raise TypeError
+        boxes, scores = (v.astype(np.float64) for v in raw)
     except (TypeError, ValueError):
-        raise InputError(f"{where}: detect() returned boxes or scores that are not numbers") from None
+        raise InputError(f"{where}: detect() returned boxes or scores that are not real numbers") from None
     if boxes.size == 0 and scores.size == 0:
         return np.zeros((0, 7)), np.zeros(0)
     if boxes.ndim == 2 and len(boxes) > MAX_BOXES:
@@ -226,4 +242,8 @@ def _checked(where: str, out) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"{where}: detect() returned non-finite (NaN or inf) boxes or scores")
     if (boxes[:, 3:6] <= 0).any() or (scores < 0).any() or (scores > 1).any():
         raise InputError(f"{where}: box sizes must be positive and scores within [0, 1]")
+    if (np.abs(boxes[:, :3]) > MAX_BOX_CENTRE_M).any() or (boxes[:, 3:6] > MAX_BOX_SIZE_M).any() or \
+            (np.abs(boxes[:, 6]) > MAX_BOX_YAW_RAD).any():
+        raise InputError(f"{where}: boxes must lie within {MAX_BOX_CENTRE_M:g} m of the ego, be at most "
+                         f"{MAX_BOX_SIZE_M:g} m long and have |yaw| <= {MAX_BOX_YAW_RAD:g} rad")
     return boxes, scores

@@ -39,6 +39,7 @@ from sumo_scenarios.errors import InputError  # noqa: E402
 from ..objective import ap_text  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
 from ..io.figures import points_above_ground  # noqa: E402
+from ..io.json_file import read_json  # noqa: E402
 from ..generator.run_folder import POOLED_STAGES, load_detections  # noqa: E402
 from .training import training_folders, training_section  # noqa: E402
 from .view3d import plotly_script, scene_view_html  # noqa: E402
@@ -136,14 +137,14 @@ def _text(value) -> str:
 
 def _is_table(path: Path) -> bool:
     try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
+        data = read_json(path)
+    except InputError:
         return False
     return isinstance(data, dict) and {"table", "rows", "command"} <= set(data)
 
 
 def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
-    summary = json.loads((run / "summary.json").read_text())
+    summary = read_json(run / "summary.json", "the run")
     cfg, agg, entries = summary["config"], summary["aggregate"], summary["scenes"]
     rows = [["pooled", ap_text(agg["ap_normal"]), ap_text(agg.get("ap_after_acs")), ap_text(agg["ap_challenging"]),
              "", ""]]
@@ -298,7 +299,7 @@ def _loss_chart(run: Path, entries: list[dict]):
 
 
 def _table_section(path: Path) -> str:
-    data = json.loads(path.read_text())
+    data = read_json(path, "the table")
     md = path.with_suffix(".md")
     body = _markdown_table_html(md.read_text()) if md.is_file() else ""
     return (f"<section><h2>Table {_text(data['table'])}</h2><p><code>{_text(data['command'])}</code>: "

@@ -18,7 +18,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..objective import ap_text, both_yardsticks  # noqa: E402
+from sumo_scenarios.errors import InputError  # noqa: E402
+
 from ..io.curves import LOSS_CURVE, read_loss_curve  # noqa: E402
+from ..io.json_file import read_json  # noqa: E402
 
 #: the files that make a folder a training run
 HARDEN_CARD = "card.json"
@@ -48,7 +51,7 @@ def training_section(folder: Path, img: Callable, table: Callable) -> str:
 
 
 def _harden(folder: Path, img: Callable, table: Callable) -> str:
-    card = json.loads((folder / HARDEN_CARD).read_text())
+    card = read_json(folder / HARDEN_CARD, "the hardening run")
     rounds = sorted(card["rounds"], key=lambda r: int(r["round"]))
     sets = sorted({s for r in rounds for s in r.get("evaluation", {})})
     rows = []
@@ -129,8 +132,8 @@ def _finetune_card(folder: Path) -> tuple[str, dict] | None:
 
 def _json(path: Path):
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
+        return read_json(path)
+    except InputError:
         return None
 
 

@@ -8,6 +8,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..interrupts import raise_if_taken
 from .optimizer import Optimizer
 from .space import FeasibleSet, nearest_index
 
@@ -40,6 +41,7 @@ def run_search(optimizer: Optimizer, feasible: FeasibleSet, objective: Objective
         optimizer.tell(start.x, start.loss)
         fresh &= ~np.all(members == np.asarray(start.x)[None], axis=1)
     for step in range(1, budget + 1):
+        raise_if_taken()  # a signal swallowed inside the last evaluation ends the search here
         t0 = time.perf_counter()
         rows = np.flatnonzero(fresh) if fresh.any() else np.arange(len(members))
         candidates = members[rows]
