@@ -10,11 +10,11 @@ import numpy as np
 
 from ..perception import build_detector
 from ..datasets import scenes_of
-from ..generator.config import load_generate_config
+from ..generator.config import GenerateConfig, load_generate_config
 from ..generator.pipeline import Generator
 
 
-def bench_generate(scenes: int = 5, budget: int = 50, seed: int = 1) -> dict:
+def bench_generate(scenes: int = 5, budget: int = GenerateConfig.budget, seed: int = 1) -> dict:
     import torch
 
     torch.set_num_threads(2)

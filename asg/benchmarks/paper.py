@@ -18,13 +18,14 @@ from pathlib import Path
 from sumo_scenarios.errors import InputError
 
 from ..executors import Executor
+from ..generator.config import GenerateConfig
 from ..objective.ap import DEFAULT_AP_METHOD, check_ap_method
 
 CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"),
            ("off", "bo"), ("off", "ga"), ("off", "rs"))
 
 
-def bench_paper(out: Path, scenes: int = 30, budget: int = 50, fusion: str = "attfuse", seed: int = 1,
+def bench_paper(out: Path, scenes: int = 30, budget: int = GenerateConfig.budget, fusion: str = "attfuse", seed: int = 1,
                 executor: Executor | None = None, ap_method: str = DEFAULT_AP_METHOD) -> dict:
     """Run (or resume) the seven configurations and collect their pooled AP, ranked by
     ``ap_method`` (asg.objective.ap.AP_METHODS). Each configuration's scenes run on ``executor``

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..executors import build_executor
 from ..generator.run import SceneSource, open_run
-from ..generator.config import load_generate_config
+from ..generator.config import GenerateConfig, load_generate_config
 from .paper import pick_scenes
 
 #: (name, executor, workers, threads per worker)
@@ -36,7 +36,7 @@ def _numbers(out: Path) -> list:
     return [(e["scene_id"], e["ap_final"], e["loss_final"]) for e in summary["scenes"]]
 
 
-def bench_scale(out: Path, scenes: int = 8, budget: int = 50, seed: int = 1, ways: tuple = WAYS) -> dict:
+def bench_scale(out: Path, scenes: int = 8, budget: int = GenerateConfig.budget, seed: int = 1, ways: tuple = WAYS) -> dict:
     cfg = load_generate_config(fusion="attfuse", search="bo", acs="attention", budget=budget)
     scene_dir = pick_scenes(out / f"scenes-{scenes}", scenes)
     source = SceneSource(scenes=scene_dir)

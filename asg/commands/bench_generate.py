@@ -4,12 +4,13 @@ from __future__ import annotations
 import argparse
 
 from ..cli_args import COUNT
+from ..generator.config import GenerateConfig
 from ..progress import print_result
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenes", type=COUNT, default=5)
-    p.add_argument("--budget", type=COUNT, default=50)
+    p.add_argument("--budget", type=COUNT, default=GenerateConfig.budget)
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 

@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenes", type=COUNT, default=None,
                    help="scenes per split (tables: default the whole split, as the paper; targets: default 30)")
     p.add_argument("--budget", type=COUNT, default=None,
-                   help="targets table only (default the generator's, 50; the tables use configs/generate.yaml)")
+                   help="targets table only (default the generator's budget; the tables use configs/generate.yaml)")
     fusion_arg(p, "targets table only (default attfuse)")
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="tables: a factory standing in for every model (as 'asg generate --detector')")

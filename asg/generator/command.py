@@ -13,7 +13,7 @@ from ..collaborators import ACS_STRATEGIES
 from ..scene.feasibility import PLAUSIBILITY_LEVELS
 from .run import SceneSource, factory_models, open_run
 from .run_folder import print_table
-from .config import ACS_OFF, load_generate_config, protocols, with_space_flags
+from .config import ACS_OFF, GenerateConfig, load_generate_config, protocols, with_space_flags
 from ..progress import console, progress_bar, stdout
 
 #: the no-argument demo: a held-out town, the paper's main target (AttFuse, whose own attention
@@ -43,8 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--space", default=None, metavar="NAME[,NAME...]",
                    help="perturbation spaces searched together: poses (default, the paper's), insert, pose-error, "
                         "latency, dropout (bounds: configs/generate.yaml, space)")
-    p.add_argument("--count", type=COUNT, default=None, help="scenes to generate (default 10; demo 3)")
-    p.add_argument("--budget", type=COUNT, default=None, help="evaluations per scene (default 50; demo 20)")
+    p.add_argument("--count", type=COUNT, default=None, help=f"scenes to generate (default {DEFAULT_COUNT}; demo {DEMO['count']})")
+    p.add_argument("--budget", type=COUNT, default=None, help=f"evaluations per scene (default {GenerateConfig.budget}; demo {DEMO['budget']})")
     p.add_argument("--seed", type=SEED, default=1)
     p.add_argument("--config", type=Path, default=None, help="generate yaml (default configs/generate.yaml)")
     p.add_argument("--protocol", default=None, choices=protocols(),
