@@ -474,10 +474,17 @@ def _holds_int_and_term(pid: int) -> bool:
     return all(blocked >> (int(s) - 1) & 1 for s in (signal.SIGINT, signal.SIGTERM))
 
 
+_SLOW_START = [("bench paper", 0.0), ("bench paper", 1.0), ("bench paper", 2.0), ("bench paper", 2.5),
+               ("bench paper", 3.0), ("bench paper", 5.0), ("dataset build challenging", 1.0),
+               ("dataset build challenging", 2.0), ("dataset build challenging", 3.0), ("harden one worker", 1.0),
+               ("harden one worker", 3.0), ("harden", 1.0), ("harden", 3.0)]
+
+
 @pytest.mark.parametrize("command, moment", [("generate", 0.0), ("generate", 0.3), ("generate", 1.0),
                                              ("generate", "workers starting"), ("dataset build", 0.0),
                                              ("dataset build", 2.0), ("dataset build", "first log"),
-                                             ("harden", 0.0), ("harden", 2.0)])
+                                             ("harden", 0.0), ("harden", 2.0),
+                                             *(pytest.param(*c, marks=pytest.mark.slow) for c in _SLOW_START)])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment, sig):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or SIGTERM at the start of
@@ -499,8 +506,15 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment
     elif command == "dataset build":  # a data set built from scratch: SUMO runs, then frames are rendered on the workers
         argv = [sys.executable, "-m", "asg", "dataset", "build", "heuristic", "--workers", "2"]
         env = dict(os.environ, ASG_DATA=str(out))
+    elif command == "dataset build challenging":  # the normal set first, then the attack on it
+        argv = [sys.executable, "-m", "asg", "dataset", "build", "challenging", "--workers", "2"]
+        env = dict(os.environ, ASG_DATA=str(out))
+    elif command == "bench paper":  # its sets, then its runs
+        argv = [sys.executable, "-m", "asg", "bench", "paper", "--scenes", "2", "--workers", "2", "--out", str(out / "bench")]
+        env = dict(os.environ, ASG_DATA=str(out / "data"))
     else:  # a hardening run on an empty data root: it builds its pool and evaluation sets first
-        argv = [sys.executable, "-m", "asg", "harden", "--fusion", "attfuse", "--rounds", "1", "--workers", "2",
+        workers = "1" if command == "harden one worker" else "2"
+        argv = [sys.executable, "-m", "asg", "harden", "--fusion", "attfuse", "--rounds", "1", "--workers", workers,
                 "--out", str(out / "harden")]
         env = dict(os.environ, ASG_DATA=str(out / "data"))
 
