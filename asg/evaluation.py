@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Callable, Iterable
 
 from .datasets import scenes_of
-from .objective.ap import ap_by_method
+from .objective.ap import Yardstick, ap_by_method
 from .perception.data import Sample
 from .perception.fusion import V2XDetector, build_detector
 from .scene import Scene
@@ -19,7 +19,7 @@ def scored(frames: list[tuple]) -> dict:
     """{"ap": AP by threshold with the global sort (ours), "ap_per_frame": the paper's yardstick
     (no sort across frames, the frames in the given order), "frames": N} of detected frames."""
     both = ap_by_method(frames)
-    return {"ap": both["global"], "ap_per_frame": both["per-frame"], "frames": len(frames)}
+    return {"ap": both[Yardstick.GLOBAL], "ap_per_frame": both[Yardstick.PER_FRAME], "frames": len(frames)}
 
 
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:

@@ -26,7 +26,7 @@ from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ..objective import AP_KEYS
-from ..objective.ap import DEFAULT_AP_METHOD, check_ap_method
+from ..objective.ap import DEFAULT_AP_METHOD, Yardstick, check_ap_method
 from . import paper_figures as paper
 
 #: the four shipped models of the paper, in its order
@@ -390,7 +390,7 @@ def _triple(ap: dict | None) -> str:
 def to_markdown(result: dict) -> str:
     """The table as markdown (AP in %, ours beside the paper's) under the command that made it."""
     method = result.get("ap_method", DEFAULT_AP_METHOD)
-    yardstick = ("ranked per frame with no sort across frames (the paper's yardstick)" if method == "per-frame" else
+    yardstick = ("ranked per frame with no sort across frames (the paper's yardstick)" if method == Yardstick.PER_FRAME else
                  "ranked globally across frames (ours)")
     head = (f"`{result['command']}`: {result['scenes']} scenes, {result['seconds']:.0f} s, commit {result['commit']}, "
             f"{result['machine']}; detector {result['detector']}. AP@0.3 / 0.5 / 0.7 in %, {yardstick}.\n\n")

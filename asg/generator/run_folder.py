@@ -29,7 +29,7 @@ from sumo_scenarios.atomic import atomic_dir, atomic_path, write_text_atomic
 from sumo_scenarios.checks import inside
 
 from ..objective import AP_KEYS, ap_text
-from ..objective.ap import (AP_METHODS, DEFAULT_AP_METHOD, FrameMatches, ap_by_method_from_matches,
+from ..objective.ap import (AP_METHODS, DEFAULT_AP_METHOD, Yardstick, FrameMatches, ap_by_method_from_matches,
                             check_ap_method, frame_matches)
 from .pipeline import SceneResult
 from ..scene import save_scene
@@ -234,8 +234,8 @@ def print_table(summary: dict, out) -> None:
     after_ap, pooled = after_acs_ap(agg.get("ap_after_acs"), agg["mean_scene_ap_after_acs"])
     table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(after_ap) + ("" if pooled else "*"),
                   fmt(agg["ap_challenging"]), "", f"{agg['seconds_per_scene_median']:.1f}")
-    if aggregate_ap(agg, "ap_normal", "per-frame") is not None:
-        table.add_row("pooled per frame (paper)", *(fmt(aggregate_ap(agg, k, "per-frame")) for k in POOLED_STAGES),
+    if aggregate_ap(agg, "ap_normal", Yardstick.PER_FRAME) is not None:
+        table.add_row("pooled per frame (paper)", *(fmt(aggregate_ap(agg, k, Yardstick.PER_FRAME)) for k in POOLED_STAGES),
                       "", "")
     out.print(table)
     if not pooled:

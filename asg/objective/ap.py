@@ -15,6 +15,7 @@ is the AP method (``AP_METHODS``):
 """
 from __future__ import annotations
 
+import enum
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -84,9 +85,20 @@ def voc_ap(recall: np.ndarray, precision: np.ndarray) -> float:
     return float(np.sum((mrec[idx + 1] - mrec[idx]) * mpre[idx + 1]))
 
 
-#: how detections of several frames are ranked (see the module docstring); the first is the default
-AP_METHODS = ("global", "per-frame")
-DEFAULT_AP_METHOD = AP_METHODS[0]
+class Yardstick(str, enum.Enum):
+    """How detections of several frames are ranked (the AP method, ``--ap-method``; see the module
+    docstring). A str: its value is what flags take, messages print and result files hold."""
+
+    __str__ = str.__str__  # (enum.StrEnum from Python 3.11 on)
+    __format__ = str.__format__
+
+    GLOBAL = "global"  # ours: one sort across frames
+    PER_FRAME = "per-frame"  # the paper's: each frame's own order, frames concatenated
+
+
+#: the AP methods' names, the default first
+AP_METHODS = tuple(y.value for y in Yardstick)
+DEFAULT_AP_METHOD = Yardstick.GLOBAL
 
 
 def check_ap_method(method: str) -> str:
@@ -130,7 +142,7 @@ def ap_from_matches(scores: Sequence[np.ndarray], tps: Sequence[np.ndarray], n_g
         return 0.0
     if not scores or not sum(len(s) for s in scores):
         return 0.0
-    if method == "global":
+    if method == Yardstick.GLOBAL:
         s = np.concatenate(scores)
         tp = np.concatenate(tps)[np.argsort(-s, kind="stable")]
     else:

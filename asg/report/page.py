@@ -37,6 +37,7 @@ from sumo_scenarios.checks import is_safe_id  # noqa: E402
 from sumo_scenarios.errors import InputError  # noqa: E402
 
 from ..objective import ap_text  # noqa: E402
+from ..objective.ap import Yardstick  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
 from ..io.figures import points_above_ground  # noqa: E402
 from ..io.json_file import read_json  # noqa: E402
@@ -148,7 +149,7 @@ def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
     cfg, agg, entries = summary["config"], summary["aggregate"], summary["scenes"]
     rows = [["pooled", ap_text(agg["ap_normal"]), ap_text(agg.get("ap_after_acs")), ap_text(agg["ap_challenging"]),
              "", ""]]
-    per_frame = agg.get("by_method", {}).get("per-frame") if isinstance(agg.get("by_method"), dict) else None
+    per_frame = agg.get("by_method", {}).get(Yardstick.PER_FRAME) if isinstance(agg.get("by_method"), dict) else None
     if isinstance(per_frame, dict):  # the paper's yardstick: no sort across frames (docs/generate.md)
         rows.append(["pooled per frame (paper)", *(ap_text(per_frame.get(k)) for k in POOLED_STAGES), "", ""])
     for e in entries:

@@ -20,7 +20,7 @@ from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ..datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
-from ..objective.ap import DEFAULT_AP_METHOD
+from ..objective.ap import DEFAULT_AP_METHOD, Yardstick
 from ..scene import load_scene
 
 #: the split of the normal set each challenging set is generated from
@@ -83,7 +83,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
              "source": {"set": "normal", "split": split, **attacked, "seed": SEED,
                         "skipped": [sid for sid, _ in run.skipped]},
              "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"],
-             "per_frame": {k: agg["by_method"]["per-frame"][k] for k in ("ap_normal", "ap_challenging")}}
+             "per_frame": {k: agg["by_method"][Yardstick.PER_FRAME][k] for k in ("ap_normal", "ap_challenging")}}
     write_text_atomic(out / "index.json", json.dumps(index, indent=1))
     return out
 
