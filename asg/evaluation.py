@@ -8,21 +8,25 @@ from __future__ import annotations
 from typing import Callable, Iterable
 
 from .datasets import scenes_of
-from .objective.ap import Yardstick, ap_by_method
+from .objective.ap import Yardstick, ap_by_method_from_matches, frame_matches
 from .perception.data import Sample
 from .perception.fusion import V2XDetector, build_detector
 from .scene import Scene
 from .sensors import LidarSpec, load_lidar_spec, simulate_frame
 
 
-def scored(frames: list[tuple]) -> dict:
+def scored(frames: list[tuple], keep_matches: bool = False) -> dict:
     """{"ap": AP by threshold with the global sort (ours), "ap_per_frame": the paper's yardstick
-    (no sort across frames, the frames in the given order), "frames": N} of detected frames."""
-    both = ap_by_method(frames)
-    return {"ap": both[Yardstick.GLOBAL], "ap_per_frame": both[Yardstick.PER_FRAME], "frames": len(frames)}
+    (no sort across frames, the frames in the given order), "frames": N} of detected frames; with
+    ``keep_matches`` also "matches": each frame's FrameMatches (for a paired interval)."""
+    matches = [frame_matches(f) for f in frames]
+    both = ap_by_method_from_matches(matches)
+    result = {"ap": both[Yardstick.GLOBAL], "ap_per_frame": both[Yardstick.PER_FRAME], "frames": len(frames)}
+    return result | {"matches": matches} if keep_matches else result
 
 
-def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None) -> dict:
+def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None,
+                      keep_matches: bool = False) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "ap_per_frame": the same without the global sort, "frames": N,
     "without_collaborators": M} with ground truth = every vehicle in range; M counts the scenes
     that name no collaborator (scored single-agent)."""
@@ -34,7 +38,7 @@ def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: 
         frames.append(_detect(detector, spec, scene))
         if progress:
             progress(i + 1)
-    return scored(frames) | {"without_collaborators": alone}
+    return scored(frames, keep_matches) | {"without_collaborators": alone}
 
 
 def _detect(detector: V2XDetector, spec: LidarSpec, scene: Scene) -> tuple:
@@ -64,17 +68,18 @@ def _worker_run(state: tuple[V2XDetector, LidarSpec], item: tuple[int, dict]) ->
 
 
 def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None,
-             weights_file: str | None = None, executor=None, detector_factory: str | None = None) -> dict:
+             weights_file: str | None = None, executor=None, detector_factory: str | None = None,
+             keep_matches: bool = False) -> dict:
     """AP of detector ``fusion`` (its shipped weights, or ``weights_file``, or what
     ``detector_factory`` returns) on a set (see scenes_of), its scenes on ``executor`` (default:
-    this process); the frames are pooled in the set's order."""
+    this process); the frames are pooled in the set's order (``keep_matches``: see :func:`scored`)."""
     import itertools
 
     from .executors import Job
 
     scenes = list(itertools.islice(scenes_of(set_name), limit))
     if executor is None:
-        result = evaluate_detector(target_detector(fusion, weights_file, detector_factory), scenes, progress)
+        result = evaluate_detector(target_detector(fusion, weights_file, detector_factory), scenes, progress, keep_matches)
     else:
         frames: dict[int, tuple] = {}
         job = Job(_worker_setup, _worker_run, (fusion, weights_file, detector_factory))
@@ -83,7 +88,7 @@ def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None
             if progress:
                 progress(len(frames))
         ordered = [frames[i] for i in range(len(scenes))]
-        result = scored(ordered) | {"without_collaborators": sum(not s.collaborators for s in scenes)}
+        result = scored(ordered, keep_matches) | {"without_collaborators": sum(not s.collaborators for s in scenes)}
     result["fusion"] = fusion
     result["set"] = set_name
     return result

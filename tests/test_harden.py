@@ -17,7 +17,8 @@ from test_tables import write_set
 
 #: two steps a round, one scene a round from the normal train split, mixed with normal
 TINY = replace(load_harden_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
-               eval_sets=("normal-val",), scenes_per_round=1, pool=("normal",), noisy=False, reattack=False)
+               eval_sets=("normal-val",), scenes_per_round=1, pool=("normal",), noisy=False, reattack=False,
+               guard_set=None)
 ORACLE = "fakes:oracle_factory"
 
 
@@ -316,3 +317,70 @@ def test_a_bad_space_or_set_is_refused_before_the_run_starts(capsys, tmp_path, d
     assert code == 2
     assert_one_line_error(err, needle)
     assert not (tmp_path / "o").exists()
+
+
+def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeypatch):
+    """The guard: each round's AP@0.7 on a set no round trains on (holdout) is compared with the
+    weights it started from, paired bootstrap over the frames, and recorded in the card; a round
+    whose interval lies below zero is not kept: the next round starts from the weights before it,
+    and the card (as --weights) gives them."""
+    import asg.workflows.harden as harden_mod
+    from asg.workflows.harden import _start_weights
+    from asg.perception.weights_io import weights_path
+    from test_tables import write_set
+
+    write_set(data_root, "holdout", {"test": ["g0", "g1", "g2"]})
+    cfg = replace(TINY, guard_set="holdout")
+    out = tmp_path / "h"
+    card = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    g = card["rounds"][1]["guard"]  # the real guard, on the real matches of both weights
+    assert g["set"] == "holdout" and g["frames"] == 3 and g["threshold"] == 0.7
+    assert g["low"] <= g["gap"] <= g["high"] and g["kept"] == (g["high"] >= 0)
+    assert (out / "round-1" / "eval" / "holdout.matches.npz").is_file()
+    assert "holdout" in card["rounds"][0]["evaluation"] and "holdout" in card["rounds"][1]["evaluation"]
+
+    # a round worse beyond its interval: not kept
+    starts = []
+    real_fit = harden_mod.fit_chunk
+    monkeypatch.setattr(harden_mod, "fit_chunk", lambda name, start, *a, **k: (starts.append(start), real_fit(name, start, *a, **k))[1])
+    monkeypatch.setattr(harden_mod, "guard", lambda before, after, guard_set: {
+        "set": guard_set, "threshold": 0.7, "gap": -0.1, "low": -0.2, "high": -0.05, "frames": 3, "kept": False})
+    lines = []
+    out2 = tmp_path / "h2"
+    card = harden("attfuse", 2, out2, config=cfg, detector_factory=ORACLE, log=lines.append)
+    start = weights_path("attfuse")
+    assert [r["guard"]["kept"] for r in card["rounds"][1:]] == [False, False]
+    assert starts == [start, start]  # round 2 trained from the start weights, not round 1's
+    assert card["weights"] == str(start)
+    assert _start_weights(out2 / "card.json", "attfuse", "attfuse") == start
+    assert any("not kept" in l and "fell by 10.0 points" in l for l in lines)
+
+
+def test_a_guard_set_that_is_trained_on_is_refused(tmp_path, data_root):
+    with pytest.raises(InputError, match="guard_set 'normal' is trained on"):
+        harden("attfuse", 1, tmp_path / "h", config=replace(TINY, guard_set="normal"), detector_factory=ORACLE, log=_quiet)
+    assert not (tmp_path / "h").exists()
+
+
+def test_paired_gap_and_matches_on_disk(tmp_path):
+    """The paired gap is AP(after) - AP(before) on the same frames, its interval around it; matches
+    survive the trip to disk; a damaged file is one line."""
+    import numpy as np
+
+    from asg.objective.ap import ap_by_method_from_matches, frame_matches
+    from asg.objective.paired import load_matches, paired_ap_gap, save_matches
+
+    rng = np.random.default_rng(0)
+    gts = [np.array([[x, 0, 0, 4.0, 1.8, 1.5, 0] for x in rng.uniform(-40, 40, 4)]) for _ in range(20)]
+    good = [frame_matches((g + [0.1, 0, 0, 0, 0, 0, 0], np.full(len(g), 0.9), g)) for g in gts]
+    bad = [frame_matches((g[:2] + [0.5, 0.5, 0, 0, 0, 0, 0], np.full(2, 0.9), g)) for g in gts]
+    gap = paired_ap_gap(good, bad, 0.7)
+    ap = lambda m: ap_by_method_from_matches(m)["global"]["0.7"]
+    assert gap.gap == pytest.approx(ap(bad) - ap(good)) and gap.high < 0 and gap.low <= gap.gap <= gap.high
+    assert paired_ap_gap(good, good, 0.7).to_dict() == {"threshold": 0.7, "gap": 0.0, "low": 0.0, "high": 0.0, "frames": 20}
+    save_matches(tmp_path / "m.npz", bad)
+    back = load_matches(tmp_path / "m.npz")
+    assert ap(back) == ap(bad) and len(back) == 20
+    (tmp_path / "m.npz").write_bytes(b"garbage")
+    with pytest.raises(InputError, match="damaged matches"):
+        load_matches(tmp_path / "m.npz")

@@ -73,6 +73,10 @@ class HardenConfig(FinetuneConfig):
     noisy: bool = True
     #: attack each round's weights again on normal-val (the paper's protocol)
     reattack: bool = True
+    #: a set no round trains on (a town none of the training sets holds): a round whose AP@0.7 on it
+    #: falls below the weights it started from (the whole 95 % interval of the gap under zero) is
+    #: not kept; the next round starts from the weights before it. None: every round is kept
+    guard_set: str | None = "holdout"
 
 
 def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
@@ -126,35 +130,45 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
         "rounds": []}
-    current = start
-    shipped_start = settings["start_sha256"] == file_digest(_start_weights(None, fusion, name))
+    current, current_round = start, 0  # the weights the next round starts from, and their round
     for k in range(rounds + 1):
         done = {row["round"]: row for row in card["rounds"]}
         round_dir = out / f"round-{k}"
         if k in done:
-            current = out / done[k]["weights"] if k else start
+            if k and is_kept(done[k]):
+                current, current_round = out / done[k]["weights"], k
             continue
         row: dict = {"round": k}
+        weights = current
         if k:
             scenes = pool[(k - 1) * cfg.scenes_per_round: k * cfg.scenes_per_round]
             row["data"] = _round_scenes(fusion, current, scenes, cfg, space, round_dir, executor, detector_factory, log)
             first = {f"round-{j}": _load_scenes(out / f"round-{j}" / "scenes")
                      for j in (range(1, k + 1) if cfg.keep_previous else [k])}
-            weights_out, record = round_dir / "weights.pt", round_dir / "trained.json"
-            if not (weights_out.is_file() and record.is_file()):
-                trained = fit_chunk(name, current, weights_out, round_dir / "last.pt", cfg, cfg.steps, threads,
+            weights, record = round_dir / "weights.pt", round_dir / "trained.json"
+            if not (weights.is_file() and record.is_file()):
+                trained = fit_chunk(name, current, weights, round_dir / "last.pt", cfg, cfg.steps, threads,
                                     log, progress, lambda: mixed_sources(name, first, cfg, log))
                 write_text_atomic(record, json.dumps(trained, indent=1))  # kept for a round resumed after training
             row["trained"] = json.loads(record.read_text())
-            current = weights_out
-            row["weights"] = str(weights_out.relative_to(out))
-        log(f"round {k}: evaluating {current} ...")
-        row["evaluation"] = evaluate_round(fusion, current, cfg, _eval_cache(out, k, current), executor, log)
+            row["weights"] = str(weights.relative_to(out))
+        log(f"round {k}: evaluating {weights} ...")
+        row["evaluation"] = evaluate_round(fusion, weights, cfg, _eval_cache(out, k, weights), executor, log)
+        if k and cfg.guard_set is not None:
+            row["guard"] = guard(_eval_cache(out, current_round, current), _eval_cache(out, k, weights), cfg.guard_set)
+            if not row["guard"]["kept"]:
+                log(f"round {k}: AP@0.7 on {cfg.guard_set} (no round trains on it) fell by "
+                    f"{-100 * row['guard']['gap']:.1f} points, 95 % interval [{100 * row['guard']['low']:+.1f}, "
+                    f"{100 * row['guard']['high']:+.1f}]: its weights are not kept; the next round starts from "
+                    f"{f'round {current_round}' if current_round else 'the start weights'}")
+        if k and is_kept(row):
+            current, current_round = weights, k
         if cfg.reattack:
-            own_set = None if k == 0 and shipped_start else current  # the shipped weights' attack exists
+            own_set = None if k == 0 and shipped_start else weights  # the shipped weights' attack exists
             row["reattack"] = reattack_round(fusion, own_set, round_dir / "reattack", executor,
                                              detector_factory, log, row["evaluation"])
         card["rounds"].append(row)
+        card["weights"] = str(current.relative_to(out)) if current_round else str(start)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
 
@@ -169,6 +183,12 @@ def _check_before_starting(cfg: HardenConfig, space: tuple[str, ...] | None) -> 
         SpaceConfig(kinds=tuple(space))
     for set_name in cfg.eval_sets:
         check_set_name(set_name)
+    if cfg.guard_set is not None:
+        check_set_name(cfg.guard_set)
+        trained_on = {*cfg.pool, *cfg.mix_with, cfg.dataset}
+        if cfg.guard_set in trained_on:
+            raise InputError(f"train.yaml:{HARDEN_BLOCK}.guard_set '{cfg.guard_set}' is trained on (pool, mix_with "
+                             "or dataset); give a set no round trains on, e.g. holdout")
 
 
 def _eval_cache(out: Path, k: int, weights: Path) -> Path:
@@ -181,6 +201,22 @@ def _eval_cache(out: Path, k: int, weights: Path) -> Path:
     if k:
         return out / f"round-{k}" / "eval"
     return data_root() / ".harden-start" / f"{file_digest(weights)[:16]}-{scoring_digest()[:12]}"
+
+
+def is_kept(row: dict) -> bool:
+    """Whether a card's round keeps its weights (every round before the guard existed did)."""
+    return bool(row.get("weights")) and row.get("guard", {}).get("kept", True)
+
+
+def guard(before_cache: Path, after_cache: Path, guard_set: str) -> dict:
+    """{"set", "threshold", "gap", "low", "high", "frames", "kept"}: the AP@0.7 gap on ``guard_set``
+    of a round's weights over the weights it started from (their evaluations' cached matches),
+    paired bootstrap; kept unless the whole 95 % interval is below zero."""
+    from ..objective.paired import load_matches, paired_ap_gap
+
+    gap = paired_ap_gap(load_matches(before_cache / f"{guard_set}.matches.npz"),
+                        load_matches(after_cache / f"{guard_set}.matches.npz"), 0.7)
+    return {"set": guard_set, **gap.to_dict(), "kept": gap.high >= 0.0}
 
 
 def scoring_digest() -> str:
@@ -203,7 +239,7 @@ def scoring_digest() -> str:
 
 
 def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
-    """The weights file to start from: ``weights`` (a .pt, or a harden card: its last round's) or
+    """The weights file to start from: ``weights`` (a .pt, or a harden card: its last kept round's) or
     the shipped ``name``; InputError if missing or not loadable by ``fusion``'s detector."""
     from ..perception import check_weights_file
 
@@ -213,9 +249,10 @@ def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
     if path.suffix == ".json" and path.is_file():
         try:
             card = json.loads(path.read_text())
-            last = card["rounds"][-1]
-            path = path.parent / last["weights"] if last.get("weights") else Path(card["start"]["weights"])
-        except (ValueError, KeyError, IndexError, TypeError):
+            card["rounds"][0]  # a card with a finished round
+            kept = [r for r in card["rounds"] if is_kept(r)]
+            path = path.parent / kept[-1]["weights"] if kept else Path(card["start"]["weights"])
+        except (ValueError, KeyError, IndexError, TypeError, AttributeError):
             raise InputError(f"--weights {weights}: not a harden card (card.json) with a finished round") from None
     if not path.is_file():
         raise InputError(f"--weights {path}: no such file; give a .pt written by asg train, finetune or harden")
@@ -308,25 +345,30 @@ def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, e
                    log: Callable[[str], None]) -> dict:
     """{set: {"0.3", "0.5", "0.7": AP (ours, the global sort), "frames": N, "per_frame": {"0.3",
     "0.5", "0.7": AP ranked per frame (the paper's yardstick)}}} of ``weights`` on the fixed
-    evaluation sets, each result cached in ``cache`` (a cached result without the paper's yardstick,
-    from before it was recorded, is evaluated again)."""
+    evaluation sets and the guard set, each result cached in ``cache`` (a cached result without the
+    paper's yardstick, from before it was recorded, is evaluated again), the guard set's per-frame
+    matches beside it (``SET.matches.npz``, for the guard's paired interval)."""
     from .challenging import own_val_set
     from ..evaluation import evaluate
+    from ..objective.paired import save_matches
 
     own_val = own_val_set(fusion, executor, log)
-    sets = {s: s for s in (*cfg.eval_sets, own_val)}
+    sets = {s: s for s in (*cfg.eval_sets, own_val, *([cfg.guard_set] if cfg.guard_set else []))}
     if cfg.noisy:
         sets[NOISY_SET] = str(noisy_val_set())
     table = {}
     for label, set_arg in sets.items():
-        hit = cache / f"{label}.json"
+        hit, matches = cache / f"{label}.json", cache / f"{label}.matches.npz"
+        guarded = label == cfg.guard_set
         if hit.is_file():
             table[label] = json.loads(hit.read_text())
-            if "per_frame" in table[label]:
+            if "per_frame" in table[label] and (matches.is_file() or not guarded):
                 continue
-        result = evaluate(fusion, set_arg, weights_file=str(weights), executor=executor)
+        result = evaluate(fusion, set_arg, weights_file=str(weights), executor=executor, keep_matches=guarded)
         table[label] = _rounded(result["ap"]) | {"frames": result["frames"], "per_frame": _rounded(result["ap_per_frame"])}
         cache.mkdir(parents=True, exist_ok=True)
+        if guarded:
+            save_matches(matches, result["matches"])
         write_text_atomic(hit, json.dumps(table[label]))
         log(f"  {label}: AP@0.7 {table[label]['0.7']:.3f}, per frame {table[label]['per_frame']['0.7']:.3f} "
             f"({result['frames']} frames)")
@@ -440,7 +482,9 @@ def run(args: argparse.Namespace) -> int:
         if "reattack" in row:
             cells.append(both_yardsticks(row["reattack"]["challenging"],
                                          row["reattack"].get("per_frame", {}).get("challenging")))
-        table.add_row(str(row["round"]), *cells)
+        table.add_row(str(row["round"]) + ("" if not row["round"] or is_kept(row) else " (not kept)"), *cells)
     stdout.print(table)
-    console.print(f"card and weights: {out}/card.json, {out}/round-K/weights.pt")
+    kept = card.get("weights")
+    console.print(f"card and weights: {out}/card.json, {out}/round-K/weights.pt"
+                  + (f"; the weights kept: {kept}" if kept else ""))
     return 0
