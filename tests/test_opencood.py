@@ -316,3 +316,30 @@ def test_asgs_ap_equals_opencoods_evaluation_on_the_adapters_detections(scenes, 
         assert 0.05 < per_frame < 0.95, per_frame  # a case that tells the orderings apart
         assert abs(average_precision(frames, t, "per-frame") - per_frame) < 1e-3
         assert abs(average_precision(frames, t, "global") - global_sort) < 1e-3
+
+
+@pytest.mark.slow
+def test_a_challenging_set_is_built_against_an_opencood_model_and_evaluated(capsys, tmp_path, monkeypatch):
+    """``asg dataset build challenging --fusion opencood:DIR``: the set is named by the model folder
+    and its files' digest (a safe name; another checkpoint, another set), and is read back by
+    ``asg evaluate --set``."""
+    from asg.perception.opencood import target_label
+    from test_tables import write_set
+
+    import asg.generator.config as generator_config
+
+    root = tmp_path / "data"
+    write_set(root, "normal", {"train": ["t0"], "val": ["v0"]})
+    monkeypatch.setenv("ASG_DATA", str(root))
+    load = generator_config.load_generate_config  # the protocol's 50 evaluations would take minutes here
+    monkeypatch.setattr(generator_config, "load_generate_config", lambda *a, **k: load(*a, **{**k, "budget": 3}))
+    model = make_model_dir(tmp_path / "my model", "intermediate", score_threshold=THRESHOLD)
+    fusion = f"opencood:{model}"
+    assert main(["dataset", "build", "challenging", "--fusion", fusion, "--split", "val", "--count", "1"]) == 0
+    label = target_label(fusion)
+    assert label.startswith("opencood-my_model-") and len(label) == len("opencood-my_model-") + 8
+    built = root / f"challenging-{label}-val"
+    assert json.loads((built / "index.json").read_text())["frames"] == 1
+    capsys.readouterr()
+    assert main(["evaluate", "--fusion", fusion, "--set", built.name, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["frames"] == 1

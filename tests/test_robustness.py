@@ -507,7 +507,8 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment
         argv = [sys.executable, "-m", "asg", "dataset", "build", "heuristic", "--workers", "2"]
         env = dict(os.environ, ASG_DATA=str(out))
     elif command == "dataset build challenging":  # the normal set first, then the attack on it
-        argv = [sys.executable, "-m", "asg", "dataset", "build", "challenging", "--workers", "2"]
+        argv = [sys.executable, "-m", "asg", "dataset", "build", "challenging", "--fusion", "attfuse", "--split", "val",
+                "--workers", "2"]
         env = dict(os.environ, ASG_DATA=str(out))
     elif command == "bench paper":  # its sets, then its runs
         argv = [sys.executable, "-m", "asg", "bench", "paper", "--scenes", "2", "--workers", "2", "--out", str(out / "bench")]

@@ -30,7 +30,10 @@ SEED = 1
 
 
 def set_name(fusion: str, split: str) -> str:
-    return f"challenging-{fusion}-{split}"
+    """``challenging-FUSION-SPLIT``; an OpenCOOD model folder by its label (asg.perception.opencood.target_label)."""
+    from ..perception.opencood import is_opencood, target_label
+
+    return f"challenging-{target_label(fusion) if is_opencood(fusion) else fusion}-{split}"
 
 
 def build_challenging(fusion: str, split: str, executor=None, count: int | None = None,

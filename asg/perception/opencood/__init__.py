@@ -33,6 +33,23 @@ def model_dir_of(name: str) -> Path:
     return folder
 
 
+def target_label(name: str) -> str:
+    """A file-name-safe label of ``opencood:DIR`` for what is made against it (a challenging set's
+    name): the folder's name and the first 8 hex digits of the sha256 of its config and checkpoint,
+    so that another model, or the same folder retrained, gets its own."""
+    import hashlib
+    import re
+
+    folder = model_dir_of(name)
+    h = hashlib.sha256()
+    for path in model_files(folder).values():
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", folder.resolve().name)[:40].strip("_-") or "model"
+    return f"opencood-{stem}-{h.hexdigest()[:8]}"
+
+
 _BUILT: dict = {}
 
 
