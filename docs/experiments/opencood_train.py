@@ -3,6 +3,7 @@
 
     python docs/experiments/opencood_train.py MODEL_DIR TRAIN_EXPORT VAL_EXPORT [--fusion intermediate|fcooper]
         [--epochs 15] [--layers 3,5,8]
+    python docs/experiments/opencood_train.py NEW_DIR TRAIN_EXPORT VAL_EXPORT --finetune-from MODEL_DIR --epochs 3
 
 MODEL_DIR gets OpenCOOD's stock hypes of the fusion (point_pillar_intermediate_fusion.yaml: AttFuse;
 point_pillar_fcooper.yaml: F-Cooper) with three changes, each written into its config.yaml:
@@ -13,6 +14,10 @@ point_pillar_fcooper.yaml: F-Cooper) with three changes, each written into its c
 Then OpenCOOD's trainer runs with ``--model_dir MODEL_DIR``: it saves ``net_epochN.pth`` after every
 epoch and, rerun, resumes from the highest N (the model's weights; its optimizer restarts, as
 OpenCOOD's own resume does). ``MODEL_DIR`` is then a target: ``--fusion opencood:MODEL_DIR``.
+
+``--finetune-from MODEL_DIR`` (hardening an OpenCOOD model, docs/opencood.md): NEW_DIR gets
+MODEL_DIR's config with the new data folders and its checkpoint (the highest ``net_epochN.pth``,
+kept as ``net_epochN.pth``), and ``--epochs`` more epochs run from it by the same trainer.
 
 The trainer is run through ``runpy`` after asg's runtime preparation (asg/perception/opencood/
 runtime.py: opencoodx's box_overlaps.pyx compiled, matplotlib's get_cmap restored), which
@@ -55,6 +60,28 @@ def write_config(model_dir: Path, fusion: str, train: Path, val: Path, epochs: i
     return path
 
 
+def seed_from(model_dir: Path, source: Path, train: Path, val: Path, more_epochs: int) -> None:
+    """NEW model_dir from ``source``: its config (data folders replaced, ``more_epochs`` added) and
+    its latest checkpoint; nothing done if model_dir already has a config (a resumed fine-tuning)."""
+    import re
+    import shutil
+
+    if (model_dir / "config.yaml").is_file():
+        return
+    checkpoints = sorted(source.glob("net_epoch*.pth"), key=lambda p: int(re.sub(r"\D", "", p.stem) or 0))
+    if not checkpoints:
+        raise SystemExit(f"{source}: no net_epochN.pth to fine-tune from")
+    last = checkpoints[-1]
+    epoch = int(re.sub(r"\D", "", last.stem))
+    hypes = yaml.load((source / "config.yaml").read_text(), Loader=HypesLoader)
+    hypes = yaml.safe_load(yaml.safe_dump(hypes))
+    hypes.update(root_dir=str(train), validate_dir=str(val))
+    hypes["train_params"]["epoches"] = epoch + more_epochs
+    model_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(last, model_dir / last.name)
+    (model_dir / "config.yaml").write_text(yaml.safe_dump(hypes, sort_keys=False))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("model_dir", type=Path)
@@ -63,8 +90,11 @@ def main() -> None:
     p.add_argument("--fusion", choices=sorted(STOCK), default="intermediate")
     p.add_argument("--epochs", type=int, default=15)
     p.add_argument("--layers", default=None, help="backbone stage depths, e.g. 1,2,2 (default OpenCOOD's 3,5,8)")
+    p.add_argument("--finetune-from", type=Path, default=None, help="a trained model folder: --epochs more from its checkpoint")
     args = p.parse_args()
     layers = [int(x) for x in args.layers.split(",")] if args.layers else None
+    if args.finetune_from:
+        seed_from(args.model_dir, args.finetune_from, args.train.resolve(), args.val.resolve(), args.epochs)
     config = write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers)
     opencood()  # box_overlaps compiled, get_cmap restored: the trainer imports as shipped
     sys.argv = ["opencood.tools.train", "--hypes_yaml", str(config), "--model_dir", str(args.model_dir)]
