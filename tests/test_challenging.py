@@ -23,6 +23,7 @@ def data_root(tmp_path, monkeypatch):
     return root
 
 
+@pytest.mark.slow
 def test_build_resume_and_evaluate(capsys, data_root):
     out = build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
     index = json.loads((out / "index.json").read_text())
@@ -43,6 +44,7 @@ def test_build_resume_and_evaluate(capsys, data_root):
     assert json.loads(capsys.readouterr().out)["frames"] == 3
 
 
+@pytest.mark.slow
 def test_a_set_attacked_against_other_shipped_weights_is_generated_again(capsys, data_root):
     """challenging-F-SPLIT is the split attacked against the shipped F: after those weights change
     (a new install), building it again attacks anew instead of resuming the old attack."""

@@ -167,6 +167,7 @@ def test_render_bad_inputs(capsys, tmp_path):
     assert not (tmp_path / "x.png").exists()
 
 
+@pytest.mark.slow
 def test_generate_writes_the_run_folder_and_resumes(capsys, tmp_path):
     import json
 
@@ -264,6 +265,7 @@ def test_a_new_workflow_is_one_module_and_one_registry_line(capsys, tmp_path, mo
     assert "say hello" in cli.build_parser().format_help()
 
 
+@pytest.mark.slow
 def test_help_and_other_commands_do_not_import_the_workflows():
     """``asg --help`` and a non-workflow command build the parser without importing a workflow
     module (each pulls in torch and the data sets: seconds)."""

@@ -53,6 +53,7 @@ def _fatal_handlers() -> dict:
     return {sig: handler_address(buf) for sig, buf in saved_fatal_handlers().items()}
 
 
+@pytest.mark.slow
 def test_one_worker_two_workers_and_ray_give_the_same_summary(tmp_path):
     """... and a Ray batch leaves this process's fatal-signal handlers (pytest's faulthandler) as
     they were: ray.init puts its own on SIGSEGV and ray.shutdown left SIG_DFL, so that a later
@@ -70,6 +71,7 @@ def test_one_worker_two_workers_and_ray_give_the_same_summary(tmp_path):
     assert [e["scene_id"] for e in one["scenes"]] == ["s0", "s1", "s2"]  # input order, not finishing order
 
 
+@pytest.mark.slow
 def test_a_killed_worker_is_recovered(tmp_path, monkeypatch):
     monkeypatch.setenv("ASG_TEST_MARKER", str(tmp_path / "marker"))
     reference = _run(tmp_path / "reference")
@@ -80,6 +82,7 @@ def test_a_killed_worker_is_recovered(tmp_path, monkeypatch):
     assert not [p for p in (tmp_path / "killed").rglob(".*")]
 
 
+@pytest.mark.slow
 def test_a_killed_ray_actor_is_recovered(tmp_path, monkeypatch):
     pytest.importorskip("ray")
     monkeypatch.setenv("ASG_TEST_MARKER", str(tmp_path / "marker"))
@@ -95,6 +98,7 @@ def _square(state, x):
     return x * x
 
 
+@pytest.mark.slow
 def test_local_executor_yields_every_item_once():
     with build_executor("local", 2) as ex:
         got = sorted(ex.map_unordered(Job(dict, _square), list(range(7))))
@@ -144,6 +148,7 @@ def test_unreachable_ray_address_is_one_line(capsys, tmp_path):
     assert_one_line_error(err, "127.0.0.1:1")
 
 
+@pytest.mark.slow
 def test_evaluate_on_workers_gives_the_same_ap(capsys, tmp_path):
     scenes = tmp_path / "scenes"
     for i in range(3):
@@ -156,6 +161,7 @@ def test_evaluate_on_workers_gives_the_same_ap(capsys, tmp_path):
     assert set(results[0]["ap_per_frame"]) == set(results[0]["ap"])  # the paper's yardstick beside ours
 
 
+@pytest.mark.slow
 def test_progress_reaches_the_caller_in_process_and_a_pool_runs_without_it(tmp_path):
     """The evaluation callback travels with the job (no module state): called at every evaluation
     when the scenes run in this process; worker processes (which cannot call back) run the same."""
@@ -174,6 +180,7 @@ def test_progress_reaches_the_caller_in_process_and_a_pool_runs_without_it(tmp_p
     assert _numbers(tmp_path / "one") == _numbers(tmp_path / "two")
 
 
+@pytest.mark.slow
 def test_open_run_refuses_other_settings_and_removes_a_folder_it_made_for_bad_input(tmp_path):
     from dataclasses import replace
 
@@ -189,6 +196,7 @@ def test_open_run_refuses_other_settings_and_removes_a_folder_it_made_for_bad_in
     assert not (tmp_path / "fresh").exists()
 
 
+@pytest.mark.slow
 def test_a_hanging_detector_is_stopped_inside_a_ray_actor_too(capsys, tmp_path):
     """The time limit per detector call holds where Ray runs the scenes (an actor's task runs on its
     process's main thread, where the limit's alarm can be set): one line, exit 2."""
@@ -225,6 +233,7 @@ def _sigint_disposition(_=None) -> str:
     return "ignored" if signal.getsignal(signal.SIGINT) == signal.SIG_IGN else "handled"
 
 
+@pytest.mark.slow
 def test_processes_spawned_inside_the_block_are_born_ignoring_ctrl_c():
     """The launcher makes a spawned interpreter ignore SIGINT before Python starts (so a Ctrl-C to
     the group while a worker imports prints nothing); outside the block, spawn is as it was, and

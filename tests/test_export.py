@@ -44,6 +44,7 @@ def _assert_same_boxes(got, want, atol):
         assert np.allclose(a[:6], b[:6], atol=atol) and abs(_wrap(a[6] - b[6])) < atol, (a, b)
 
 
+@pytest.mark.slow
 def test_opv2v_reads_back_as_opencood_reads_it(scenes_dir, tmp_path):
     folder, scenes = scenes_dir
     assert export(folder, "opv2v", tmp_path) == 2

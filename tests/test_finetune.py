@@ -39,6 +39,7 @@ def _sha(path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+@pytest.mark.slow
 def test_finetune_trains_evaluates_and_keeps_the_shipped_weights(tmp_path, data_root):
     shipped = _sha(WEIGHTS_DIR / "attfuse.pt")
     out = tmp_path / "ft"
@@ -65,6 +66,7 @@ def test_finetune_trains_evaluates_and_keeps_the_shipped_weights(tmp_path, data_
         finetune("attfuse", "challenging-attfuse-train", out, config=replace(TINY, lr=0.001), log=lambda m: None)
 
 
+@pytest.mark.slow
 def test_an_interrupted_finetune_resumes_to_the_same_weights(tmp_path, data_root):
     whole = tmp_path / "whole"
     finetune("attfuse", "challenging-attfuse-train", whole, config=TINY, stages=("train",), log=lambda m: None)
@@ -84,6 +86,7 @@ def test_an_interrupted_finetune_resumes_to_the_same_weights(tmp_path, data_root
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.slow
 def test_bad_weights_are_one_line(capsys, tmp_path, data_root):
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_bytes(b"not a torch file")

@@ -117,6 +117,7 @@ def test_unknown_search_name_in_config():
         GenerateConfig(search="sa").validate()
 
 
+@pytest.mark.slow
 def test_bench_paper_spreads_its_scenes_over_the_set(tmp_path, busy_scene):
     """The benchmark takes scenes evenly over the set (the set lists logs one after another), in
     set order, and keeps a pick already written."""

@@ -36,6 +36,7 @@ def _quiet(*_):
     pass
 
 
+@pytest.mark.slow
 def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     out = tmp_path / "h"
 
@@ -74,6 +75,7 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     assert follow["start"]["weights"].endswith("round-2/weights.pt")
 
 
+@pytest.mark.slow
 def test_the_report_shows_a_hardening_run_round_by_round(capsys, tmp_path, data_root):
     """asg report on a harden folder: a row a round and the training curves (each round's loss.csv,
     written as it trains); a card someone edited is one line."""
@@ -97,6 +99,7 @@ def test_the_report_shows_a_hardening_run_round_by_round(capsys, tmp_path, data_
     assert_one_line_error(err, "the training card")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("data", ["random", "normal"])
 def test_the_controls_draw_the_scenes_they_claim(tmp_path, data_root, data):
     from asg.datasets import iter_frames
@@ -145,6 +148,7 @@ def test_the_pool_gives_every_scene_its_own_id(data_root):
     assert sorted(ids) == ["n0", "n0_2", "n1", "n1_2", "x"]
 
 
+@pytest.mark.slow
 def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, data_root, monkeypatch):
     import asg.workflows.harden as h
 
@@ -163,6 +167,7 @@ def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, 
     assert card["rounds"][1]["trained"]["steps"] == 2
 
 
+@pytest.mark.slow
 def test_a_round_with_its_scenes_on_disk_resumes_at_its_training_without_attacking(tmp_path, data_root, monkeypatch):
     """A run folder copied without its attack folder (a committed one on an empty machine) resumes
     at the training checkpoint: the scenes and their record are read back, nothing is attacked."""
@@ -190,6 +195,7 @@ def test_a_round_with_its_scenes_on_disk_resumes_at_its_training_without_attacki
     assert card["rounds"][1]["data"] == made and card["rounds"][1]["trained"]["steps"] == 2
 
 
+@pytest.mark.slow
 def test_the_finetune_table_gains_a_row_per_round_of_each_kind_of_data(tmp_path, data_root):
     from asg.benchmarks.tables import TableRun, run_table
 
@@ -221,6 +227,7 @@ def test_harden_rounds_need_the_finetune_table(capsys):
     assert_one_line_error(err, "--table finetune")
 
 
+@pytest.mark.slow
 def test_challenging_views_ego_trains_the_rounds_scenes_from_the_attacked_view_only(tmp_path, data_root):
     card = harden("attfuse", 1, tmp_path / "ego", config=replace(TINY, challenging_views="ego"),
                   detector_factory=ORACLE, log=_quiet)
@@ -267,6 +274,7 @@ def test_round_zeros_reattack_is_scored_by_todays_code(data_root):
     assert not (data_root / "unused").exists()  # nothing attacked
 
 
+@pytest.mark.slow
 def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_root):
     """From other ``--weights`` (a card's last round), round 0's re-attack attacks those weights;
     from the shipped ones it is the shipped model's own challenging set (nothing attacked)."""
@@ -281,6 +289,7 @@ def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_roo
     assert card["rounds"][0]["reattack"]["frames"] == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("text, needle", [
     ("harden: null\n", "must be a mapping"), ("harden: [1, 2]\n", "must be a mapping"),
     ("harden: just text\n", "must be a mapping"), ("", "an empty file"), ("- a\n- b\n", "list"),
@@ -319,6 +328,7 @@ def test_a_bad_space_or_set_is_refused_before_the_run_starts(capsys, tmp_path, d
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeypatch):
     """The guard: each round's AP@0.7 on a set no round trains on (holdout) is compared with the
     weights it started from, paired bootstrap over the frames, and recorded in the card; a round

@@ -6,6 +6,7 @@ from sumo_scenarios.highway import HighwayRequest, simulate_highway
 from sumo_scenarios.log import open_log
 
 
+@pytest.mark.slow
 def test_sixty_seconds_of_highway_env(highway_log):
     log = open_log(highway_log)
     frames = list(log.frames())
@@ -20,6 +21,7 @@ def test_sixty_seconds_of_highway_env(highway_log):
     assert sum(log.lane_map.point_on_road(a.x_m, a.y_m) for a in agents) >= 0.9 * len(agents)
 
 
+@pytest.mark.slow
 def test_highway_scenes(highway_log, tmp_path):
     scenes = list(extract_scenes(highway_log, ExtractParams(every=20)))
     assert scenes and all(s.source == "highway-env" for s in scenes)

@@ -57,6 +57,7 @@ def test_shipped_weights_hold_subnormals_and_the_loaded_detector_none():
     assert _subnormals(build_detector("none").model) == 0  # loaded, then folded: none left
 
 
+@pytest.mark.slow
 def test_a_fresh_process_with_asg_perception_loaded_computes_subnormals_as_zeros_on_every_thread():
     """The OpenMP pool's threads inherit the mode, so a parallel operation on two threads gives zeros."""
     code = ("import asg.perception, torch; torch.set_num_threads(2); "

@@ -82,6 +82,7 @@ def opencood_own_boxes(model_dir: Path, export_dir: Path, kind: str) -> dict[str
 SLOW = pytest.mark.slow
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind, ego, collaborators", [
     ("intermediate", "rsu", 2), pytest.param("intermediate", "vehicle", 2, marks=SLOW),
     pytest.param("intermediate", "rsu", 1, marks=SLOW), ("early", "vehicle", 1),
@@ -203,6 +204,7 @@ def test_a_missing_opencood_install_names_the_extra(monkeypatch):
         runtime.opencood()
 
 
+@pytest.mark.slow
 def test_an_opencood_model_is_evaluated_and_its_attention_read(capsys, scenes, tmp_path):
     """``asg evaluate --fusion opencood:DIR`` scores a set; AttFuse's self-attention gives ACS-A a
     weight for every sensing agent (summing to 1), F-Cooper none."""
@@ -275,6 +277,7 @@ def test_generate_attacks_an_opencood_model_and_records_its_files(capsys, tmp_pa
     assert "--force" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_asgs_ap_equals_opencoods_evaluation_on_the_adapters_detections(scenes, tmp_path):
     """asg's AP of an OpenCOOD model's detections (with ground-truth boxes jittered among them, so
     that AP lands between 0 and 1) equals OpenCOOD's own eval_utils: per frame (its tp/fp lists

@@ -43,6 +43,7 @@ def tiny_frames(cross_map, n=4):
     return out
 
 
+@pytest.mark.slow
 def test_tiny_model_overfits_tiny_set(cross_map):
     torch.manual_seed(0)
     samples = tiny_frames(cross_map)

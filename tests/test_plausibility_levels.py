@@ -5,6 +5,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from asg.scene import Scene, load_scene
 from asg.scene.feasibility import FeasibilityChecker
@@ -49,6 +50,7 @@ def test_checker_and_recheck_agree_on_random_moves():
     assert recheck(scene, scene, "paper").wrong_way is None
 
 
+@pytest.mark.slow
 def test_a_traffic_run_publishes_no_wrong_way_vehicle(capsys, tmp_path):
     out = oracle_run(tmp_path, 2, "--budget", "6", "--plausibility", "traffic")
     summary = json.loads((out / "summary.json").read_text())

@@ -6,6 +6,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import pytest
+
 from asg.cli import main
 
 from test_cli import assert_one_line_error, run
@@ -28,6 +30,7 @@ def _chromium_run(page, *args) -> subprocess.CompletedProcess:
                            page.as_uri()], capture_output=True, text=True, timeout=180)
 
 
+@pytest.mark.slow
 def test_report_renders_in_headless_chromium(capsys, tmp_path):
     """Every inline image decodes, and each 3D view draws: its WebGL canvas, found by the page's own
     script, holds drawn (non-background) pixels in a screenshot."""
@@ -92,6 +95,7 @@ def test_a_run_folder_cannot_put_markup_or_paths_into_the_report(capsys, tmp_pat
     capsys.readouterr()
 
 
+@pytest.mark.slow
 def test_tampered_run_folders_are_one_line(capsys, tmp_path):
     import numpy as np
 
@@ -153,6 +157,7 @@ def test_the_final_view_marks_inserted_vehicles(cross_map):
     assert squares == [0, 1]
 
 
+@pytest.mark.slow
 def test_links_huge_detections_and_bad_outputs_are_one_line(capsys, tmp_path):
     """A symbolic link anywhere in the folder (a table's .md linked to /etc/passwd put its lines in
     the page), a detections file of more boxes than asg writes (it ran for minutes), an --out under

@@ -133,6 +133,7 @@ def test_unsafe_ids_are_refused(capsys, tmp_path, where, value):
 
 
 # ---- 3. resume that told the truth ---------------------------------------------------------------
+@pytest.mark.slow
 def test_a_rerun_with_other_settings_is_refused_and_force_starts_over(capsys, tmp_path):
     scenes = tmp_path / "scenes"
     _write(scenes, _scene_dict())
@@ -152,6 +153,7 @@ def test_a_rerun_with_other_settings_is_refused_and_force_starts_over(capsys, tm
     assert summary["config"]["seed"] == 2 and len(summary["scenes"]) == 1
 
 
+@pytest.mark.slow
 def test_a_run_resumed_after_the_shipped_weights_changed_is_refused(capsys, tmp_path):
     """run.json records the digest of the shipped weights the run loads: a folder made with other
     shipped weights (an earlier install) is refused, not finished with today's."""
@@ -169,6 +171,7 @@ def test_a_run_resumed_after_the_shipped_weights_changed_is_refused(capsys, tmp_
     assert (out / "summary.json").read_text() == first
 
 
+@pytest.mark.slow
 def test_a_folder_written_before_a_setting_existed_resumes(capsys, tmp_path):
     """A run.json without a setting added since (its default reproduces the old behaviour) is the
     same settings; the same key with another value is not."""
@@ -195,6 +198,7 @@ def test_duplicate_scene_ids_are_refused(capsys, tmp_path):
     assert_one_line_error(err, "'same' appears twice")
 
 
+@pytest.mark.slow
 def test_damaged_scene_folders_are_generated_again(capsys, tmp_path):
     scenes = tmp_path / "scenes"
     _write(scenes, _scene_dict("s1"))
@@ -300,6 +304,7 @@ def test_non_utf8_inputs_are_one_line(capsys, tmp_path):
     assert_one_line_error(err, "UTF-8")
 
 
+@pytest.mark.slow
 def test_another_objective_weighting_is_used(capsys, tmp_path):
     scenes = tmp_path / "scenes"
     _write(scenes, _scene_dict())
@@ -321,6 +326,7 @@ def test_another_objective_weighting_is_used(capsys, tmp_path):
                 assert abs(float(value)) <= 10.0 + 1e-9
 
 
+@pytest.mark.slow
 def test_the_summary_reads_each_scene_once_and_pools_as_from_scratch(tmp_path, monkeypatch):
     """The summary rewritten after every scene reads each scene's detections once (a 699-scene run
     re-read and re-matched every scene each time: 12 s a rewrite), and pools the same AP as a
@@ -340,6 +346,7 @@ def test_the_summary_reads_each_scene_once_and_pools_as_from_scratch(tmp_path, m
 
 
 # ---- 5. a source smaller than --count ----------------------------------------------------------------
+@pytest.mark.slow
 def test_count_beyond_the_source_says_how_many(capsys, tmp_path):
     scenes = tmp_path / "scenes"
     _write(scenes, _scene_dict())
@@ -349,6 +356,7 @@ def test_count_beyond_the_source_says_how_many(capsys, tmp_path):
 
 
 # ---- 6. leftovers and signals ------------------------------------------------------------------------
+@pytest.mark.slow
 def test_stale_partials_are_removed_on_rerun(capsys, tmp_path):
     scenes = tmp_path / "scenes"
     _write(scenes, _scene_dict())
@@ -361,6 +369,7 @@ def test_stale_partials_are_removed_on_rerun(capsys, tmp_path):
     assert not [p for p in stale if p.exists()]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("interrupted_write", [1, 3], ids=["first-scene-summary", "final-summary"])
 def test_ctrl_c_while_the_summary_is_written(capsys, tmp_path, monkeypatch, interrupted_write):
     """Ctrl-C while ``asg generate`` writes its summary (after a scene, or the final one): half the
@@ -412,6 +421,7 @@ _SIGNAL_CASES += [pytest.param("workers starting", signal.SIGINT, "ray", id="ray
                   pytest.param("first scene written", signal.SIGTERM, "ray", id="ray-SIGTERM-first-scene")]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("moment, sig, executor", _SIGNAL_CASES)
 def test_signal_mid_run_says_so_and_leaves_nothing(tmp_path, moment, sig, executor):
     """SIGTERM or Ctrl-C to a two-worker ``asg generate`` (local processes, or Ray actors on a local
@@ -480,6 +490,7 @@ _SLOW_START = [("bench paper", 0.0), ("bench paper", 1.0), ("bench paper", 2.0),
                ("harden one worker", 3.0), ("harden", 1.0), ("harden", 3.0)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command, moment", [("generate", 0.0), ("generate", 0.3), ("generate", 1.0),
                                              ("generate", "workers starting"), ("dataset build", 0.0),
                                              ("dataset build", 2.0), ("dataset build", "first log"),
@@ -562,6 +573,7 @@ _HARDEN_TINY = """harden:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("moment, sig", [  # each phase and each signal by default, the other pairs slow
     pytest.param("attack", signal.SIGINT, id="SIGINT-attack"),
     pytest.param("attack", signal.SIGTERM, id="SIGTERM-attack", marks=pytest.mark.slow),
@@ -620,6 +632,7 @@ def test_a_signal_to_a_hardening_run_past_its_start_ends_it_and_it_resumes(tmp_p
     assert [r["round"] for r in card["rounds"]] == [0, 1] and (out / "round-1" / "weights.pt").is_file()
 
 
+@pytest.mark.slow
 def test_workers_end_when_their_parent_is_killed(tmp_path):
     """kill -9 of the parent: its workers end too (Linux's parent-death signal), none writes later."""
     psutil = pytest.importorskip("psutil")
@@ -703,6 +716,7 @@ def test_recheck_accepts_every_member_of_q():
 
 
 # ---- 12. cooperation on for a user's own scenes -------------------------------------------------------
+@pytest.mark.slow
 def test_extract_picks_collaborators_and_evaluate_says_when_none(capsys, tmp_path, sumo_log):
     out = tmp_path / "scenes"
     assert main(["scenes", "extract", str(sumo_log), "--every", "40", "--out", str(out)]) == 0
@@ -762,6 +776,7 @@ def test_a_rerun_notices_edited_scenes_and_takes_the_folder_however_spelled(caps
     assert_one_line_error(err, "other settings")
 
 
+@pytest.mark.slow
 def test_openmp_threads_wait_passively_unless_the_user_says_otherwise():
     """asg sets OMP_WAIT_POLICY=PASSIVE before torch loads (spinning threads starve a shared
     machine: docs/results/speed.md), and keeps a value the user set."""
@@ -781,7 +796,7 @@ def test_openmp_threads_wait_passively_unless_the_user_says_otherwise():
 @pytest.mark.parametrize("factory,needle", [
     ("fakes:nan_factory", "non-finite"),
     ("fakes:none_factory", "must return (boxes, scores)"),
-    ("fakes:string_factory", "not numbers"),
+    ("fakes:string_factory", "not real numbers"),
     ("fakes:shape_factory", "shape (K, 7)"),
     ("fakes:negative_size_factory", "sizes must be positive"),
     ("fakes:score_factory", "within [0, 1]"),
@@ -946,6 +961,7 @@ def test_a_signal_swallowed_by_code_it_interrupts_still_ends_the_run(capsys, tmp
     assert not list(out.rglob("final.yaml"))  # ended at once: no scene finished its search
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", ["1", "2"])
 def test_a_detector_that_never_returns_and_swallows_every_exception_is_stopped(tmp_path, workers):
     """detect() loops forever inside ``except BaseException``: no raise can end it, so after the time

@@ -23,6 +23,7 @@ def planted(target):
     return lambda x: (float(((x - target) ** 2).sum()), {})
 
 
+@pytest.mark.slow
 def test_bo_beats_random_search_on_a_planted_objective():
     wins, bo_best, rs_best = 0, [], []
     for seed in range(3):

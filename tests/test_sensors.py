@@ -384,6 +384,7 @@ def _hammer_trimesh_caster(iterations: int) -> None:
             gc.collect()
 
 
+@pytest.mark.slow
 def test_trimesh_caster_cast_on_two_threads_many_times():
     _hammer_trimesh_caster(60)
 

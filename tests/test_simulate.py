@@ -38,12 +38,14 @@ def test_log_is_real_sumo_fcd_with_vtypes(sumo_log):
     assert {r["id"] for r in meta["rsus"]} and meta["vehicle_types"][0]["length_m"] > 4
 
 
+@pytest.mark.slow
 def test_same_seed_same_log(sumo_log, tmp_path):
     again = tmp_path / "again"
     simulate_sumo(SimulationRequest(out_dir=again, town="grid_small", seed=3, duration_s=60.0, density="normal", warmup_s=60.0))
     assert list(read_fcd(again / "fcd.xml.gz")) == list(read_fcd(sumo_log / "fcd.xml.gz"))
 
 
+@pytest.mark.slow
 def test_dense_traffic_is_dense(tmp_path):
     dense = simulate_sumo(SimulationRequest(out_dir=tmp_path / "d", town="grid_wide", seed=5, duration_s=30.0, density="dense"))
     normal = simulate_sumo(SimulationRequest(out_dir=tmp_path / "n", town="grid_wide", seed=5, duration_s=30.0, density="normal"))

@@ -80,6 +80,7 @@ def test_link_changes_what_the_ego_receives_not_what_sensors_see():
     assert np.array_equal(received.ego_boxes, truth.ego_boxes)
 
 
+@pytest.mark.slow
 def test_a_run_in_each_space_is_plausible_and_reproducible(capsys, tmp_path):
     for kinds in ("insert", "pose-error", "dropout", UNION):
         runs = [oracle_run(tmp_path / f"{kinds}-{i}", 2, "--budget", "6", "--space", kinds) for i in range(2)]
@@ -97,6 +98,7 @@ def test_a_run_in_each_space_is_plausible_and_reproducible(capsys, tmp_path):
     capsys.readouterr()
 
 
+@pytest.mark.slow
 def test_final_yaml_renders_what_the_search_scored(capsys, tmp_path):
     """final.yaml holds the link and the inserted vehicles: re-rendering it gives the final AP."""
     from asg.objective import ap_at
@@ -184,6 +186,7 @@ def fine_log(tmp_path_factory):
     return folders
 
 
+@pytest.mark.slow
 def test_latency_renders_the_collaborators_earlier_world(capsys, tmp_path, fine_log):
     out = tmp_path / "run"
     argv = ["generate", "--scenes", str(fine_log["later"]), "--detector", "fakes:oracle_factory", "--budget", "6",
@@ -230,6 +233,7 @@ def test_latency_needs_the_scenes_log(capsys, tmp_path):
     assert code == 2 and "needs the scene's SUMO log" in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_a_town_sources_scenes_keep_their_log_for_latency(capsys, tmp_path):
     """A source simulated on the fly (a town, a net) keeps its log in the run folder when a space
     reads the past: the scenes are the same as without it, and latency works on them."""

@@ -43,6 +43,7 @@ def _is_ap(d):
     return isinstance(d, dict) and set(d) == AP_KEYS and all(0.0 <= v <= 1.0 for v in d.values())
 
 
+@pytest.mark.slow
 def test_every_table_end_to_end(capsys, tmp_path, data_root):
     out = tmp_path / "tables"
     argv = ["bench", "paper", "--table", "all", "--scenes", "2", "--detector", "fakes:oracle_factory",
@@ -96,6 +97,7 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
     assert again == tables
 
 
+@pytest.mark.slow
 def test_the_spaces_table_with_a_row_per_model_and_chosen_searches(capsys, tmp_path, data_root):
     """--models gives the spaces table a block of rows per model, --searches the searches compared;
     each model's rows are its own generator runs (the runs of one model are not reused for another)."""
@@ -125,6 +127,7 @@ def test_the_spaces_table_with_a_row_per_model_and_chosen_searches(capsys, tmp_p
     assert_one_line_error(err, "--searches takes distinct searches")
 
 
+@pytest.mark.slow
 def test_the_own_attack_row_is_scored_by_todays_detector(tmp_path, data_root):
     """Table II's own-attack row evaluates the model on the scenes its attack found; it does not read
     the detections the attack stored (an older build of the set, e.g. before a mesh change, leaves
@@ -162,6 +165,7 @@ def test_bad_table_requests_are_one_line(capsys, tmp_path, data_root):
         assert_one_line_error(err, needle)
 
 
+@pytest.mark.slow
 def test_tables_both_ways_from_one_measurement(capsys, tmp_path, data_root, monkeypatch):
     """--ap-method both writes every table as ours (NAME.*) and as the paper's yardstick
     (NAME.per-frame.*), each labelled; a set is detected once for both; the per-frame rows are what
@@ -206,6 +210,7 @@ def test_per_frame_harden_rows_from_a_card_before_the_yardstick_are_refused(tmp_
         harden_rows(replace(run, ap_method="per-frame"))
 
 
+@pytest.mark.slow
 def test_models_pick_the_rows_of_the_model_tables(capsys, tmp_path, data_root):
     """``--models``: Table I's rows are those models, in that order; one the paper lacks has no
     paper figures (empty cells in the markdown), one it has keeps them."""

@@ -48,6 +48,7 @@ def run(tmp_path, tag, tcfg, crash_at=None):
                  train_config=tcfg, detector_config=TINY, weights_dir=weights_dir, validate=False)
 
 
+@pytest.mark.slow
 def test_interrupted_training_resumes_to_the_same_weights(sumo_log, tmp_path):
     data = tiny_dataset(sumo_log, tmp_path / "tiny")
     for schedule in ("step", "onecycle"):
@@ -225,6 +226,7 @@ def test_resumed_onecycle_follows_the_configured_length():
     assert lrs(long, 20)[-1] > 10 * tail[-1]  # the saved 40-step phases would still be annealing
 
 
+@pytest.mark.slow
 def test_branch_fit_changes_the_branches_alone_and_resumes(sumo_log, tmp_path, monkeypatch):
     """`asg train --iou-branch`: the frozen detector's tensors (batch-norm statistics included)
     stay as they were, both branches are fitted, the card records the fit apart from the
@@ -340,6 +342,7 @@ def test_branch_fit_settings_are_checked(tmp_path):
             load_branch_config(bad)
 
 
+@pytest.mark.slow
 def test_bench_train_reports_a_step_and_its_phases(monkeypatch):
     """``asg bench train``'s measurement on synthetic frames: one JSON-able dict whose phase shares
     cover the step (the time itself is a benchmark's business, never asserted)."""

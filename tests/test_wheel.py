@@ -6,6 +6,8 @@ import sys
 import sysconfig
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -15,6 +17,7 @@ def _run(*args, cwd=None) -> str:
     return proc.stdout
 
 
+@pytest.mark.slow
 def test_wheel_installs_into_a_fresh_venv_and_runs_from_any_folder(tmp_path):
     src = tmp_path / "src"  # a copy of what the wheel is built from: the build leaves nothing in the checkout
     for name in ("asg", "sumo_scenarios", "nets", "configs"):
