@@ -1,0 +1,36 @@
+"""The hardening guard's comparison for any two models on any set: AP@0.7 of each by both
+yardsticks, and the gap AFTER - BEFORE with its 95 % paired-bootstrap interval (1,000 resamples of
+the set's frames, seed 0: asg.objective.paired, the code `asg harden` keeps or drops a round by).
+
+usage: .venv/bin/python docs/experiments/guard_gap.py SET BEFORE AFTER [OUT.json]
+  SET: any --set of asg evaluate (holdout, normal-val, ...); BEFORE, AFTER: a shipped model name
+  (attfuse, attfuse-ft, ...) or FUSION:path/to/weights.pt (e.g. attfuse:runs/harden/attfuse/round-1/weights.pt).
+"""
+import json
+import sys
+
+from asg.evaluation import evaluate
+from asg.objective.ap import Yardstick
+from asg.objective.paired import paired_ap_gap
+
+
+def scored(spec: str, set_name: str) -> dict:
+    fusion, _, weights = spec.partition(":")
+    return evaluate(fusion, set_name, weights_file=weights or None, keep_matches=True)
+
+
+def main(set_name: str, before: str, after: str, out: str | None = None) -> None:
+    a, b = scored(before, set_name), scored(after, set_name)
+    result = {"set": set_name, "frames": a["frames"], "before": before, "after": after}
+    for yardstick, key in ((Yardstick.GLOBAL, "ap"), (Yardstick.PER_FRAME, "ap_per_frame")):
+        gap = paired_ap_gap(a["matches"], b["matches"], 0.7, method=yardstick)
+        result[yardstick.value] = {"before": round(a[key]["0.7"], 4), "after": round(b[key]["0.7"], 4), **gap.to_dict()}
+        print(f"{set_name} ({a['frames']} frames), {yardstick.value}: AP@0.7 {100 * a[key]['0.7']:.1f} -> "
+              f"{100 * b[key]['0.7']:.1f}, gap {100 * gap.gap:+.2f} [{100 * gap.low:+.2f}, {100 * gap.high:+.2f}]")
+    if out:
+        with open(out, "w") as f:
+            json.dump(result, f, indent=1)
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:])
