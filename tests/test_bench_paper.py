@@ -6,7 +6,7 @@ from asg.benchmarks.paper import bench_paper
 from asg.executors import build_executor
 
 
-@pytest.mark.slow
+@pytest.mark.exhaustive
 def test_parallel_workers_give_the_sequential_table(tmp_path):
     one = bench_paper(tmp_path / "one", scenes=2, budget=3)
     with build_executor("local", 2) as two_workers:

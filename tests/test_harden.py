@@ -68,7 +68,7 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     ids = [sorted(p.stem for p in (out / f"round-{k}" / "scenes").glob("*.yaml")) for k in (1, 2)]
     assert len(ids[0]) == len(ids[1]) == 1 and ids[0] != ids[1]
     with pytest.raises(InputError, match="other settings"):
-        harden("attfuse", 2, out, config=replace(TINY, lr=0.001), detector_factory=ORACLE, log=_quiet)
+        harden("attfuse", 2, out, config=replace(TINY, lr=TINY.lr * 2), detector_factory=ORACLE, log=_quiet)
     # a card starts a new run from its last round's weights
     follow = harden("attfuse", 1, tmp_path / "next", weights=out / "card.json", config=replace(TINY, seed=9),
                     detector_factory=ORACLE, log=_quiet)

@@ -570,14 +570,15 @@ _HARDEN_TINY = """harden:
   pool: [normal]
   noisy: false
   reattack: false
+  guard_set: null
 """
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("moment, sig", [  # each phase and each signal by default, the other pairs slow
+@pytest.mark.parametrize("moment, sig", [  # each phase and each signal in CI (slow), the other pairs exhaustive
     pytest.param("attack", signal.SIGINT, id="SIGINT-attack"),
-    pytest.param("attack", signal.SIGTERM, id="SIGTERM-attack", marks=pytest.mark.slow),
-    pytest.param("fine-tuning", signal.SIGINT, id="SIGINT-fine-tuning", marks=pytest.mark.slow),
+    pytest.param("attack", signal.SIGTERM, id="SIGTERM-attack", marks=pytest.mark.exhaustive),
+    pytest.param("fine-tuning", signal.SIGINT, id="SIGINT-fine-tuning", marks=pytest.mark.exhaustive),
     pytest.param("fine-tuning", signal.SIGTERM, id="SIGTERM-fine-tuning")])
 def test_a_signal_to_a_hardening_run_past_its_start_ends_it_and_it_resumes(tmp_path, monkeypatch, moment, sig):
     """Ctrl-C (SIGINT to the group) or SIGTERM to a two-worker ``asg harden`` (the real AttFuse, on

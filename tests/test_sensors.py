@@ -344,7 +344,7 @@ def test_embree_scenes_built_cast_and_released_many_times():
     _hammer_embree(300)
 
 
-@pytest.mark.slow
+@pytest.mark.exhaustive
 def test_embree_scenes_built_cast_and_released_thousands_of_times():
     _hammer_embree(3000)
 
@@ -389,6 +389,6 @@ def test_trimesh_caster_cast_on_two_threads_many_times():
     _hammer_trimesh_caster(60)
 
 
-@pytest.mark.slow
+@pytest.mark.exhaustive
 def test_trimesh_caster_cast_on_two_threads_thousands_of_times():
     _hammer_trimesh_caster(2000)

@@ -131,6 +131,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
         "rounds": []}
     current, current_round = start, 0  # the weights the next round starts from, and their round
+    shipped_start = settings["start_sha256"] == file_digest(_start_weights(None, fusion, name))
     for k in range(rounds + 1):
         done = {row["round"]: row for row in card["rounds"]}
         round_dir = out / f"round-{k}"
