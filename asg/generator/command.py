@@ -13,6 +13,7 @@ from ..collaborators import ACS_STRATEGIES
 from ..scene.feasibility import PLAUSIBILITY_LEVELS
 from .run import SceneSource, factory_models, open_run
 from .run_folder import print_table
+from .stages import Stage
 from .config import ACS_OFF, GenerateConfig, load_generate_config, protocols, with_space_flags
 from ..progress import console, progress_bar, stdout
 
@@ -107,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"[yellow]skipped {scene_id}: {why}")
     print_table(done.summary, stdout)
     console.print(f"wrote {out}/summary.json and {len(done.summary['scenes'])} scene folders")
-    lost = lambda e: e["ap_normal"]["0.7"] - e["ap_final"]["0.7"]  # noqa: E731
+    lost = lambda e: e[Stage.NORMAL.scene_key]["0.7"] - e[Stage.FINAL.scene_key]["0.7"]  # noqa: E731
     hardest = max(done.summary["scenes"], key=lost, default=None)
     if hardest is not None and lost(hardest) > 0:
         console.print(f"the scene that lost most: {hardest['scene_id']} (AP@0.7 {hardest['ap_normal']['0.7']:.2f} -> "

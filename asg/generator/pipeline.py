@@ -14,6 +14,7 @@ import numpy as np
 from sumo_scenarios.errors import InputError
 
 from .config import ACS_OFF, MAX_BUDGET, GenerateConfig, load_generate_config, search_params, with_space_flags  # noqa: F401  (re-exported)
+from .stages import Stage
 from ..objective import adversarial_loss, ap_at
 from ..scene import Scene
 from ..perception.data import in_range
@@ -56,6 +57,12 @@ class SceneResult:
     #: the spaces searched with their bounds; what the final scene inserted and did to the link
     space: dict = field(default_factory=dict)
     inserted: tuple[str, ...] = ()
+
+    def scene(self, stage: Stage) -> Scene:
+        return {Stage.NORMAL: self.initial, Stage.AFTER_ACS: self.after_acs, Stage.FINAL: self.final}[stage]
+
+    def ap(self, stage: Stage) -> dict[str, float]:
+        return {Stage.NORMAL: self.ap_normal, Stage.AFTER_ACS: self.ap_after_acs, Stage.FINAL: self.ap_final}[stage]
 
     @property
     def moved(self) -> tuple[str, ...]:
@@ -177,7 +184,7 @@ class Generator:
             aps = ApsOutcome(after, aps.history, [], aps.perturbed, aps.columns, aps.values, aps.space)
             plaus = recheck(after.scene, after.scene, *level)
         final = aps.best
-        stages = {"initial": normal, "after_acs": after, "final": final}
+        stages = {Stage.NORMAL: normal, Stage.AFTER_ACS: after, Stage.FINAL: final}
         return SceneResult(
             scene_id=scene.scene_id, initial=initial, after_acs=after.scene, final=final.scene,
             ap_normal=normal.ap, ap_after_acs=after.ap, ap_final=final.ap, loss_normal=normal.loss,

@@ -32,6 +32,7 @@ from ..objective import AP_KEYS, ap_text
 from ..objective.ap import (AP_METHODS, DEFAULT_AP_METHOD, Yardstick, FrameMatches, ap_by_method_from_matches,
                             check_ap_method, frame_matches)
 from .pipeline import SceneResult
+from .stages import Stage
 from ..scene import save_scene
 from ..io.figures import bev_figure
 from ..io.pcd import write_pcd
@@ -40,10 +41,10 @@ from ..io.pcd import write_pcd
 def scene_entry(r: SceneResult) -> dict:
     return {
         "scene_id": r.scene_id,
-        "ap_normal": r.ap_normal, "ap_after_acs": r.ap_after_acs, "ap_final": r.ap_final,
+        **{stage.scene_key: r.ap(stage) for stage in Stage},
         "loss_normal": round(r.loss_normal, 6), "loss_final": round(r.loss_final, 6),
         "evaluations": r.evaluations, "seconds": round(r.seconds, 3),
-        "collaborators": {"initial": list(r.initial.collaborators), "final": list(r.after_acs.collaborators)},
+        "collaborators": {Stage.NORMAL: list(r.initial.collaborators), Stage.FINAL: list(r.after_acs.collaborators)},
         "perturbed": list(r.perturbed), "moved": list(r.moved), "delta": r.delta,
         "plausibility": r.plausibility.to_dict(), "notes": r.notes,
     } | ({"space": r.space} if r.space and r.space.get("kinds") != ["poses"] else {})
@@ -56,8 +57,8 @@ def write_scene(out_dir: Path, r: SceneResult, artifacts: bool = True) -> dict:
     entry = scene_entry(r)
     folder = inside(out_dir / "scenes", out_dir / "scenes" / r.scene_id)
     with atomic_dir(folder) as work:
-        for name, scene in (("initial", r.initial), ("after_acs", r.after_acs), ("final", r.final)):
-            save_scene(_log_relative(scene, out_dir, folder), work / f"{name}.yaml")
+        for stage in Stage:
+            save_scene(_log_relative(r.scene(stage), out_dir, folder), work / f"{stage}.yaml")
         buf = io.StringIO()
         w = csv.writer(buf)
         w.writerow(["step", *r.history_columns, "loss", "ap_0.3", "ap_0.5", "ap_0.7"])
@@ -87,21 +88,20 @@ def _log_relative(scene, out_dir: Path, folder: Path):
 
 def _write_artifacts(work: Path, r: SceneResult) -> None:
     """The final per-agent clouds (PCD and .npy, sensor frames) and the three bird's-eye pictures."""
-    for aid, cloud in r.frames["final"].clouds.items():
+    for aid, cloud in r.frames[Stage.FINAL].clouds.items():
         inside(work / "clouds", work / "clouds" / aid)
         write_pcd(work / "clouds" / f"{aid}.pcd", cloud)
         with atomic_path(work / "clouds" / f"{aid}.npy") as tmp:
             np.save(tmp, cloud)
-    for key, scene in (("initial", r.initial), ("after_acs", r.after_acs), ("final", r.final)):
-        ap = {"initial": r.ap_normal, "after_acs": r.ap_after_acs, "final": r.ap_final}[key]
-        bev_figure(scene, r.frames[key], work / f"{key}.png", title=f"{r.scene_id} {key}: AP@0.7 {ap.get('0.7', 0):.2f}",
-                   marked_ids=r.perturbed if key == "final" else ())
+    for stage in Stage:
+        bev_figure(r.scene(stage), r.frames[stage], work / f"{stage}.png",
+                   title=f"{r.scene_id} {stage}: AP@0.7 {r.ap(stage).get('0.7', 0):.2f}",
+                   marked_ids=r.perturbed if stage == Stage.FINAL else ())
 
 
 def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:
     with np.load(out_dir / "scenes" / scene_id / "detections.npz") as z:
-        return {k: (z[f"{k}_boxes"], z[f"{k}_scores"], z[f"{k}_gt"]) for k in ("initial", "after_acs", "final")
-                if f"{k}_boxes" in z}
+        return {k: (z[f"{k}_boxes"], z[f"{k}_scores"], z[f"{k}_gt"]) for k in Stage if f"{k}_boxes" in z}
 
 
 def load_done(out_dir: Path) -> dict[str, dict]:
@@ -161,7 +161,7 @@ def _pooled_from_matches(per_scene: list[dict[str, FrameMatches]], key: str) -> 
 
 #: the pooled AP of a summary's aggregate by stage; the global ranking at the top level (as ever),
 #: every AP method under "by_method" ({method: {stage key: AP}})
-POOLED_STAGES = {"ap_normal": "initial", "ap_after_acs": "after_acs", "ap_challenging": "final"}
+POOLED_STAGES = {stage.pooled_key: stage for stage in Stage}
 
 
 def aggregate_ap(aggregate: dict, stage_key: str, method: str = DEFAULT_AP_METHOD) -> dict[str, float] | None:
@@ -206,9 +206,7 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
             "scenes": len(entries),
             **by_method[DEFAULT_AP_METHOD],
             "by_method": by_method,
-            "mean_scene_ap_normal": mean_ap(entries, "ap_normal"),
-            "mean_scene_ap_after_acs": mean_ap(entries, "ap_after_acs"),
-            "mean_scene_ap_challenging": mean_ap(entries, "ap_final"),
+            **{f"mean_scene_{stage.pooled_key}": mean_ap(entries, stage.scene_key) for stage in Stage},
             "seconds_per_scene_median": round(float(np.median(seconds)), 3) if seconds else None,
             "scenes_per_hour": round(3600.0 * len(entries) / sum(seconds), 1) if seconds and sum(seconds) > 0 else None,
             "wall_s": round(wall_s, 1),

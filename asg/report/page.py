@@ -42,10 +42,11 @@ from ..scene import footprint_xy, load_scene  # noqa: E402
 from ..io.figures import points_above_ground  # noqa: E402
 from ..io.json_file import read_json  # noqa: E402
 from ..generator.run_folder import POOLED_STAGES, load_detections  # noqa: E402
+from ..generator.stages import Stage  # noqa: E402
 from .training import training_folders, training_section  # noqa: E402
 from .view3d import plotly_script, scene_view_html  # noqa: E402
 
-STAGES = (("initial", "initial"), ("after_acs", "after ACS"), ("final", "final"))
+STAGES = ((Stage.NORMAL, "initial"), (Stage.AFTER_ACS, "after ACS"), (Stage.FINAL, "final"))
 #: colours: ground truth, detections, moved vehicles
 GT_COLOUR, DET_COLOUR, MOVED_COLOUR = "#1a9850", "#d73027", "#4575b4"
 #: each sensing agent's points and marker (none red or green: those are the boxes')
@@ -181,7 +182,7 @@ def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
 def _ap_lost(entry: dict) -> float:
     """AP@0.7 the attack took from the scene (normal minus final); 0 if unreadable."""
     try:
-        return float(entry["ap_normal"]["0.7"]) - float(entry["ap_final"]["0.7"])
+        return float(entry[Stage.NORMAL.scene_key]["0.7"]) - float(entry[Stage.FINAL.scene_key]["0.7"])
     except (KeyError, TypeError, ValueError):
         return 0.0
 
@@ -204,13 +205,13 @@ def _scene_views(run: Path, entry: dict, index: int) -> str:
     for ax, (key, label) in zip(axes, STAGES):
         scene_file = folder / f"{key}.yaml"
         if key in dets and scene_file.is_file():
-            ap = entry[{"initial": "ap_normal", "after_acs": "ap_after_acs", "final": "ap_final"}[key]]
+            ap = entry[key.scene_key]
             scene = load_scene(scene_file)
             frame = simulate_frame(scene, load_lidar_spec())
-            _bev(ax, scene, frame, dets[key], entry.get("moved", []) if key == "final" else [],
-                 initial if key == "final" else None)
+            _bev(ax, scene, frame, dets[key], entry.get("moved", []) if key == Stage.FINAL else [],
+                 initial if key == Stage.FINAL else None)
             ax.set_title(f"{label}: AP@0.7 {100 * ap['0.7']:.1f}", fontsize=10)
-            if key == "final":
+            if key == Stage.FINAL:
                 view3d = scene_view_html(frame, dets[key][0], f"view3d-{index}", AGENT_COLOURS, GT_COLOUR, DET_COLOUR)
         else:
             ax.set_axis_off()

@@ -106,9 +106,10 @@ def first_scenes_ap(out: Path, count: int | None, ap_method: str = DEFAULT_AP_ME
     set (all when None), from the detections its run folder stored, ranked by ``ap_method``
     (asg.objective.ap.AP_METHODS; per-frame in the set's scene order)."""
     from ..generator.run_folder import load_detections, pooled_ap
+    from ..generator.stages import Stage
 
     index = json.loads((out / "index.json").read_text())
     ids = [i for ids in index["splits"].values() for i in ids][:count]
     per_scene = [load_detections(out / "run", i) for i in ids]
-    return {"scenes": len(ids), "normal": pooled_ap(per_scene, "initial", ap_method),
-            "challenging": pooled_ap(per_scene, "final", ap_method)}
+    return {"scenes": len(ids), "normal": pooled_ap(per_scene, Stage.NORMAL, ap_method),
+            "challenging": pooled_ap(per_scene, Stage.FINAL, ap_method)}
