@@ -311,3 +311,25 @@ def test_scenes_of_one_id_are_exported_apart(tmp_path, cross_map):
     scene = make_scene(cross_map, [rsu("r", 8.0, 8.0), car("a", -10.0, -1.6)], collaborators=["a"])
     ids = [s.scene_id for s in unique_ids(iter([scene, scene, scene]))]
     assert ids == [scene.scene_id, f"{scene.scene_id}-2", f"{scene.scene_id}-3"]
+
+
+@pytest.mark.parametrize("link", ["final.yaml", "scene folder"])
+def test_a_link_out_of_a_run_folder_is_not_followed(capsys, scenes_dir, tmp_path, link):
+    """A run folder's final.yaml, or a scene's folder, that is a link (asg writes none) is one line,
+    as asg report refuses it; nothing is exported."""
+    folder, _ = scenes_dir
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "final.yaml").write_text(next(folder.glob("*.yaml")).read_text())
+    run_dir = tmp_path / "run"
+    (run_dir / "scenes").mkdir(parents=True)
+    (run_dir / "run.json").write_text("{}")
+    if link == "final.yaml":
+        (run_dir / "scenes" / "s0").mkdir()
+        (run_dir / "scenes" / "s0" / "final.yaml").symlink_to(outside / "final.yaml")
+    else:
+        (run_dir / "scenes" / "s0").symlink_to(outside)
+    code, err = run(capsys, "export", str(run_dir), "--format", "opv2v", "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "a link, which asg never writes")
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

@@ -28,6 +28,10 @@ def source_scenes(source: Path | str) -> Iterator[Scene]:
         finals = sorted(p.glob("scenes/*/final.yaml"))
         if not finals:
             raise InputError(f"{p}: a run folder with no finished scene; run 'asg generate' into it first")
+        root = p.resolve()
+        for f in finals:  # asg writes no link into a run folder: one that leads out of it is not read
+            if f.is_symlink() or f.parent.is_symlink() or not f.resolve().is_relative_to(root):
+                raise InputError(f"{f}: a link, which asg never writes into a run folder; regenerate the scene")
         return (load_scene(f) for f in finals)
     from ...datasets import scenes_of
 
