@@ -346,3 +346,36 @@ def test_a_challenging_set_is_built_against_an_opencood_model_and_evaluated(caps
     capsys.readouterr()
     assert main(["evaluate", "--fusion", fusion, "--set", built.name, "--json"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["frames"] == 1
+
+
+@pytest.mark.slow
+def test_the_paper_tables_take_opencood_models(capsys, tmp_path, monkeypatch):
+    """``asg bench paper --table main,transfer --models opencood:A,opencood:B``: Table I has a row per
+    OpenCOOD model, and Table III scores each on the scenes found against the other (sets named by
+    the folders' labels)."""
+    from asg.perception.opencood import target_label
+    from test_tables import write_set
+
+    import asg.generator.config as generator_config
+
+    root = tmp_path / "data"
+    write_set(root, "normal", {"train": ["t0"], "val": ["v0"]})
+    monkeypatch.setenv("ASG_DATA", str(root))
+    load = generator_config.load_generate_config  # the protocol's 50 evaluations would take minutes here
+    monkeypatch.setattr(generator_config, "load_generate_config", lambda *a, **k: load(*a, **{**k, "budget": 2}))
+    a = f"opencood:{make_model_dir(tmp_path / 'a', 'intermediate', score_threshold=THRESHOLD)}"
+    b = f"opencood:{make_model_dir(tmp_path / 'b', 'late', seed=1, score_threshold=THRESHOLD)}"
+    out = tmp_path / "tables"
+    assert main(["bench", "paper", "--table", "main,transfer", "--models", f"{a},{b}", "--scenes", "1",
+                 "--workers", "1", "--out", str(out), "--json"]) == 0
+    main_rows = json.loads((out / "main.json").read_text())["rows"]
+    assert [r["model"] for r in main_rows] == [a, b] and all(r["paper"] is None for r in main_rows)
+    transfer = json.loads((out / "transfer.json").read_text())["rows"]
+    assert {(r["source"], r["target"]) for r in transfer} == {(s, t) for s in ("normal", a, b) for t in (a, b)}
+    assert all((root / f"challenging-{target_label(m)}-train").is_dir() for m in (a, b))
+
+
+def test_bench_paper_refuses_an_opencood_folder_that_cannot_run(capsys, tmp_path):
+    err = _refusal(capsys, "bench", "paper", "--table", "main", "--models", f"attfuse,opencood:{tmp_path / 'nothing'}",
+                   "--out", str(tmp_path / "o"))
+    assert "nothing" in err and not (tmp_path / "o").exists()

@@ -174,6 +174,8 @@ def harden_rows(run: TableRun) -> list[dict]:
 def transfer_table(run: TableRun) -> tuple[list[dict], int]:
     """Table III: each model scored on the challenging scenes generated against each model (train
     split), and on the normal scenes they came from."""
+    from ..workflows.challenging import set_name
+
     rows, counts = [], set()
     models = run.models or MODELS
     for source in models:
@@ -182,7 +184,7 @@ def transfer_table(run: TableRun) -> tuple[list[dict], int]:
         normal = _evaluate(target, "normal", run)
         rows.append({"source": "normal", "target": target, "ap": normal["ap"], "paper": None})
         for source in models:
-            res = _evaluate(target, f"challenging-{source}-train", run)
+            res = _evaluate(target, set_name(source, "train"), run)
             counts.add(res["frames"])
             rows.append({"source": source, "target": target, "ap": res["ap"],
                          "paper": paper.TRANSFER.get((source, target))})
@@ -319,7 +321,9 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
                            plausibility, kinds)
     source = SceneSource(scenes=scenes or Path("normal"))
-    name = f"{model}-acs_{acs}-{search if aps else 'no_aps'}"
+    from ..perception.opencood import is_opencood, target_label
+
+    name = f"{target_label(model) if is_opencood(model) else model}-acs_{acs}-{search if aps else 'no_aps'}"
     if kinds is not None:
         name = f"{scenes.name if scenes else 'normal'}-{name}-space_{kinds.replace(',', '+')}"
     if plausibility is not None:

@@ -31,8 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--detector", default=None, metavar="MODULE:FACTORY",
                    help="tables: a factory standing in for every model (as 'asg generate --detector')")
     p.add_argument("--models", default=None, metavar="NAME[,NAME]",
-                   help="main, transfer, acs and spaces tables: the shipped models with a row (default the paper's "
-                        "four: none, late, early, attfuse; attfuse alone in the spaces table)")
+                   help="main, transfer, acs and spaces tables: the models with a row, shipped ones or OpenCOOD "
+                        "model folders (opencood:DIR); default the paper's four: none, late, early, attfuse "
+                        "(attfuse alone in the spaces table)")
     p.add_argument("--searches", default=None, metavar="NAME[,NAME]",
                    help="spaces table: the searches it compares at the same budget (default rs,bo,ng)")
     p.add_argument("--harden-rounds", type=whole(1, MAX_ROUNDS, "--harden-rounds"), default=None,
@@ -108,11 +109,16 @@ def _tables(args: argparse.Namespace) -> int:
 
 
 def _models(text: str | None) -> tuple[str, ...] | None:
-    """``--models``: shipped model names, comma-separated (None: each table's own); one line for an
-    unknown or repeated name."""
+    """``--models``: shipped model names or OpenCOOD model folders (``opencood:DIR``), comma-separated
+    (None: each table's own); one line for an unknown or repeated name or a folder that cannot run."""
     from ..perception.fusion import FUSIONS
+    from ..perception.opencood import check_opencood, is_opencood
 
-    return _distinct_names(text, "--models", FUSIONS, "shipped models")
+    chosen = _distinct_names(text, "--models", FUSIONS, "shipped models or opencood:DIR", extra=is_opencood)
+    for name in chosen or ():
+        if is_opencood(name):
+            check_opencood(name)
+    return chosen
 
 
 def _searches(text: str | None) -> tuple[str, ...] | None:
@@ -122,14 +128,15 @@ def _searches(text: str | None) -> tuple[str, ...] | None:
     return _distinct_names(text, "--searches", SEARCHES, "searches")
 
 
-def _distinct_names(text: str | None, flag: str, registry, what: str) -> tuple[str, ...] | None:
-    """The comma-separated names of ``text``, each an entry of ``registry``, none twice (None:
-    ``text`` is None); one line naming the known ones otherwise."""
+def _distinct_names(text: str | None, flag: str, registry, what: str,
+                    extra=lambda name: False) -> tuple[str, ...] | None:
+    """The comma-separated names of ``text``, each an entry of ``registry`` (or a name ``extra``
+    accepts), none twice (None: ``text`` is None); one line naming the known ones otherwise."""
     if text is None:
         return None
     chosen = tuple(m.strip() for m in text.split(",") if m.strip())
     known = registry.names()
-    if not chosen or any(m not in known for m in chosen) or len(set(chosen)) != len(chosen):
+    if not chosen or any(m not in known and not extra(m) for m in chosen) or len(set(chosen)) != len(chosen):
         raise InputError(f"{flag} takes distinct {what} ({', '.join(known)}), got {text!r}")
     return chosen
 
