@@ -10,6 +10,8 @@ implementations in its ``__init__``, so ``from asg.search import SEARCHES`` give
     asg.search.spaces.SPACES            perturbation spaces (``--space``)
     asg.collaborators.ACS_STRATEGIES    collaborator searches (``--acs``)
     asg.executors.EXECUTORS             executors (``--executor``)
+    asg.io.export.EXPORT_FORMATS        export formats (``asg export --format``)
+    asg.benchmarks.tables.TABLE_KINDS   the paper's tables (``asg bench paper --table``), in order
 
 Detector plugins of other packages come in through the ``asg.detectors`` entry point group
 (asg.perception.plugins); the shipped models are only in FUSIONS.
@@ -29,11 +31,14 @@ T = TypeVar("T")
 
 class Registry(Generic[T]):
     """Name -> entry of one extension point. ``what`` names the kind in messages ("search
-    algorithm"); ``flag`` is the option that takes the name ("--search")."""
+    algorithm"); ``flag`` is the option that takes the name ("--search"); ``ordered``: the names
+    in the order they were registered (a sequence that means something, as the paper's tables),
+    else sorted."""
 
-    def __init__(self, what: str, flag: str):
+    def __init__(self, what: str, flag: str, ordered: bool = False):
         self.what = what
         self.flag = flag
+        self.ordered = ordered
         self._entries: dict[str, T] = {}
 
     def register(self, name: str) -> Callable[[T], T]:
@@ -52,7 +57,7 @@ class Registry(Generic[T]):
         del self._entries[name]
 
     def names(self) -> list[str]:
-        return sorted(self._entries)
+        return list(self._entries) if self.ordered else sorted(self._entries)
 
     def __contains__(self, name: object) -> bool:
         return name in self._entries

@@ -5,6 +5,7 @@ import pytest
 
 from asg.collaborators import ACS_STRATEGIES
 from asg.executors import EXECUTORS
+from asg.io.export import EXPORT_FORMATS
 from asg.perception.fusion import FUSIONS
 from asg.search import SEARCHES
 from asg.search.spaces import SPACES
@@ -13,13 +14,33 @@ from asg.search.spaces import SPACES
 SHIPPED = {"fusion": ["attfuse", "attfuse-ft", "attfuse-wide", "early", "fcooper", "late", "none", "v2xvit",
                       "v2xvit-noisy", "where2comm"],
            "search": ["bo", "ga", "ng", "rs"], "space": ["dropout", "insert", "latency", "pose-error", "poses"],
-           "acs": ["attention", "random"], "executor": ["local", "ray"]}
-REGISTRIES = {"fusion": FUSIONS, "search": SEARCHES, "space": SPACES, "acs": ACS_STRATEGIES, "executor": EXECUTORS}
+           "acs": ["attention", "random"], "executor": ["local", "ray"],
+           "export": ["kitti", "openscenario", "opv2v", "sumo"]}
+REGISTRIES = {"fusion": FUSIONS, "search": SEARCHES, "space": SPACES, "acs": ACS_STRATEGIES, "executor": EXECUTORS,
+              "export": EXPORT_FORMATS}
 
 
 @pytest.mark.parametrize("kind", sorted(SHIPPED))
 def test_each_registry_holds_the_shipped_set_once_its_package_is_imported(kind):
     assert REGISTRIES[kind].names() == SHIPPED[kind]
+
+
+def test_the_export_formats_register_without_loading_the_lidar_or_torch():
+    """``asg export --help`` stays quick: the writers' modules import the LiDAR and torch inside
+    their methods."""
+    import subprocess
+    import sys
+
+    code = "import sys, asg.io.export as e; e.EXPORT_FORMATS.entry('kitti'); print('torch' in sys.modules, 'trimesh' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split() == ["False", "False"]
+
+
+def test_the_paper_tables_keep_the_papers_order():
+    """``--table all`` runs the tables in the paper's order (an ordered registry), not sorted."""
+    from asg.benchmarks.tables import TABLE_KINDS
+
+    assert TABLE_KINDS.names() == ["main", "finetune", "transfer", "acs", "ablation", "blackbox", "spaces"]
+    assert TABLE_KINDS.entry("main").registry_name == "main"
 
 
 def test_an_unknown_name_is_one_line_naming_the_known_ones():

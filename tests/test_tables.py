@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import pytest
 
-from asg.benchmarks.tables import TABLES
+from asg.benchmarks.tables import TABLE_KINDS
 from asg.cli import main
 from sumo_scenarios.errors import InputError
 
@@ -50,8 +50,8 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
             "--workers", "1", "--out", str(out), "--json"]
     assert main(argv) == 0
     printed = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.strip()]
-    assert [p["table"] for p in printed] == list(TABLES)
-    for name in TABLES:
+    assert [p["table"] for p in printed] == TABLE_KINDS.names()
+    for name in TABLE_KINDS.names():
         result = json.loads((out / f"{name}.json").read_text())
         assert {"command", "scenes", "seconds", "commit", "rows"} <= set(result)
         assert result["command"] == "asg " + " ".join(argv) and result["scenes"] == 2
@@ -59,7 +59,7 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
         assert len(rows) == len(result["rows"]) > 0
         md = (out / f"{name}.md").read_text()
         assert result["command"] in md and md.count("\n|") >= 3
-    tables = {name: json.loads((out / f"{name}.json").read_text())["rows"] for name in TABLES}
+    tables = {name: json.loads((out / f"{name}.json").read_text())["rows"] for name in TABLE_KINDS.names()}
     main_rows = tables["main"]
     assert [r["model"] for r in main_rows] == ["none", "late", "early", "attfuse"]
     assert all(_is_ap(r["normal"]) and _is_ap(r["challenging"]) for r in main_rows)
@@ -93,7 +93,7 @@ def test_every_table_end_to_end(capsys, tmp_path, data_root):
     # a rerun reuses every challenging set and generator run: the same numbers
     assert main(argv) == 0
     capsys.readouterr()
-    again = {name: json.loads((out / f"{name}.json").read_text())["rows"] for name in TABLES}
+    again = {name: json.loads((out / f"{name}.json").read_text())["rows"] for name in TABLE_KINDS.names()}
     assert again == tables
 
 

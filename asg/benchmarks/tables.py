@@ -26,6 +26,7 @@ from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ..objective import AP_KEYS
+from ..registry import Registry
 from ..objective.ap import DEFAULT_AP_METHOD, Yardstick, check_ap_method
 from . import paper_figures as paper
 
@@ -69,9 +70,8 @@ def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None]
                ap_methods: tuple[str, ...] | None = None) -> dict[str, dict]:
     """Measure and write each table of ``names`` with each AP method of ``ap_methods`` (default:
     ``run.ap_method``); returns {file stem: its JSON} (TABLE, or TABLE.per-frame for that method)."""
-    unknown = [n for n in names if n not in TABLES]
-    if unknown:
-        raise InputError(f"unknown table '{unknown[0]}'; choose {', '.join(TABLES)} or all")
+    for n in names:
+        TABLE_KINDS.check(n, ("all",))
     methods = tuple(check_ap_method(m) for m in (ap_methods or (run.ap_method,)))
     run.out.mkdir(parents=True, exist_ok=True)
     return {table_stem(name, m): run_table(name, replace(run, ap_method=m), log) for name in names for m in methods}
@@ -85,7 +85,7 @@ def table_stem(name: str, ap_method: str) -> str:
 def run_table(name: str, run: TableRun, log: Callable[[str], None] = print) -> dict:
     log(f"table {name} (AP {run.ap_method}) ...")
     started = time.perf_counter()
-    rows, scenes = _REGISTRY[name].build(run)
+    rows, scenes = TABLE_KINDS.entry(name).build(run)
     result = {"table": name, "command": run.command, "scenes": scenes, "seconds": round(time.perf_counter() - started, 1),
               "commit": _commit(), "machine": _machine(), "detector": run.detector_factory or "shipped",
               "ap_method": run.ap_method, "rows": rows}
@@ -115,8 +115,11 @@ def finetune_table(run: TableRun) -> tuple[list[dict], int]:
     Every row is scored by today's detector code: the own-attack row evaluates the model on the
     scenes its attack found, not the detections the attack stored when it built them (which an
     older build of the set would leave behind)."""
+    from functools import cache
+
     from ..workflows.challenging import build_challenging
 
+    @cache
     def own_set(model: str) -> str:
         return build_challenging(model, "val", run.executor, count=run.scenes, detector_factory=run.detector_factory).name
 
@@ -124,7 +127,7 @@ def finetune_table(run: TableRun) -> tuple[list[dict], int]:
     scored: dict[tuple[str, str], dict] = {}  # AttFuse's own attack is challenging-val: scored once
     rows = []
     for model in ("attfuse", "attfuse-ft"):
-        own = challenging if model == "attfuse" else own_set(model)
+        own = own_set(model)
         for set_, key in (("normal-val", "normal-val"), ("heuristic", "heuristic"), (challenging, "challenging-val"),
                           (own, "own-attack-val")):
             res = scored.get((model, set_)) or scored.setdefault((model, set_), _evaluate(model, set_, run))
@@ -398,7 +401,7 @@ def to_markdown(result: dict) -> str:
                  "ranked globally across frames (ours)")
     head = (f"`{result['command']}`: {result['scenes']} scenes, {result['seconds']:.0f} s, commit {result['commit']}, "
             f"{result['machine']}; detector {result['detector']}. AP@0.3 / 0.5 / 0.7 in %, {yardstick}.\n\n")
-    return head + _REGISTRY[result["table"]].markdown(result["rows"]) + "\n"
+    return head + TABLE_KINDS.entry(result["table"]).markdown(result["rows"]) + "\n"
 
 
 def _md_table(header: list[str], lines: list[list[str]]) -> str:
@@ -496,17 +499,20 @@ def _md_spaces_by_model(rows) -> str:
                       [[m, normal(m), *(cell(m, c) for c in columns)] for m in models]) + "\n\n")
 
 
-@dataclass(frozen=True)
-class _Table:
-    """A table: how its rows are measured (rows, scenes) and how they print as markdown."""
+@dataclass
+class Table:
+    """A table of ``asg bench paper --table``: how its rows are measured (rows, scenes) and how they
+    print as markdown; ``registry_name`` is set when it is registered."""
 
     build: Callable[["TableRun"], tuple[list, int]]
     markdown: Callable[[list], str]
+    registry_name: str = ""
 
 
-#: every table, in the order `--table all` runs them: one entry each
-_REGISTRY = {"main": _Table(main_table, _md_main), "finetune": _Table(finetune_table, _md_finetune),
-             "transfer": _Table(transfer_table, _md_transfer), "acs": _Table(acs_table, _md_acs),
-             "ablation": _Table(ablation_table, _md_ablation), "blackbox": _Table(blackbox_table, _md_blackbox),
-             "spaces": _Table(spaces_table, _md_spaces)}
-TABLES = tuple(_REGISTRY)
+#: every table, in the order ``--table all`` runs them
+TABLE_KINDS: Registry[Table] = Registry("table", "--table", ordered=True)
+for _name, _table in {"main": Table(main_table, _md_main), "finetune": Table(finetune_table, _md_finetune),
+                      "transfer": Table(transfer_table, _md_transfer), "acs": Table(acs_table, _md_acs),
+                      "ablation": Table(ablation_table, _md_ablation), "blackbox": Table(blackbox_table, _md_blackbox),
+                      "spaces": Table(spaces_table, _md_spaces)}.items():
+    TABLE_KINDS.register(_name)(_table)

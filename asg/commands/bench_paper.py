@@ -19,8 +19,10 @@ from ..workflows import MAX_ROUNDS
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..benchmarks.tables import TABLE_KINDS
+
     p.add_argument("--table", default=None, metavar="NAME[,NAME]",
-                   help="main, finetune, transfer, acs, ablation, blackbox, spaces (beyond the paper: the perturbation "
+                   help=f"{', '.join(TABLE_KINDS.names())} (spaces, beyond the paper: the perturbation "
                         "spaces on 30 benchmark scenes) or all: write OUT/NAME.json, .csv, .md "
                         "(default: the generator's targets table)")
     p.add_argument("--scenes", type=COUNT, default=None,
@@ -61,16 +63,17 @@ def run(args: argparse.Namespace) -> int:
 
 def _table_names(args: argparse.Namespace) -> tuple[str, ...]:
     """The tables ``--table`` names (none without it)."""
-    from ..benchmarks.tables import TABLES
+    from ..benchmarks.tables import TABLE_KINDS
 
     if args.table is None:
         return ()
+    tables = tuple(TABLE_KINDS.names())
     if args.table == "all":
-        return TABLES
+        return tables
     names = tuple(t.strip() for t in args.table.split(","))
-    if not names or any(n not in TABLES for n in names) or len(set(names)) != len(names):
+    if not names or any(n not in tables for n in names) or len(set(names)) != len(names):
         raise InputError(f"--table {args.table!r}: an unknown table, an empty list or a table twice; give distinct "
-                         f"names of {', '.join(TABLES)}, or all")
+                         f"names of {', '.join(tables)}, or all")
     return names
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..io.export import FORMATS
+from ..io.export import EXPORT_FORMATS
 from ..progress import console, progress_bar
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a run folder of 'asg generate', a data set (name or folder) or a folder of scene yaml")
-    p.add_argument("--format", required=True, choices=FORMATS)
+    p.add_argument("--format", required=True, choices=EXPORT_FORMATS.names())
     p.add_argument("--out", type=Path, required=True, help="folder to write (nothing is written outside it)")
     p.add_argument("--net", type=Path, default=None,
                    help="openscenario, sumo: the SUMO net of scenes from a net that is not a bundled town")

@@ -14,11 +14,8 @@ from typing import Callable, Iterator
 from sumo_scenarios.errors import InputError
 
 from ...scene import Scene, load_scene
-
-#: each export format (``asg export --format``) and its writer (module of this package, class)
-WRITERS = {"opv2v": ("opv2v", "ScenarioWriter"), "kitti": ("kitti", "KittiWriter"),
-           "openscenario": ("openscenario", "XoscWriter"), "sumo": ("sumo", "RoutesWriter")}
-FORMATS = tuple(WRITERS)
+from . import kitti, openscenario, opv2v, sumo  # noqa: F401  (their registration fills EXPORT_FORMATS)
+from .base import EXPORT_FORMATS, net_of  # noqa: F401  (this package's API)
 
 
 def source_scenes(source: Path | str) -> Iterator[Scene]:
@@ -53,15 +50,10 @@ def unique_ids(scenes: Iterator[Scene]) -> Iterator[Scene]:
 def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
            progress: Callable[[int], None] | None = None) -> int:
     """Write every scene of ``source`` in format ``fmt`` under ``out``; returns the scene count."""
-    if fmt not in FORMATS:
-        raise InputError(f"unknown format '{fmt}'; choose one of {', '.join(FORMATS)}")
+    writer_class = EXPORT_FORMATS.entry(fmt)
     from sumo_scenarios.checks import output_dir
 
-    out = output_dir(Path(out))
-    import importlib
-
-    module, writer_class = WRITERS[fmt]
-    writer = getattr(importlib.import_module(f".{module}", __package__), writer_class)(out, net)
+    writer = writer_class(output_dir(Path(out)), net)
     n = 0
     for n, scene in enumerate(unique_ids(source_scenes(source)), start=1):
         writer.write(scene)
@@ -71,19 +63,3 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     if n == 0:
         raise InputError(f"{source}: no scenes to export")
     return n
-
-
-def net_of(scene: Scene, net: Path | None) -> Path:
-    """The SUMO net a scene was taken from: ``net`` if given, else the bundled or imported town of
-    that name."""
-    if net is not None:
-        if not Path(net).is_file():
-            raise InputError(f"--net {net}: file not found")
-        return Path(net)
-    from sumo_scenarios.towns import resolve_net
-
-    try:
-        return resolve_net(town=scene.town)[1]  # a name, never a path out of the towns' folders
-    except InputError:
-        raise InputError(f"scene {scene.scene_id} comes from '{scene.town}', which is not a bundled or imported town; "
-                         "give its SUMO net with --net PATH") from None

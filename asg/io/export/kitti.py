@@ -33,10 +33,8 @@ import yaml
 from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.geometry import wrap_rad
 
-from ...perception.data import in_range
 from ...scene import Scene
-from ...sensors import load_lidar_spec, simulate_frame
-from ...sensors.ego_frame import ego_frame_drop_m
+from .base import EXPORT_FORMATS
 
 #: KITTI's left colour camera intrinsics (sequence 0000 of the object benchmark) and image size
 P2 = np.array([[721.5377, 0.0, 609.5593, 44.85728], [0.0, 721.5377, 172.854, 0.2163791], [0.0, 0.0, 1.0, 0.002745884]])
@@ -50,8 +48,11 @@ OCCLUSION_POINTS = (50, 10, 1)
 POINT_CLOUD_RANGE = [-51.2, -51.2, -3.0, 51.2, 51.2, 1.0]
 
 
+@EXPORT_FORMATS.register("kitti")
 class KittiWriter:
     def __init__(self, out: Path, net: Path | None = None):
+        from ...sensors import load_lidar_spec
+
         self.out = out
         self.spec = load_lidar_spec()
         for sub in ("velodyne", "label_2", "calib", "image_2"):
@@ -63,6 +64,10 @@ class KittiWriter:
         self.lowered_m: dict[str, float] = {}
 
     def write(self, scene: Scene) -> None:
+        from ...perception.data import in_range
+        from ...sensors import simulate_frame
+        from ...sensors.ego_frame import ego_frame_drop_m
+
         name = f"{len(self.ids):06d}"
         frame = simulate_frame(scene, self.spec)
         # the ego view in a frame at a car's sensor height (an RSU's or a truck's raised by this)

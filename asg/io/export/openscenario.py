@@ -19,7 +19,7 @@ from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
 
 from ...scene import Scene
-from . import net_of
+from .base import EXPORT_FORMATS, net_of
 
 #: OpenSCENARIO 1.x minor version written (scenariogeneration ships the 1.0 to 1.3 schemas)
 OSC_MINOR_VERSION = 2
@@ -36,6 +36,7 @@ def entity_name(scene: Scene, agent_id: str) -> str:
     return f"{role}_{agent_id}"
 
 
+@EXPORT_FORMATS.register("openscenario")
 class XoscWriter:
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out

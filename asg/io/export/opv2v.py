@@ -30,19 +30,24 @@ from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.checks import inside
 
 from ...scene import Scene
-from ...sensors import load_lidar_spec, simulate_frame
-from ...sensors.opv2v import agent_views, opencood_ego, opv2v_ids
-from ..pcd import write_pcd_rgb_intensity
+from .base import EXPORT_FORMATS
 
 TIMESTAMP = "000000"
 
 
+@EXPORT_FORMATS.register("opv2v")
 class ScenarioWriter:
     def __init__(self, out: Path, net: Path | None = None):
+        from ...sensors import load_lidar_spec
+
         self.out = out
         self.spec = load_lidar_spec()
 
     def write(self, scene: Scene) -> None:
+        from ...sensors import simulate_frame
+        from ...sensors.opv2v import agent_views, opencood_ego, opv2v_ids
+        from ..pcd import write_pcd_rgb_intensity
+
         frame = simulate_frame(scene, self.spec)
         ids = opv2v_ids(scene, frame.sensing_ids)
         folder = inside(self.out, self.out / scene.scene_id)

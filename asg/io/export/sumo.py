@@ -22,7 +22,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.geometry import heading_gap_rad
 
 from ...scene import Scene
-from . import net_of
+from .base import EXPORT_FORMATS, net_of
 
 #: edges on each vehicle's route (its own, then the first permitted successors)
 ROUTE_EDGES = 12
@@ -33,6 +33,7 @@ STEP_S = 0.1
 STATE_TIME_S = 0.1
 
 
+@EXPORT_FORMATS.register("sumo")
 class RoutesWriter:
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out
