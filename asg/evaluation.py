@@ -9,6 +9,7 @@ from typing import Callable, Iterable
 
 from .datasets import scenes_of
 from .objective.ap import Yardstick, ap_by_method_from_matches, frame_matches
+from .objective.pooled import PooledAP
 from .perception.data import Sample
 from .perception.fusion import V2XDetector, build_detector
 from .scene import Scene
@@ -21,7 +22,7 @@ def scored(frames: list[tuple], keep_matches: bool = False) -> dict:
     ``keep_matches`` also "matches": each frame's FrameMatches (for a paired interval)."""
     matches = [frame_matches(f) for f in frames]
     both = ap_by_method_from_matches(matches)
-    result = {"ap": both[Yardstick.GLOBAL], "ap_per_frame": both[Yardstick.PER_FRAME], "frames": len(frames)}
+    result = PooledAP(both[Yardstick.GLOBAL], both[Yardstick.PER_FRAME]).to_json() | {"frames": len(frames)}
     return result | {"matches": matches} if keep_matches else result
 
 

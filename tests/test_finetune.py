@@ -55,9 +55,9 @@ def test_finetune_trains_evaluates_and_keeps_the_shipped_weights(tmp_path, data_
     assert card["trained"]["steps"] == 2 and card["trained"]["examples"] == {"challenging-attfuse-train": 6, "normal": 6}
     assert set(card["evaluation"]) == {"normal-val", "challenging-attfuse-val"}
     for row in card["evaluation"].values():
-        assert row["frames"] == 1 and set(row["before"]) == set(row["after"]) == {"0.3", "0.5", "0.7"}
+        assert row["frames"] == 1 and set(row["before"]["ap"]) == set(row["after"]["ap"]) == {"0.3", "0.5", "0.7"}
         # the paper's yardstick beside ours (one frame: the same ranking, so the same AP)
-        assert row["per_frame"] == {"before": row["before"], "after": row["after"]}
+        assert all(row[when]["ap_per_frame"] == row[when]["ap"] for when in ("before", "after"))
     assert not (out / "last.pt").exists()
     # a rerun finds everything done and changes nothing; other settings are refused
     assert finetune("attfuse", "challenging-attfuse-train", out, config=TINY, stages=("train", "evaluate"),

@@ -54,10 +54,10 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     assert [r["round"] for r in card["rounds"]] == [0, 1, 2]
     for row in card["rounds"]:
         assert set(row["evaluation"]) == {"normal-val", "challenging-attfuse-val"}
-        assert all(0.0 <= row["evaluation"][s]["0.7"] <= 1.0 for s in row["evaluation"])
+        assert all(0.0 <= row["evaluation"][s]["ap"]["0.7"] <= 1.0 for s in row["evaluation"])
         # the paper's yardstick recorded beside ours (one frame a set: the same ranking, the same AP)
-        assert all(row["evaluation"][s]["per_frame"] == {t: row["evaluation"][s][t] for t in ("0.3", "0.5", "0.7")}
-                   for s in row["evaluation"])
+        assert all(set(row["evaluation"][s]) == {"ap", "ap_per_frame", "frames"}
+                   and row["evaluation"][s]["ap_per_frame"] == row["evaluation"][s]["ap"] for s in row["evaluation"])
     r1, r2 = card["rounds"][1:]
     assert r1["data"]["kind"] == "adversarial" and r1["data"]["scenes"] == 1
     assert r2["trained"]["examples"] == {"round-1": 3, "round-2": 3, "normal": 6}  # keep_previous, 3 views a scene
@@ -92,7 +92,7 @@ def test_the_report_shows_a_hardening_run_round_by_round(capsys, tmp_path, data_
     assert page.count("<tr><td>") == 3 and page.count("<img") == 1  # rounds 0, 1, 2; AP by round and the curves
     capsys.readouterr()
     card = json.loads((out / "card.json").read_text())
-    card["rounds"][1]["evaluation"]["normal-val"]["0.7"] = "<script>alert(1)</script>"
+    card["rounds"][1]["evaluation"]["normal-val"]["ap"]["0.7"] = "<script>alert(1)</script>"
     (out / "card.json").write_text(json.dumps(card))
     code, err = run(capsys, "report", str(out))
     assert code == 2
@@ -211,13 +211,13 @@ def test_the_finetune_table_gains_a_row_per_round_of_each_kind_of_data(tmp_path,
         card = json.loads((tmp_path / "tables" / "harden" / data / "card.json").read_text())
         assert card["data"] == data
         row = next(r for r in added if r["model"] == f"harden-{data}-r1" and r["set"] == "normal-val")
-        assert row["ap"] == {t: card["rounds"][1]["evaluation"]["normal-val"][t] for t in ("0.3", "0.5", "0.7")}
+        assert row["ap"] == card["rounds"][1]["evaluation"]["normal-val"]["ap"]
     assert "harden-random-r1" in (tmp_path / "tables" / "finetune.md").read_text()
     # the paper's yardstick: the same runs (resumed, nothing run again), the rows from each card's per-frame AP
     per_frame = run_table("finetune", replace(run, ap_method="per-frame"), log=_quiet)["rows"]
     card = json.loads((tmp_path / "tables" / "harden" / "adversarial" / "card.json").read_text())
     row = next(r for r in per_frame if r["model"] == "harden-adversarial-r1" and r["set"] == "own-attack-val")
-    assert row["ap"] == card["rounds"][1]["reattack"]["per_frame"]["challenging"]
+    assert row["ap"] == card["rounds"][1]["reattack"]["challenging"]["ap_per_frame"]
     assert (tmp_path / "tables" / "finetune.per-frame.md").is_file()
 
 
@@ -266,11 +266,12 @@ def test_round_zeros_reattack_is_scored_by_todays_code(data_root):
     index = json.loads(index_path.read_text())
     index["ap_challenging"] = {"0.3": 0.11, "0.5": 0.11, "0.7": 0.11}  # as scored by older meshes
     index_path.write_text(json.dumps(index))
-    evaluation = {"normal-val": {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7, "frames": 1},
-                  "challenging-attfuse-val": {"0.3": 0.6, "0.5": 0.5, "0.7": 0.4, "frames": 1}}
+    normal, attacked = {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7}, {"0.3": 0.6, "0.5": 0.5, "0.7": 0.4}
+    evaluation = {"normal-val": {"ap": normal, "ap_per_frame": normal, "frames": 1},
+                  "challenging-attfuse-val": {"ap": attacked, "ap_per_frame": attacked, "frames": 1}}
     got = reattack_round("attfuse", None, data_root / "unused", None, None, _quiet, evaluation)
-    assert got == {"frames": 1, "normal": {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7},
-                   "challenging": {"0.3": 0.6, "0.5": 0.5, "0.7": 0.4}}
+    assert got == {"frames": 1, "normal": {"ap": normal, "ap_per_frame": normal},
+                   "challenging": {"ap": attacked, "ap_per_frame": attacked}}
     assert not (data_root / "unused").exists()  # nothing attacked
 
 
@@ -281,8 +282,7 @@ def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_roo
     first = harden("attfuse", 1, tmp_path / "first", config=replace(TINY, reattack=True), detector_factory=ORACLE,
                    log=_quiet)
     assert not (tmp_path / "first" / "round-0" / "reattack").exists()
-    assert first["rounds"][0]["reattack"]["challenging"] == {
-        t: first["rounds"][0]["evaluation"]["challenging-attfuse-val"][t] for t in ("0.3", "0.5", "0.7")}
+    assert first["rounds"][0]["reattack"]["challenging"]["ap"] == first["rounds"][0]["evaluation"]["challenging-attfuse-val"]["ap"]
     card = harden("attfuse", 1, tmp_path / "next", weights=tmp_path / "first" / "card.json",
                   config=replace(TINY, reattack=True, pool=("normal",)), detector_factory=ORACLE, log=_quiet)
     assert (tmp_path / "next" / "round-0" / "reattack" / "index.json").is_file()

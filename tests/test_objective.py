@@ -137,3 +137,21 @@ def test_an_unknown_ap_method_is_one_line():
 
     with pytest.raises(InputError, match="per-frame"):
         average_precision([], 0.5, "sorted")
+
+
+def test_a_pooled_ap_reads_every_form_a_card_has_held():
+    """Today's form ({"ap", "ap_per_frame"}) round-trips; cards written before it (AP by threshold at
+    the top, the paper's under "per_frame"; a data set's index with "ap_normal") read the same."""
+    from asg.objective.pooled import REATTACK_PAIR, PooledAP, pair_json, pooled_pair
+
+    ours, paper = {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7}, {"0.3": 0.8, "0.5": 0.7, "0.7": 0.6}
+    pooled = PooledAP(ours, paper)
+    assert PooledAP.from_json(pooled.to_json()) == pooled
+    assert pooled.of("global") == ours and pooled.of("per-frame") == paper and pooled.text() == "70.0 / 60.0"
+    assert PooledAP.from_json(ours | {"frames": 3, "per_frame": paper}) == pooled
+    assert PooledAP.from_json(ours) == PooledAP(ours, None) and PooledAP(ours).text() == "70.0 / -"
+    new = {"frames": 3, **pair_json({"normal": pooled, "challenging": PooledAP(paper, ours)})}
+    old_card = {"frames": 3, "normal": ours, "challenging": paper, "per_frame": {"normal": paper, "challenging": ours}}
+    old_index = {"ap_normal": ours, "ap_challenging": paper, "per_frame": {"ap_normal": paper, "ap_challenging": ours}}
+    assert pooled_pair(new, REATTACK_PAIR) == pooled_pair(old_card, REATTACK_PAIR) == pooled_pair(old_index, REATTACK_PAIR)
+    assert pooled_pair({"normal": ours, "challenging": paper}, REATTACK_PAIR)["normal"].ap_per_frame is None

@@ -28,6 +28,7 @@ from sumo_scenarios.errors import InputError
 from ..objective import AP_KEYS
 from ..registry import Registry
 from ..objective.ap import DEFAULT_AP_METHOD, Yardstick, check_ap_method
+from ..objective.pooled import REATTACK_PAIR, PooledAP, pooled_pair
 from . import paper_figures as paper
 
 #: the four shipped models of the paper, in its order
@@ -158,19 +159,19 @@ def harden_rows(run: TableRun) -> list[dict]:
                       executor=run.executor, detector_factory=run.detector_factory, log=lambda *_: None)
         for row in card["rounds"][1:]:
             model = f"harden-{data}-r{row['round']}"
-            if run.ap_method != DEFAULT_AP_METHOD and not all(
-                    "per_frame" in ev for ev in [*row["evaluation"].values(), *([row["reattack"]] if row.get("reattack") else [])]):
+            aps = {set_: PooledAP.from_json(ev).of(run.ap_method) for set_, ev in row["evaluation"].items()}
+            if row.get("reattack"):
+                aps["own-attack-val"] = pooled_pair(row["reattack"], REATTACK_PAIR)["challenging"].of(run.ap_method)
+            if any(ap is None for ap in aps.values()):
                 raise InputError(f"{run.out / 'harden' / data / 'card.json'} was written before asg harden recorded "
                                  "the paper's yardstick; give another --out, or leave out --ap-method")
             for set_, ev in row["evaluation"].items():
                 key = "challenging-val" if set_.startswith("challenging-") else set_
-                ap = ev if run.ap_method == DEFAULT_AP_METHOD else ev["per_frame"]
                 rows.append({"model": model, "set": key, "scenes_from": set_, "frames": ev["frames"],
-                             "ap": {t: ap[t] for t in THRESHOLDS}, "paper": None})
+                             "ap": {t: aps[set_][t] for t in THRESHOLDS}, "paper": None})
             if row.get("reattack"):
-                re_ = row["reattack"] if run.ap_method == DEFAULT_AP_METHOD else row["reattack"]["per_frame"]
                 rows.append({"model": model, "set": "own-attack-val", "scenes_from": f"harden/{data}/round-{row['round']}/reattack", "frames": row["reattack"]["frames"],
-                             "ap": re_["challenging"], "paper": None})
+                             "ap": aps["own-attack-val"], "paper": None})
     return rows
 
 
@@ -304,7 +305,7 @@ def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
         run.scored[key] = evaluate(model, set_name, limit=run.scenes, executor=run.executor,
                                    detector_factory=run.detector_factory)
     res = run.scored[key]
-    ap = res["ap"] if run.ap_method == DEFAULT_AP_METHOD else res["ap_per_frame"]
+    ap = PooledAP.from_result(res).of(run.ap_method)
     return {"ap": {k: round(v, 6) for k, v in ap.items()}, "frames": res["frames"]}
 
 

@@ -17,7 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..objective import ap_text, both_yardsticks  # noqa: E402
+from ..objective import ap_text  # noqa: E402
+from ..objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pooled_pair  # noqa: E402
 from sumo_scenarios.errors import InputError  # noqa: E402
 
 from ..io.curves import LOSS_CURVE, read_loss_curve  # noqa: E402
@@ -59,9 +60,8 @@ def _harden(folder: Path, img: Callable, table: Callable) -> str:
         ev, re_ = r.get("evaluation", {}), r.get("reattack")
         reattacked = "-"
         if re_:
-            per_frame = re_.get("per_frame") or {}
-            reattacked = (f"{both_yardsticks(re_['normal'], per_frame.get('normal'))} -> "
-                          f"{both_yardsticks(re_['challenging'], per_frame.get('challenging'))}")
+            pair = pooled_pair(re_, REATTACK_PAIR)
+            reattacked = f"{pair['normal'].text()} -> {pair['challenging'].text()}"
         trained = r.get("trained") or {}
         rows.append([str(int(r["round"])), str((r.get("data") or {}).get("kind", "start weights")),
                      str(trained.get("steps", "-")), *[_both(ev.get(s)) for s in sets], reattacked])
@@ -94,17 +94,16 @@ def _harden(folder: Path, img: Callable, table: Callable) -> str:
 
 def _finetune(folder: Path, img: Callable, table: Callable) -> str:
     name, card = _finetune_card(folder)
-    rows = [[s, str(v.get("frames", "-")), ap_text(v.get("before")), ap_text(v.get("after")),
-             both_yardsticks(v.get("before"), (v.get("per_frame") or {}).get("before")),
-             both_yardsticks(v.get("after"), (v.get("per_frame") or {}).get("after"))]
-            for s, v in sorted((card.get("evaluation") or {}).items())]
+    rows = []
+    for s, v in sorted((card.get("evaluation") or {}).items()):
+        pair = pooled_pair(v, FINETUNE_PAIR)
+        rows.append([s, str(v.get("frames", "-")), *(ap_text(p and p.ap) for p in pair.values()),
+                     *(p.text() if p else "-" for p in pair.values())])
     re_ = card.get("reattack")
     if re_:
-        mine = re_.get("finetuned") or re_  # a harden card keeps "normal" and "challenging" at the top
-        per_frame = mine.get("per_frame") or {}
-        rows.append(["re-attacked on normal-val", str(re_.get("frames", "-")), ap_text(mine.get("normal")),
-                     ap_text(mine.get("challenging")), both_yardsticks(mine.get("normal"), per_frame.get("ap_normal")),
-                     both_yardsticks(mine.get("challenging"), per_frame.get("ap_challenging"))])
+        mine = pooled_pair(re_.get("finetuned") or re_, REATTACK_PAIR)  # a harden card keeps them at the top
+        rows.append(["re-attacked on normal-val", str(re_.get("frames", "-")),
+                     *(ap_text(p and p.ap) for p in mine.values()), *(p.text() if p else "-" for p in mine.values())])
     curve = read_loss_curve(folder / LOSS_CURVE)
     chart = ""
     if curve:
@@ -137,11 +136,11 @@ def _json(path: Path):
         return None
 
 
-def _num(ap) -> float:
-    """AP@0.7 in % of a result mapping, NaN when missing (a gap in a chart)."""
-    return 100 * float(ap["0.7"]) if ap else float("nan")
+def _num(record) -> float:
+    """AP@0.7 (ours) in % of a pooled AP's record, NaN when missing (a gap in a chart)."""
+    return 100 * float(PooledAP.from_json(record).ap["0.7"]) if record else float("nan")
 
 
-def _both(ap) -> str:
-    """AP@0.7 of an evaluation result, ours / per frame (its "per_frame"), or "-"."""
-    return both_yardsticks(ap, ap.get("per_frame")) if ap else "-"
+def _both(record) -> str:
+    """AP@0.7 of a pooled AP's record, ours / per frame, or "-"."""
+    return PooledAP.from_json(record).text() if record else "-"

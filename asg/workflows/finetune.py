@@ -35,6 +35,7 @@ from ..cli_args import COUNT, executor_from_args, fusion_arg, training_run_args
 from ..datasets import iter_frames
 from ..io.curves import LOSS_CURVE, LossCurve
 from ..io.run_record import claim
+from ..objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..sensors import load_lidar_spec
 from ..training.checkpoint import load_checkpoint
 from ..perception.data import Augmentation, make_sample
@@ -196,30 +197,29 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
 
 def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, fcfg: FinetuneConfig, cache: Path,
                           executor, log: Callable[[str], None]) -> dict:
-    """{set: {"before": AP, "after": AP, "frames": N, "per_frame": {"before", "after"}}} on each eval
-    set and the original model's challenging val set (built if missing), AP by threshold ours and
-    ranked per frame (the paper's yardstick); each result cached in ``cache`` (one cached before the
-    paper's yardstick was recorded is evaluated again)."""
+    """{set: {"before", "after": a pooled AP each ({"ap", "ap_per_frame"}: AP by threshold ours and
+    ranked per frame, the paper's yardstick), "frames": N}} on each eval set and the original
+    model's challenging val set (built if missing); each result cached in ``cache`` (one cached
+    before the paper's yardstick was recorded is evaluated again)."""
     from .challenging import own_val_set
     from ..evaluation import evaluate
 
     own_val = own_val_set(fusion, executor, log)
     table = {}
     for set_name_ in (*fcfg.eval_sets, own_val):
-        row = {"per_frame": {}}
-        for when, path in (("before", start), ("after", ft_weights)):
+        row = {}
+        for when, path in zip(FINETUNE_PAIR, (start, ft_weights)):
             hit = cache / f"{when}-{set_name_}.json"
             result = json.loads(hit.read_text()) if hit.is_file() else {}
             if "ap_per_frame" not in result:
                 result = evaluate(fusion, set_name_, weights_file=str(path), executor=executor)
-                result = {"ap": result["ap"], "ap_per_frame": result["ap_per_frame"], "frames": result["frames"]}
+                result = PooledAP.from_result(result).to_json() | {"frames": result["frames"]}
                 cache.mkdir(parents=True, exist_ok=True)
                 write_text_atomic(hit, json.dumps(result))
-            row[when] = {k: round(v, 4) for k, v in result["ap"].items()}
-            row["per_frame"][when] = {k: round(v, 4) for k, v in result["ap_per_frame"].items()}
+            row[when] = PooledAP.from_result(result).to_json(4)
             row["frames"] = result["frames"]
-        log(f"{set_name_}: AP@0.7 {row['before']['0.7']:.3f} -> {row['after']['0.7']:.3f} (per frame "
-            f"{row['per_frame']['before']['0.7']:.3f} -> {row['per_frame']['after']['0.7']:.3f})")
+        pair = pooled_pair(row, FINETUNE_PAIR)
+        log(f"{set_name_}: AP@0.7 ours / per frame {pair['before'].text()} -> {pair['after'].text()}")
         table[set_name_] = row
     return table
 
@@ -236,8 +236,7 @@ def reattack(fusion: str, ft_weights: Path, out: Path, executor, log: Callable[[
     original = json.loads((data_root() / set_name(fusion, "val") / "index.json").read_text())
 
     def both(index: dict) -> dict:  # ours, and per frame where the set recorded it
-        return {"normal": index["ap_normal"], "challenging": index["ap_challenging"]} | (
-            {"per_frame": index["per_frame"]} if "per_frame" in index else {})
+        return pair_json(pooled_pair(index, REATTACK_PAIR))
 
     return {"frames": mine["frames"], "finetuned": both(mine),
             # the original model's own attack: the challenging val set made against it
@@ -269,7 +268,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
-    from ..objective import ap_text, both_yardsticks
+    from ..objective import ap_text
     from ..perception import check_weights_file
     from ..progress import console, loss_progress, progress_bar, stdout
 
@@ -292,17 +291,15 @@ def run(args: argparse.Namespace) -> int:
     for col in ("set", "frames", "before", "after", "before @0.7", "after @0.7"):
         table.add_column(col, justify="left" if col == "set" else "right")
     for set_name_, row in card.get("evaluation", {}).items():
-        per_frame = row.get("per_frame", {})
-        table.add_row(set_name_, str(row["frames"]), ap_text(row["before"]), ap_text(row["after"]),
-                      both_yardsticks(row["before"], per_frame.get("before")),
-                      both_yardsticks(row["after"], per_frame.get("after")))
+        pair = pooled_pair(row, FINETUNE_PAIR)
+        table.add_row(set_name_, str(row["frames"]), ap_text(pair["before"].ap), ap_text(pair["after"].ap),
+                      pair["before"].text(), pair["after"].text())
     if "reattack" in card:
         r = card["reattack"]
-        original, finetuned = r["original"], r["finetuned"]
-        table.add_row("own attack on normal-val", str(r["frames"]), ap_text(original["challenging"]),
-                      ap_text(finetuned["challenging"]),
-                      both_yardsticks(original["challenging"], original.get("per_frame", {}).get("ap_challenging")),
-                      both_yardsticks(finetuned["challenging"], finetuned.get("per_frame", {}).get("ap_challenging")))
+        original = pooled_pair(r["original"], REATTACK_PAIR)["challenging"]
+        finetuned = pooled_pair(r["finetuned"], REATTACK_PAIR)["challenging"]
+        table.add_row("own attack on normal-val", str(r["frames"]), ap_text(original.ap), ap_text(finetuned.ap),
+                      original.text(), finetuned.text())
     stdout.print(table)
     console.print(f"weights and card: {card.get('weights')} in {args.out or default_out(args.fusion)}")
     return 0

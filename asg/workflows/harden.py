@@ -42,7 +42,7 @@ from . import MAX_ROUNDS
 from ..cli_args import executor_from_args, fusion_arg, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
 from ..io.run_record import claim
-from ..objective.ap import AP_KEYS, both_yardsticks
+from ..objective.pooled import REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
 from ..perception.weights_io import weights_path
 from ..scene import Scene, load_scene
@@ -130,6 +130,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
         "rounds": []}
+    card["rounds"] = upgraded_rounds(card["rounds"])
     current, current_round = start, 0  # the weights the next round starts from, and their round
     shipped_start = settings["start_sha256"] == file_digest(_start_weights(None, fusion, name))
     for k in range(rounds + 1):
@@ -344,11 +345,11 @@ def random_draw(scene: Scene, gen_cfg, seed: int) -> Scene:
 
 def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, executor,
                    log: Callable[[str], None]) -> dict:
-    """{set: {"0.3", "0.5", "0.7": AP (ours, the global sort), "frames": N, "per_frame": {"0.3",
-    "0.5", "0.7": AP ranked per frame (the paper's yardstick)}}} of ``weights`` on the fixed
-    evaluation sets and the guard set, each result cached in ``cache`` (a cached result without the
-    paper's yardstick, from before it was recorded, is evaluated again), the guard set's per-frame
-    matches beside it (``SET.matches.npz``, for the guard's paired interval)."""
+    """{set: {"ap", "ap_per_frame": AP by threshold, ours and the paper's (a pooled AP,
+    asg.objective.pooled), "frames": N}} of ``weights`` on the fixed evaluation sets and the guard
+    set, each result cached in ``cache`` (a cached result without the paper's yardstick, from before
+    it was recorded, is evaluated again), the guard set's per-frame matches beside it
+    (``SET.matches.npz``, for the guard's paired interval)."""
     from .challenging import own_val_set
     from ..evaluation import evaluate
     from ..objective.paired import save_matches
@@ -362,22 +363,35 @@ def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, e
         hit, matches = cache / f"{label}.json", cache / f"{label}.matches.npz"
         guarded = label == cfg.guard_set
         if hit.is_file():
-            table[label] = json.loads(hit.read_text())
-            if "per_frame" in table[label] and (matches.is_file() or not guarded):
+            cached = json.loads(hit.read_text())
+            pooled = PooledAP.from_json(cached)
+            if pooled.ap_per_frame is not None and (matches.is_file() or not guarded):
+                table[label] = pooled.to_json() | {"frames": cached["frames"]}
                 continue
         result = evaluate(fusion, set_arg, weights_file=str(weights), executor=executor, keep_matches=guarded)
-        table[label] = _rounded(result["ap"]) | {"frames": result["frames"], "per_frame": _rounded(result["ap_per_frame"])}
+        pooled = PooledAP.from_result(result)
+        table[label] = pooled.to_json(4) | {"frames": result["frames"]}
         cache.mkdir(parents=True, exist_ok=True)
         if guarded:
             save_matches(matches, result["matches"])
         write_text_atomic(hit, json.dumps(table[label]))
-        log(f"  {label}: AP@0.7 {table[label]['0.7']:.3f}, per frame {table[label]['per_frame']['0.7']:.3f} "
-            f"({result['frames']} frames)")
+        log(f"  {label}: AP@0.7 ours / per frame {pooled.text()} ({result['frames']} frames)")
     return table
 
 
-def _rounded(ap: dict[str, float]) -> dict[str, float]:
-    return {k: round(v, 4) for k, v in ap.items()}
+def upgraded_rounds(rounds: list[dict]) -> list[dict]:
+    """A card's rounds with every pooled AP in today's form (``{"ap", "ap_per_frame"}``): cards
+    written before it kept AP by threshold at the top and the paper's under "per_frame"."""
+    out = []
+    for row in rounds:
+        row = dict(row)
+        row["evaluation"] = {s: PooledAP.from_json(ev).to_json() | {"frames": ev["frames"]}
+                             for s, ev in row.get("evaluation", {}).items()}
+        if row.get("reattack"):
+            row["reattack"] = {"frames": row["reattack"]["frames"],
+                               **pair_json(pooled_pair(row["reattack"], REATTACK_PAIR))}
+        out.append(row)
+    return out
 
 
 def noisy_val_set() -> Path:
@@ -391,10 +405,9 @@ def noisy_val_set() -> Path:
 
 def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detector_factory: str | None,
                    log: Callable[[str], None], evaluation: dict) -> dict:
-    """The paper's protocol on normal-val against ``weights``: {"frames", "normal", "challenging"}
-    AP by threshold (ours), and "per_frame": {"normal", "challenging"} ranked per frame (the
-    paper's yardstick; absent for a set built before it was recorded) (round 0 from other than the
-    shipped weights: those weights attacked).
+    """The paper's protocol on normal-val against ``weights``: {"frames", "normal", "challenging"},
+    each a pooled AP (``{"ap", "ap_per_frame"}``; the paper's yardstick None for a set built before
+    it was recorded) (round 0 from other than the shipped weights: those weights attacked).
     None: the shipped weights, whose own attack is challenging-F-val; its AP is taken from
     the round's ``evaluation`` (scored by today's code), not from the AP the set's index recorded
     when it was built (older meshes or detectors give another figure for the same scenes); its
@@ -405,23 +418,15 @@ def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detec
     if weights is None:
         own = set_name(fusion, "val")
         index = json.loads((data_root() / own / "index.json").read_text())
-        scored = {"frames": evaluation[own]["frames"],
-                  "challenging": {t: evaluation[own][t] for t in AP_KEYS}}
-        per_frame = {"normal": index.get("per_frame", {}).get("ap_normal"),
-                     "challenging": evaluation[own].get("per_frame")}
-        if "normal-val" in evaluation:
-            scored["normal"] = {t: evaluation["normal-val"][t] for t in AP_KEYS}
-            per_frame["normal"] = evaluation["normal-val"].get("per_frame")
-        if all(per_frame.values()):
-            scored["per_frame"] = per_frame
-        return {"normal": index["ap_normal"]} | scored
+        normal = (PooledAP.from_json(evaluation["normal-val"]) if "normal-val" in evaluation
+                  else pooled_pair(index, REATTACK_PAIR)["normal"])
+        return {"frames": evaluation[own]["frames"],
+                **pair_json({"normal": normal, "challenging": PooledAP.from_json(evaluation[own])})}
     log(f"re-attacking {weights} on normal-val ...")
     built = build_challenging(fusion, "val", executor=executor, weights_file=str(weights), out=out,
                               detector_factory=detector_factory)
     index = json.loads((built / "index.json").read_text())
-    per_frame = index.get("per_frame")
-    return {"frames": index["frames"], "normal": index["ap_normal"], "challenging": index["ap_challenging"]} | (
-        {"per_frame": {"normal": per_frame["ap_normal"], "challenging": per_frame["ap_challenging"]}} if per_frame else {})
+    return {"frames": index["frames"], **pair_json(pooled_pair(index, REATTACK_PAIR))}
 
 
 def _save_scenes(scenes: list[Scene], folder: Path) -> None:
@@ -479,10 +484,9 @@ def run(args: argparse.Namespace) -> int:
     for col in ("round", *sets, *(["re-attacked"] if rows and "reattack" in rows[0] else [])):
         table.add_column(col, justify="right")
     for row in rows:
-        cells = [both_yardsticks(row["evaluation"][s], row["evaluation"][s].get("per_frame")) for s in sets]
+        cells = [PooledAP.from_json(row["evaluation"][s]).text() for s in sets]
         if "reattack" in row:
-            cells.append(both_yardsticks(row["reattack"]["challenging"],
-                                         row["reattack"].get("per_frame", {}).get("challenging")))
+            cells.append(pooled_pair(row["reattack"], REATTACK_PAIR)["challenging"].text())
         table.add_row(str(row["round"]) + ("" if not row["round"] or is_kept(row) else " (not kept)"), *cells)
     stdout.print(table)
     kept = card.get("weights")

@@ -5,15 +5,17 @@ usage: .venv/bin/python docs/experiments/harden_table.py runs/harden/attfuse/car
 import json
 import sys
 
+from asg.objective.pooled import REATTACK_PAIR, PooledAP, pooled_pair
+
 
 def rows(path: str) -> list[list[str]]:
     card = json.load(open(path))
     out = []
     for row in card["rounds"]:
-        ev = row["evaluation"]
+        ev = {s: PooledAP.from_json(v).ap for s, v in row["evaluation"].items()}  # any card's form
         cells = [card["data"], str(row["round"])] + [f"{100 * ev[s]['0.7']:.1f}" for s in SETS if s in ev]
-        re = row.get("reattack")
-        cells.append(f"{100 * re['normal']['0.7']:.1f} -> {100 * re['challenging']['0.7']:.1f}" if re else "")
+        re = pooled_pair(row["reattack"], REATTACK_PAIR) if row.get("reattack") else None
+        cells.append(f"{100 * re['normal'].ap['0.7']:.1f} -> {100 * re['challenging'].ap['0.7']:.1f}" if re else "")
         trained = row.get("trained") or {}
         cells.append(f"{trained['steps']} steps, {trained['wall_s'] / 60:.1f} min" if trained
                      else ("start weights" if row["round"] == 0 else "not recorded"))

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 from asg.generator.run import file_digest
-from asg.objective.ap import AP_KEYS
+from asg.objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from asg.perception.weights_io import WEIGHTS_DIR
 
 
@@ -39,12 +39,11 @@ def main(card_path: str, k: str, command: str) -> None:
     from asg.workflows.harden import noisy_val_set
 
     evaluation = {}
-    for set_name, after in done["evaluation"].items():
+    for set_name, record in done["evaluation"].items():
         where = str(noisy_val_set()) if set_name == "normal-val-noisy" else set_name
-        before = evaluate("attfuse", where)["ap"]
-        print(f"{set_name}: attfuse AP@0.7 {before['0.7']:.4f} -> {after['0.7']:.4f}")
-        evaluation[set_name] = {"before": {t: before[t] for t in AP_KEYS},
-                                "after": {t: after[t] for t in AP_KEYS}, "frames": after["frames"]}
+        before, after = PooledAP.from_result(evaluate("attfuse", where)), PooledAP.from_json(record)
+        print(f"{set_name}: attfuse AP@0.7 ours / per frame {before.text()} -> {after.text()}")
+        evaluation[set_name] = pair_json(dict(zip(FINETUNE_PAIR, (before, after))), 4) | {"frames": record["frames"]}
     shipped = {
         "weights": "attfuse-ft.pt", "fusion": "attfuse",
         "start": {"weights": "attfuse.pt", "sha256": file_digest(WEIGHTS_DIR / "attfuse.pt")},
@@ -54,7 +53,7 @@ def main(card_path: str, k: str, command: str) -> None:
         **({"earlier": earlier} if earlier else {}),
         "evaluation": evaluation,
         "reattack": {"frames": done["reattack"]["frames"],
-                     "finetuned": {"normal": done["reattack"]["normal"], "challenging": done["reattack"]["challenging"]},
+                     "finetuned": pair_json(pooled_pair(done["reattack"], REATTACK_PAIR)),
                      "original": {"weights": "shipped", "normal": evaluation["normal-val"]["before"],
                                   "challenging": evaluation["challenging-attfuse-val"]["before"]}},
         "command": command,
