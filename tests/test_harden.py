@@ -264,7 +264,7 @@ def test_round_zeros_reattack_is_scored_by_todays_code(data_root):
 
     index_path = data_root / "challenging-attfuse-val" / "index.json"
     index = json.loads(index_path.read_text())
-    index["ap_challenging"] = {"0.3": 0.11, "0.5": 0.11, "0.7": 0.11}  # as scored by older meshes
+    index["challenging"]["ap"] = {"0.3": 0.11, "0.5": 0.11, "0.7": 0.11}  # as scored by older meshes
     index_path.write_text(json.dumps(index))
     normal, attacked = {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7}, {"0.3": 0.6, "0.5": 0.5, "0.7": 0.4}
     evaluation = {"normal-val": {"ap": normal, "ap_per_frame": normal, "frames": 1},

@@ -9,6 +9,7 @@ from sumo_scenarios.errors import InputError
 
 from ..cli_args import COUNT, executor_args, executor_from_args, fusion_arg
 from ..objective import ap_text
+from ..objective.pooled import REATTACK_PAIR, pooled_pair
 from ..progress import console, progress_bar
 
 
@@ -47,10 +48,9 @@ def _build_challenging(args: argparse.Namespace) -> int:
         out = build_challenging(args.fusion, args.split, executor, args.count,
                                 on_scene=lambda done, total, sid: bar.update(task, completed=done, total=total))
     index = json.loads((out / "index.json").read_text())
-    console.print(f"wrote {out}: {index['frames']} scenes; AP normal {ap_text(index['ap_normal'])} -> "
-                  f"challenging {ap_text(index['ap_challenging'])}")
-    per_frame = index.get("per_frame")
-    if per_frame:
-        console.print(f"  by the paper's yardstick (per frame): {ap_text(per_frame['ap_normal'])} -> "
-                      f"{ap_text(per_frame['ap_challenging'])}")
+    pair = pooled_pair(index, REATTACK_PAIR)
+    console.print(f"wrote {out}: {index['frames']} scenes; AP normal {ap_text(pair['normal'].ap)} -> "
+                  f"challenging {ap_text(pair['challenging'].ap)}")
+    console.print(f"  by the paper's yardstick (per frame): {ap_text(pair['normal'].ap_per_frame)} -> "
+                  f"{ap_text(pair['challenging'].ap_per_frame)}")
     return 0

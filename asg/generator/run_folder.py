@@ -29,6 +29,7 @@ from sumo_scenarios.atomic import atomic_dir, atomic_path, write_text_atomic
 from sumo_scenarios.checks import inside
 
 from ..objective import AP_KEYS, ap_text
+from ..objective.pooled import PooledAP
 from ..objective.ap import (AP_METHODS, DEFAULT_AP_METHOD, Yardstick, FrameMatches, ap_by_method_from_matches,
                             check_ap_method, frame_matches)
 from .pipeline import SceneResult
@@ -170,6 +171,12 @@ def aggregate_ap(aggregate: dict, stage_key: str, method: str = DEFAULT_AP_METHO
     if check_ap_method(method) == DEFAULT_AP_METHOD:
         return aggregate.get(stage_key)
     return aggregate.get("by_method", {}).get(method, {}).get(stage_key)
+
+
+def aggregate_pooled(aggregate: dict, stage: Stage) -> PooledAP | None:
+    """A summary aggregate's pooled AP of ``stage`` under both yardsticks (None: not recorded)."""
+    ap = aggregate_ap(aggregate, stage.pooled_key)
+    return None if ap is None else PooledAP(ap, aggregate_ap(aggregate, stage.pooled_key, Yardstick.PER_FRAME))
 
 
 def mean_ap(entries: list[dict], key: str) -> dict[str, float]:

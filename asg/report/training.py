@@ -7,7 +7,6 @@ escaped; a file that is not what asg wrote ends in one InputError (asg.report.pa
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 from typing import Callable
 

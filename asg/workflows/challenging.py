@@ -20,7 +20,8 @@ from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ..datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
-from ..objective.ap import DEFAULT_AP_METHOD, Yardstick
+from ..objective.ap import DEFAULT_AP_METHOD
+from ..objective.pooled import pair_json
 from ..scene import load_scene
 
 #: the split of the normal set each challenging set is generated from
@@ -45,7 +46,8 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT). A set attacked
     against shipped weights that have changed since is generated again."""
     from ..generator.run import SceneSource, made_with_other_shipped_weights, open_run
-    from ..generator.run_folder import load_done
+    from ..generator.run_folder import aggregate_pooled, load_done
+    from ..generator.stages import Stage
     from ..generator.config import load_generate_config
     from ..perception import check_fusion
 
@@ -85,8 +87,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     index = {"name": out.name, "frames": len(ids), "splits": {split: ids},
              "source": {"set": "normal", "split": split, **attacked, "seed": SEED,
                         "skipped": [sid for sid, _ in run.skipped]},
-             "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"],
-             "per_frame": {k: agg["by_method"][Yardstick.PER_FRAME][k] for k in ("ap_normal", "ap_challenging")}}
+             **pair_json({"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)})}
     write_text_atomic(out / "index.json", json.dumps(index, indent=1))
     return out
 

@@ -296,6 +296,9 @@ def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfi
     if cfg.data == "random":
         made = [random_draw(s, gen_cfg, ATTACK_SEED) for s in scenes]
         return made, {"kind": "random", "scenes": len(made), "moved": sum(m is not s for m, s in zip(made, scenes))}
+    from ..generator.run_folder import aggregate_pooled
+    from ..generator.stages import Stage
+
     log(f"attacking {len(scenes)} scenes against {weights} ...")
     run = open_run(gen_cfg, run_dir, scenes=scenes, record={"harden": str(run_dir), "detector": detector_factory},
                    seed=ATTACK_SEED).run(detector_factory=detector_factory, executor=executor, artifacts=False)
@@ -303,7 +306,7 @@ def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfi
     made = [load_scene(run_dir / "scenes" / i / "final.yaml") for i in ids]
     agg = run.summary["aggregate"]
     return made, {"kind": "adversarial", "scenes": len(made), "skipped": len(run.skipped),
-                  "ap_normal": agg["ap_normal"], "ap_challenging": agg["ap_challenging"]}
+                  **pair_json({"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)})}
 
 
 def _round_scenes(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfig, space, round_dir: Path,

@@ -12,6 +12,7 @@ import sys
 from asg.evaluation import evaluate
 from asg.objective.ap import Yardstick
 from asg.objective.paired import paired_ap_gap
+from asg.objective.pooled import PooledAP
 
 
 def scored(spec: str, set_name: str) -> dict:
@@ -22,11 +23,12 @@ def scored(spec: str, set_name: str) -> dict:
 def main(set_name: str, before: str, after: str, out: str | None = None) -> None:
     a, b = scored(before, set_name), scored(after, set_name)
     result = {"set": set_name, "frames": a["frames"], "before": before, "after": after}
-    for yardstick, key in ((Yardstick.GLOBAL, "ap"), (Yardstick.PER_FRAME, "ap_per_frame")):
+    for yardstick in Yardstick:
         gap = paired_ap_gap(a["matches"], b["matches"], 0.7, method=yardstick)
-        result[yardstick.value] = {"before": round(a[key]["0.7"], 4), "after": round(b[key]["0.7"], 4), **gap.to_dict()}
-        print(f"{set_name} ({a['frames']} frames), {yardstick.value}: AP@0.7 {100 * a[key]['0.7']:.1f} -> "
-              f"{100 * b[key]['0.7']:.1f}, gap {100 * gap.gap:+.2f} [{100 * gap.low:+.2f}, {100 * gap.high:+.2f}]")
+        ap_a, ap_b = (PooledAP.from_result(r).of(yardstick)["0.7"] for r in (a, b))
+        result[yardstick.value] = {"before": round(ap_a, 4), "after": round(ap_b, 4), **gap.to_dict()}
+        print(f"{set_name} ({a['frames']} frames), {yardstick.value}: AP@0.7 {100 * ap_a:.1f} -> "
+              f"{100 * ap_b:.1f}, gap {100 * gap.gap:+.2f} [{100 * gap.low:+.2f}, {100 * gap.high:+.2f}]")
     if out:
         with open(out, "w") as f:
             json.dump(result, f, indent=1)

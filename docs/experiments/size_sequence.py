@@ -54,6 +54,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 from asg.datasets import scenes_of
+from asg.objective.pooled import REATTACK_PAIR, pooled_pair
 from asg.evaluation import evaluate_detector
 from asg.perception.fusion.attfuse import AttFuseDetector
 from asg.perception.fusion.single import LateFusion, NoFusion
@@ -260,8 +261,8 @@ def main_attack(out: Path, size: str, count: int) -> None:
         built = build_challenging("attfuse", "train", executor, count=count, detector_factory="size_sequence:attfuse_target",
                                   out=data_root() / attack_set(out, size))
     index = json.loads((built / "index.json").read_text())
-    print(f"{built}: {index['frames']} scenes; AP normal {index['ap_normal']} -> {index['ap_challenging']}; "
-          f"per frame {index['per_frame']}")
+    pair = pooled_pair(index, REATTACK_PAIR)
+    print(f"{built}: {index['frames']} scenes; AP@0.7 ours / per frame {pair['normal'].text()} -> {pair['challenging'].text()}")
 
 
 def score_own(out: Path, set_name: str = OWN_SET) -> dict:
