@@ -379,3 +379,49 @@ def test_bench_paper_refuses_an_opencood_folder_that_cannot_run(capsys, tmp_path
     err = _refusal(capsys, "bench", "paper", "--table", "main", "--models", f"attfuse,opencood:{tmp_path / 'nothing'}",
                    "--out", str(tmp_path / "o"))
     assert "nothing" in err and not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_path, monkeypatch):
+    """``asg harden --fusion opencood:DIR --rounds 1 --data random``: the round's scenes and normal
+    ones exported in the OPV2V layout, OpenCOOD's trainer one epoch further from DIR's checkpoint, the
+    new model scored beside DIR with paired intervals and attacked again; a rerun resumes without
+    training again, other settings are refused, and asg's own options are refused in one line."""
+    from test_tables import write_set
+
+    import asg.generator.config as generator_config
+
+    root = tmp_path / "data"
+    # OpenCOOD's trainer drops a last incomplete batch (2 frames): normal-val needs two for a validation loss
+    write_set(root, "normal", {"train": ["t0"], "val": ["v0", "v1"]})
+    monkeypatch.setenv("ASG_DATA", str(root))
+    load = generator_config.load_generate_config  # the protocol's 50 evaluations would take minutes here
+    monkeypatch.setattr(generator_config, "load_generate_config", lambda *a, **k: load(*a, **{**k, "budget": 2}))
+    model = make_model_dir(tmp_path / "m", "intermediate", score_threshold=THRESHOLD)
+    config = tmp_path / "harden.yaml"
+    config.write_text(yaml.safe_dump({"harden": {"eval_sets": ["normal-val"], "guard_set": None, "opencood_epochs": 1,
+                                                 "noisy": False}}))
+    out = tmp_path / "hard"
+    argv = ["harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--data", "random", "--config", str(config),
+            "--out", str(out), "--workers", "1"]
+    assert main(argv) == 0
+    card = json.loads((out / "card.json").read_text())
+    assert card["data"] == "random" and card["epochs"] == 1 and card["scenes"] == 1
+    assert sorted(p.name for p in (out / "train").iterdir() if p.is_dir()) == ["normal-t0", "round-t0"]
+    trained = out / "model" / "net_epoch2.pth"  # DIR's epoch 1, then one more
+    assert trained.is_file() and (out / "model" / "net_epoch1.pth").is_file()
+    own = next(s for s in card["evaluation"] if s.startswith("challenging-opencood-m-"))
+    for row in card["evaluation"].values():
+        assert row["frames"] == 2 and set(row["before"]) == set(row["after"]) == {"ap", "ap_per_frame"}
+        assert set(row["gap"]) == {"global", "per-frame"} and row["gap"]["global"]["low"] <= row["gap"]["global"]["high"]
+    assert {"normal-val", own} == set(card["evaluation"])
+    assert card["reattack"]["frames"] == 2 and set(card["reattack"]["after"]) == {"normal", "challenging"}
+    stamp = trained.stat().st_mtime_ns
+    assert main(argv) == 0 and trained.stat().st_mtime_ns == stamp  # resumed: nothing trained again
+    capsys.readouterr()
+    _refusal(capsys, *[a if a != "random" else "normal" for a in argv])  # other settings, same folder
+    err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "2", "--out", str(tmp_path / "x"))
+    assert "--rounds 1" in err and not (tmp_path / "x").exists()
+    err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--weights", str(trained),
+                   "--out", str(tmp_path / "x"))
+    assert "--weights" in err and not (tmp_path / "x").exists()

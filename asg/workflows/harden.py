@@ -41,6 +41,7 @@ from sumo_scenarios.strict import from_mapping
 from . import MAX_ROUNDS
 from ..cli_args import executor_from_args, fusion_arg, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
+from .random_control import ATTACK_SEED, random_draw  # noqa: F401  (ATTACK_SEED: this module's API too)
 from ..io.run_record import claim
 from ..objective.pooled import REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
@@ -54,8 +55,6 @@ DataKind = Literal["adversarial", "random", "normal"]
 DATA_KINDS: tuple[str, ...] = get_args(DataKind)
 #: the name of the noisy evaluation set in a card
 NOISY_SET = "normal-val-noisy"
-#: the seed of the attacks and of the noise (as the challenging sets')
-ATTACK_SEED = 1
 
 
 @dataclass(frozen=True)
@@ -77,6 +76,8 @@ class HardenConfig(FinetuneConfig):
     #: falls below the weights it started from (the whole 95 % interval of the gap under zero) is
     #: not kept; the next round starts from the weights before it. None: every round is kept
     guard_set: str | None = "holdout"
+    #: an OpenCOOD model (--fusion opencood:DIR): the epochs OpenCOOD's trainer fine-tunes it a round
+    opencood_epochs: int = 3
 
 
 def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
@@ -324,28 +325,6 @@ def _round_scenes(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenCo
     return data
 
 
-def random_draw(scene: Scene, gen_cfg, seed: int) -> Scene:
-    """``scene`` with one plausible perturbation drawn uniformly from the members of the feasible
-    set the search would use (same movers by the occlusion heuristic, same spaces and plausibility
-    level), its collaborators as they are; the scene itself when nothing can move."""
-    from ..generator.pipeline import Generator
-    from ..search import EmptyFeasibleSet, FeasibleSet, SearchSpace
-
-    rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
-    gen = Generator(gen_cfg, target=None)
-    perturbed = gen.pick_perturbed(scene, []) if gen_cfg.space.needs_movers else []
-    try:
-        space = SearchSpace(scene, perturbed, gen_cfg.space)
-        if space.dim == 0:
-            return scene
-        members = FeasibleSet(space, rng).members
-    except (EmptyFeasibleSet, InputError):
-        return scene
-    if len(members) < 2:
-        return scene
-    return space.apply(members[1 + int(rng.integers(len(members) - 1))])  # members[0] is the scene itself
-
-
 def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, executor,
                    log: Callable[[str], None]) -> dict:
     """{set: {"ap", "ap_per_frame": AP by threshold, ours and the paper's (a pooled AP,
@@ -453,6 +432,37 @@ def _load_scenes(folder: Path) -> list[Scene]:
 
 # ``asg harden``: this workflow's command (asg.cli's COMMAND_MODULES)
 
+def _run_opencood(args: argparse.Namespace) -> int:
+    """``asg harden --fusion opencood:DIR``: one round by OpenCOOD's trainer (asg.workflows.harden_opencood)."""
+    from rich.table import Table
+
+    from ..objective.pooled import FINETUNE_PAIR, pooled_pair
+    from ..perception.opencood import target_label
+    from ..progress import console, stdout
+    from .harden_opencood import check_opencood_run, harden_opencood
+
+    check_opencood_run(args)
+    config = load_harden_config(args.config, data=args.data)
+    out = args.out or default_out(target_label(args.fusion), config.data)
+    with executor_from_args(args, 10**6) as executor:
+        card = harden_opencood(args.fusion, out, config, executor, force=args.force, log=console.print)
+    table = Table(title=f"asg harden --fusion {args.fusion} ({card['data']}, {card['epochs']} epochs): AP@0.7 ours / "
+                        "per frame, and the gap with its 95 % paired interval")
+    for col in ("set", "frames", "before", "after", "gap (ours)", "gap (per frame)"):
+        table.add_column(col, justify="left" if col == "set" else "right")
+    for set_name, row in card["evaluation"].items():
+        pair = pooled_pair(row, FINETUNE_PAIR)
+        gaps = [f"{100 * g['gap']:+.1f} [{100 * g['low']:+.1f}, {100 * g['high']:+.1f}]" for g in row["gap"].values()]
+        table.add_row(set_name, str(row["frames"]), pair["before"].text(), pair["after"].text(), *gaps)
+    if "reattack" in card:
+        before, after = (pooled_pair(card["reattack"][w], ("challenging",))["challenging"] for w in FINETUNE_PAIR)
+        table.add_row("own attack on normal-val", str(card["reattack"]["frames"]), before.text(), after.text(), "", "")
+    stdout.print(table)
+    kept = card.get("guard", {}).get("kept", True)
+    console.print(f"card: {out}/card.json; the model: {card['model']}" + ("" if kept else " (worse on the guard set: not kept)"))
+    return 0
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     fusion_arg(p, "the model hardened", required=True)
     p.add_argument("--rounds", type=whole(1, MAX_ROUNDS, "--rounds"), required=True, help="rounds to run (resumable)")
@@ -470,8 +480,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
+    from ..perception.opencood import is_opencood
     from ..progress import console, loss_progress, progress_bar, stdout
 
+    if is_opencood(args.fusion):
+        return _run_opencood(args)
     weights_for(args.fusion)  # one line for an unknown fusion
     space = tuple(k.strip() for k in args.space.split(",") if k.strip()) if args.space else None
     config = load_harden_config(args.config, data=args.data)

@@ -19,22 +19,20 @@ OpenCOOD's own resume does). ``MODEL_DIR`` is then a target: ``--fusion opencood
 MODEL_DIR's config with the new data folders and its checkpoint (the highest ``net_epochN.pth``,
 kept as ``net_epochN.pth``), and ``--epochs`` more epochs run from it by the same trainer.
 
-The trainer is run through ``runpy`` after asg's runtime preparation (asg/perception/opencood/
-runtime.py: opencoodx's box_overlaps.pyx compiled, matplotlib's get_cmap restored), which
-``python -m opencood.tools.train`` lacks. Its log: MODEL_DIR/train.log (append).
+The trainer runs as ``asg harden --fusion opencood:DIR`` runs it (asg/perception/opencood/trainer.py:
+in this process, after asg's runtime preparation, which ``python -m opencood.tools.train`` lacks).
+Its log: MODEL_DIR/train.log (append).
 """
 from __future__ import annotations
 
 import argparse
-import contextlib
-import runpy
-import sys
 from pathlib import Path
 
 import yaml
 
 from asg.perception.opencood.folder import HypesLoader
-from asg.perception.opencood.runtime import module, opencood
+from asg.perception.opencood.runtime import module
+from asg.perception.opencood.trainer import run_trainer, seed_from
 
 STOCK = {"intermediate": "point_pillar_intermediate_fusion.yaml", "fcooper": "point_pillar_fcooper.yaml"}
 RANGE_M = [-51.2, -51.2, -3.0, 51.2, 51.2, 1.0]
@@ -60,28 +58,6 @@ def write_config(model_dir: Path, fusion: str, train: Path, val: Path, epochs: i
     return path
 
 
-def seed_from(model_dir: Path, source: Path, train: Path, val: Path, more_epochs: int) -> None:
-    """NEW model_dir from ``source``: its config (data folders replaced, ``more_epochs`` added) and
-    its latest checkpoint; nothing done if model_dir already has a config (a resumed fine-tuning)."""
-    import re
-    import shutil
-
-    if (model_dir / "config.yaml").is_file():
-        return
-    checkpoints = sorted(source.glob("net_epoch*.pth"), key=lambda p: int(re.sub(r"\D", "", p.stem) or 0))
-    if not checkpoints:
-        raise SystemExit(f"{source}: no net_epochN.pth to fine-tune from")
-    last = checkpoints[-1]
-    epoch = int(re.sub(r"\D", "", last.stem))
-    hypes = yaml.load((source / "config.yaml").read_text(), Loader=HypesLoader)
-    hypes = yaml.safe_load(yaml.safe_dump(hypes))
-    hypes.update(root_dir=str(train), validate_dir=str(val))
-    hypes["train_params"]["epoches"] = epoch + more_epochs
-    model_dir.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(last, model_dir / last.name)
-    (model_dir / "config.yaml").write_text(yaml.safe_dump(hypes, sort_keys=False))
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("model_dir", type=Path)
@@ -95,11 +71,8 @@ def main() -> None:
     layers = [int(x) for x in args.layers.split(",")] if args.layers else None
     if args.finetune_from:
         seed_from(args.model_dir, args.finetune_from, args.train.resolve(), args.val.resolve(), args.epochs)
-    config = write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers)
-    opencood()  # box_overlaps compiled, get_cmap restored: the trainer imports as shipped
-    sys.argv = ["opencood.tools.train", "--hypes_yaml", str(config), "--model_dir", str(args.model_dir)]
-    with open(args.model_dir / "train.log", "a", buffering=1) as log, contextlib.redirect_stdout(log):
-        runpy.run_module("opencood.tools.train", run_name="__main__")
+    write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers)
+    run_trainer(args.model_dir)
 
 
 if __name__ == "__main__":
