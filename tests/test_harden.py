@@ -366,6 +366,45 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
     assert any("not kept" in l and "fell by 10.0 points" in l for l in lines)
 
 
+@pytest.mark.slow
+def test_a_round_the_guard_drops_is_averaged_with_its_start_and_kept_if_that_passes(tmp_path, data_root, monkeypatch):
+    """The guard's cure: a round worse on the guard set is averaged with the weights it started from
+    (``guard_average`` of the round's); the average, evaluated and guarded in its turn, is what the
+    round keeps (its weights, evaluation and re-attack), what it trained stays under "unaveraged",
+    and the next round starts from the average."""
+    import torch
+
+    import asg.workflows.harden as harden_mod
+    from asg.perception.weights_io import weights_path
+
+    write_set(data_root, "holdout", {"test": ["g0", "g1"]})
+    monkeypatch.setattr(harden_mod, "guard", lambda before, after, guard_set: {
+        "set": guard_set, "threshold": 0.7, "gap": -0.1, "low": -0.2, "high": -0.05, "frames": 2,
+        "kept": after.name == "eval-averaged"})
+    starts = []
+    real_fit = harden_mod.fit_chunk
+    monkeypatch.setattr(harden_mod, "fit_chunk", lambda name, start, *a, **k: (starts.append(start), real_fit(name, start, *a, **k))[1])
+    out = tmp_path / "h"
+    card = harden("attfuse", 2, out, config=replace(TINY, guard_set="holdout", guard_average=0.25),
+                  detector_factory=ORACLE, log=_quiet)
+    r1 = card["rounds"][1]
+    assert r1["weights"] == "round-1/averaged.pt" and r1["guard"]["kept"] and r1["guard"]["averaged"] == 0.25
+    assert r1["unaveraged"]["weights"] == "round-1/weights.pt" and not r1["unaveraged"]["guard"]["kept"]
+    assert (out / "round-1" / "eval-averaged" / "holdout.json").is_file()
+    start, trained, averaged = (torch.load(p, weights_only=True) for p in
+                                (weights_path("attfuse"), out / "round-1" / "weights.pt", out / "round-1" / "averaged.pt"))
+    k = next(k for k, v in start.items() if v.is_floating_point() and not torch.equal(v, trained[k]))
+    assert torch.allclose(averaged[k], 0.75 * start[k] + 0.25 * trained[k], atol=1e-6)
+    assert starts == [weights_path("attfuse"), out / "round-1" / "averaged.pt"]
+    assert card["weights"] == "round-2/averaged.pt"
+
+
+@pytest.mark.parametrize("share", [0.0, 1.0, 1.5, True, "half"])
+def test_a_guard_average_outside_zero_to_one_is_refused(share):
+    with pytest.raises(InputError, match="guard_average"):
+        load_harden_config(guard_average=share)
+
+
 def test_a_guard_set_that_is_trained_on_is_refused(tmp_path, data_root):
     with pytest.raises(InputError, match="guard_set 'normal' is trained on"):
         harden("attfuse", 1, tmp_path / "h", config=replace(TINY, guard_set="normal"), detector_factory=ORACLE, log=_quiet)

@@ -144,3 +144,19 @@ def save_state(model: nn.Module, path: str | Path) -> None:
 
     with atomic_path(path) as tmp:
         torch.save(model.state_dict(), tmp)
+
+
+def average_weights(start: str | Path, trained: str | Path, share: float, out: str | Path) -> Path:
+    """Write ``(1 - share) * start + share * trained`` (two weights files of one network: every
+    floating tensor averaged, counters taken from ``trained``) to ``out``, atomically; InputError if
+    the files do not hold the same tensors."""
+    from sumo_scenarios.atomic import atomic_path
+
+    s, t = (torch.load(p, map_location="cpu", weights_only=True) for p in (start, trained))
+    mismatch = next((k for k in s.keys() | t.keys() if k not in s or k not in t or s[k].shape != t[k].shape), None)
+    if mismatch is not None:
+        raise InputError(f"{start} and {trained}: not weights of one network ({mismatch}); average weights of one model")
+    mixed = {k: ((1.0 - share) * s[k] + share * t[k]).to(s[k].dtype) if s[k].is_floating_point() else t[k] for k in s}
+    with atomic_path(out) as tmp:
+        torch.save(mixed, tmp)
+    return Path(out)

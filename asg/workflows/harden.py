@@ -53,6 +53,8 @@ HARDEN_BLOCK = "harden"
 #: what a round trains on (``--data``, the harden block's ``data``)
 DataKind = Literal["adversarial", "random", "normal"]
 DATA_KINDS: tuple[str, ...] = get_args(DataKind)
+#: a round's weights averaged with its start's (the guard's cure), in its folder
+AVERAGED_WEIGHTS = "averaged.pt"
 #: the name of the noisy evaluation set in a card
 NOISY_SET = "normal-val-noisy"
 
@@ -76,6 +78,10 @@ class HardenConfig(FinetuneConfig):
     #: falls below the weights it started from (the whole 95 % interval of the gap under zero) is
     #: not kept; the next round starts from the weights before it. None: every round is kept
     guard_set: str | None = "holdout"
+    #: a round the guard would not keep is averaged with the weights it started from, this share of
+    #: the round's weights (docs/harden.md, the guard), and kept if the guard keeps the average;
+    #: None: dropped as it is
+    guard_average: float | None = 0.5
     #: an OpenCOOD model (--fusion opencood:DIR): the epochs OpenCOOD's trainer fine-tunes it a round
     opencood_epochs: int = 3
 
@@ -89,6 +95,10 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
     where = f"train.yaml:{HARDEN_BLOCK}"
     cfg = check_train_config(from_mapping(HardenConfig, data, where), where)
     checks.number(cfg.scenes_per_round, f"{where}.scenes_per_round", 1, 100_000)
+    checks.number(cfg.opencood_epochs, f"{where}.opencood_epochs", 1, 1000)
+    if cfg.guard_average is not None and not (isinstance(cfg.guard_average, (int, float)) and 0.0 < cfg.guard_average < 1.0):
+        raise InputError(f"{where}.guard_average must be a share between 0 and 1 (0.5: half the round's weights) "
+                         f"or null, got {cfg.guard_average!r}")
     for name in cfg.pool:
         checks.safe_id(name, f"{where}.pool")
     if cfg.data not in DATA_KINDS:
@@ -159,11 +169,12 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         row["evaluation"] = evaluate_round(fusion, weights, cfg, _eval_cache(out, k, weights), executor, log)
         if k and cfg.guard_set is not None:
             row["guard"] = guard(_eval_cache(out, current_round, current), _eval_cache(out, k, weights), cfg.guard_set)
+            if not row["guard"]["kept"] and cfg.guard_average:
+                _log_guard(log, k, row["guard"], "its weights are averaged with the ones it started from")
+                weights = _averaged_round(fusion, row, current, current_round, weights, cfg, out, k, executor, log)
             if not row["guard"]["kept"]:
-                log(f"round {k}: AP@0.7 on {cfg.guard_set} (no round trains on it) fell by "
-                    f"{-100 * row['guard']['gap']:.1f} points, 95 % interval [{100 * row['guard']['low']:+.1f}, "
-                    f"{100 * row['guard']['high']:+.1f}]: its weights are not kept; the next round starts from "
-                    f"{f'round {current_round}' if current_round else 'the start weights'}")
+                _log_guard(log, k, row["guard"], "its weights are not kept; the next round starts from "
+                           f"{f'round {current_round}' if current_round else 'the start weights'}")
         if k and is_kept(row):
             current, current_round = weights, k
         if cfg.reattack:
@@ -194,15 +205,41 @@ def _check_before_starting(cfg: HardenConfig, space: tuple[str, ...] | None) -> 
                              "or dataset); give a set no round trains on, e.g. holdout")
 
 
+def _log_guard(log: Callable[[str], None], k: int, gap: dict, outcome: str) -> None:
+    log(f"round {k}: AP@0.7 on {gap['set']} (no round trains on it) fell by {-100 * gap['gap']:.1f} points, "
+        f"95 % interval [{100 * gap['low']:+.1f}, {100 * gap['high']:+.1f}]: {outcome}")
+
+
+def _averaged_round(fusion: str, row: dict, current: Path, current_round: int, weights: Path, cfg: HardenConfig,
+                    out: Path, k: int, executor, log: Callable[[str], None]) -> Path:
+    """The guard's cure for a round it would not keep: ``round-k/averaged.pt``, the round's weights
+    averaged with the ones it started from (``cfg.guard_average`` of the round's), evaluated and
+    guarded in their turn. ``row`` is updated to the averaged weights; what the round trained stays
+    under its "unaveraged" key. Returns the averaged weights' file."""
+    from ..perception.weights_io import average_weights
+
+    averaged = out / f"round-{k}" / AVERAGED_WEIGHTS
+    if not averaged.is_file():
+        average_weights(current, weights, cfg.guard_average, averaged)
+    row["unaveraged"] = {"weights": row["weights"], "evaluation": row["evaluation"], "guard": row["guard"]}
+    log(f"round {k}: evaluating {averaged} ({cfg.guard_average:g} of the round's weights) ...")
+    row["weights"] = str(averaged.relative_to(out))
+    row["evaluation"] = evaluate_round(fusion, averaged, cfg, _eval_cache(out, k, averaged), executor, log)
+    row["guard"] = guard(_eval_cache(out, current_round, current), _eval_cache(out, k, averaged), cfg.guard_set) | {
+        "averaged": cfg.guard_average}
+    return averaged
+
+
 def _eval_cache(out: Path, k: int, weights: Path) -> Path:
-    """Where round ``k``'s evaluations are cached: the round's folder, but for round 0 (the start
-    weights) a folder of the data root named by the weights' digest and :func:`scoring_digest`,
-    shared by every run (and control) that starts from the same weights with the same code."""
+    """Where round ``k``'s evaluations are cached: the round's folder (``eval``, or ``eval-averaged``
+    for its averaged weights), but for round 0 (the start weights) a folder of the data root named by
+    the weights' digest and :func:`scoring_digest`, shared by every run (and control) that starts
+    from the same weights with the same code."""
     from ..datasets import data_root
     from ..generator.run import file_digest
 
     if k:
-        return out / f"round-{k}" / "eval"
+        return out / f"round-{k}" / ("eval" if weights.name != AVERAGED_WEIGHTS else f"eval-{Path(AVERAGED_WEIGHTS).stem}")
     return data_root() / ".harden-start" / f"{file_digest(weights)[:16]}-{scoring_digest()[:12]}"
 
 
