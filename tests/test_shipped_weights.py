@@ -4,6 +4,7 @@ import json
 import pytest
 
 from asg.perception import build_detector
+from asg.perception.fusion import FUSIONS
 from asg.perception.data import Sample
 from asg.perception.weights_io import WEIGHTS_DIR
 from asg.objective import ap_at
@@ -35,8 +36,7 @@ FLOOR = {"none": (0.65, 0.26), "late": (0.8, 0.65), "early": (0.8, 0.68), "attfu
          "v2xvit": (0.78, 0.73), "v2xvit-noisy": (0.78, 0.73)}
 
 
-@pytest.mark.parametrize("fusion", ["none", "late", "early", "attfuse", "attfuse-ft", "attfuse-wide", "fcooper", "where2comm",
-                                    "v2xvit", "v2xvit-noisy"])
+@pytest.mark.parametrize("fusion", FUSIONS.names())
 def test_shipped_model_detects_vehicles(fusion, held_out_samples):
     det = build_detector(fusion)
     frames = [(*det.detect(s.frame), s.gt_eval()) for s in held_out_samples]
@@ -58,7 +58,7 @@ def test_the_point_stage_every_model_uses_is_shipped_with_its_record():
     whose card records how it was fitted."""
     from asg.perception.weights_io import stage_file_for
 
-    for fusion in ("none", "late", "early", "attfuse", "attfuse-ft", "attfuse-wide", "fcooper", "where2comm", "v2xvit", "v2xvit-noisy"):
+    for fusion in FUSIONS.names():
         det = build_detector(fusion)
         assert det.point_stage is not None, fusion
         path = stage_file_for(det.weights)
