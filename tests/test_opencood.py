@@ -416,6 +416,9 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
         assert set(row["gap"]) == {"global", "per-frame"} and row["gap"]["global"]["low"] <= row["gap"]["global"]["high"]
     assert {"normal-val", own} == set(card["evaluation"])
     assert card["reattack"]["frames"] == 2 and set(card["reattack"]["after"]) == {"normal", "challenging"}
+    assert main(["report", str(out)]) == 0  # the report reads the card
+    page = (out / "report.html").read_text()
+    assert "OpenCOOD's trainer" in page and "gap (per frame)" in page and "own attack on normal-val" in page
     stamp = trained.stat().st_mtime_ns
     assert main(argv) == 0 and trained.stat().st_mtime_ns == stamp  # resumed: nothing trained again
     capsys.readouterr()

@@ -1,5 +1,6 @@
 """The report's sections for training runs: ``asg harden`` (one row a round, AP@0.7 by round,
-each round's training loss) and ``asg finetune`` (before / after on each set, the training loss).
+each round's training loss), ``asg harden --fusion opencood:DIR`` (before / after on each set with
+the gap's interval) and ``asg finetune`` (before / after on each set, the training loss).
 
 Every value comes from the run's own files (card.json, the fine-tuning card, loss.csv) and is
 escaped; a file that is not what asg wrote ends in one InputError (asg.report.page's guard).
@@ -32,6 +33,8 @@ def training_kind(folder: Path) -> str | None:
     card = _json(folder / HARDEN_CARD)
     if isinstance(card, dict) and "rounds" in card:
         return "harden"
+    if isinstance(card, dict) and str(card.get("fusion", "")).startswith("opencood:") and "evaluation" in card:
+        return "harden-opencood"
     return "finetune" if _finetune_card(folder) is not None else None
 
 
@@ -45,9 +48,36 @@ def training_folders(root: Path) -> list[Path]:
 def training_section(folder: Path, img: Callable, table: Callable) -> str:
     """The section of a harden or fine-tuning folder (``img(fig)``: an inline picture, ``table(head,
     rows)``: an HTML table, both escaping what they get)."""
-    if training_kind(folder) == "harden":
+    kind = training_kind(folder)
+    if kind == "harden":
         return _harden(folder, img, table)
+    if kind == "harden-opencood":
+        return _harden_opencood(folder, table)
     return _finetune(folder, img, table)
+
+
+def _harden_opencood(folder: Path, table: Callable) -> str:
+    """A round of ``asg harden --fusion opencood:DIR``: each set before and after, AP@0.7 ours / per
+    frame, and the gap with its 95 % paired interval under both yardsticks."""
+    card = read_json(folder / HARDEN_CARD, "the hardening run")
+    rows = []
+    for s, v in sorted(card["evaluation"].items()):
+        pair = pooled_pair(v, FINETUNE_PAIR)
+        gaps = [f"{100 * float(g['gap']):+.1f} [{100 * float(g['low']):+.1f}, {100 * float(g['high']):+.1f}]"
+                for g in (v["gap"][k] for k in ("global", "per-frame"))]
+        rows.append([s, str(int(v["frames"])), pair["before"].text(), pair["after"].text(), *gaps])
+    re_ = card.get("reattack")
+    if re_:
+        before, after = (pooled_pair(re_[w], REATTACK_PAIR)["challenging"] for w in FINETUNE_PAIR)
+        rows.append(["own attack on normal-val", str(int(re_["frames"])), before.text(), after.text(), "", ""])
+    guard = card.get("guard")
+    verdict = "" if not guard else (" The guard set's gap keeps the round." if guard["kept"] else
+                                    f" Worse on {html.escape(str(guard['set']))} beyond its interval: not kept.")
+    return (f"<section><h2>{html.escape(folder.name)}: asg harden --fusion {html.escape(str(card['fusion']))} "
+            f"({html.escape(str(card.get('data')))} scenes, {int(card.get('epochs', 0))} epochs of OpenCOOD's trainer)</h2>"
+            f"<p>AP@0.7 (%) ours / ranked per frame (the paper's yardstick), the folder before and "
+            f"{html.escape(str(card.get('model')))} after, and the gap with its 95 % paired interval.{verdict}</p>"
+            + table(["set", "frames", "before", "after", "gap (ours)", "gap (per frame)"], rows) + "</section>")
 
 
 def _harden(folder: Path, img: Callable, table: Callable) -> str:
