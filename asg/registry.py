@@ -81,6 +81,16 @@ class Registry(Generic[T]):
         raise InputError(f"unknown {self.what} {safe_name(name)} for {self.flag}; known: {known}")
 
 
+def import_modules(package: str, path) -> None:
+    """Import every module of ``package`` (its ``__path__``): each registers its parts in the
+    package's registry, so a new part is its module, with no import line to add."""
+    import importlib
+    import pkgutil
+
+    for module in pkgutil.iter_modules(path):
+        importlib.import_module(f"{package}.{module.name}")
+
+
 def safe_name(name: object) -> str:
     """A user's name quoted for a one-line message (newlines and control characters escaped)."""
     return repr(str(name))

@@ -107,7 +107,9 @@ def test_unknown_setting_is_named():
 
 
 def test_unknown_algorithm():
-    with pytest.raises(InputError, match="unknown search algorithm 'annealing'.*bo, ga, ng, rs"):
+    from asg.search import SEARCHES
+
+    with pytest.raises(InputError, match="unknown search algorithm 'annealing'.*" + ", ".join(SEARCHES.names())):
         build_optimizer("annealing", 9, 10, np.random.default_rng(0))
 
 
@@ -138,3 +140,25 @@ def test_random_combinations_and_fewer_candidates_than_needed():
     assert len(random_combinations(["a", "b", "c", "d"], 2, 3, rng)) == 3
     assert random_combinations(["a"], 2, 3, rng) == [("a",)]
     assert random_combinations([], 2, 3, rng) == []
+
+
+def test_local_search_steps_from_its_best_and_learns():
+    """ls: seeded (same generator seed, same asks); each ask after the first is its best point so far
+    plus a step, and on a quadratic it ends nearer the minimum than it began."""
+    from asg.search import build_optimizer
+
+    def run(seed):
+        opt = build_optimizer("ls", 4, 60, np.random.default_rng(seed))
+        start = np.random.default_rng(99).uniform(-1, 1, (1, 4))
+        xs = []
+        for i in range(60):
+            x = opt.ask(start) if i == 0 else opt.ask(np.zeros((1, 4)))
+            assert np.all(np.abs(x) <= 1.0)
+            xs.append(x)
+            opt.tell(x, float(np.sum((x - 0.5) ** 2)))
+        return np.array(xs)
+
+    a, b = run(3), run(3)
+    assert np.array_equal(a, b)
+    losses = np.sum((a - 0.5) ** 2, axis=1)
+    assert losses[-10:].min() < 0.25 * losses[0]

@@ -10,6 +10,7 @@ from sumo_scenarios.errors import InputError
 
 from ..cli_args import COUNT, SEED, executor_args, executor_from_args, fusion_arg, weights_arg, whole
 from ..collaborators import ACS_STRATEGIES
+from ..search import SEARCHES
 from ..scene.feasibility import PLAUSIBILITY_LEVELS
 from .run import SceneSource, factory_models, open_run
 from .run_folder import print_table
@@ -32,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--net", type=Path, help="...or from any SUMO net")
     src.add_argument("--scenes", type=Path, help="...or take the scenes of this folder (scene yaml or a data set) or set (normal, normal-val)")
     fusion_arg(p, "the model attacked (default attfuse)")
-    p.add_argument("--search", default=None, help="rs, ga, bo or ng (nevergrad; default bo)")
+    p.add_argument("--search", default=None, help=f"one of {', '.join(SEARCHES.names())} (default bo; ng: nevergrad)")
     p.add_argument("--acs", default=None, choices=[*ACS_STRATEGIES.names(), ACS_OFF],
                    help="collaborator search: attention (ACS-A), random (ACS-R) or off (default attention)")
     p.add_argument("--aps", default=None, choices=["on", "off"])

@@ -1,6 +1,8 @@
-"""Adversarial Perturbation Search: space and feasible set, optimisers (one file each: rs, ga, bo,
-ng, registered by name behind optimizer.Optimizer), the loop."""
-from . import bayesian, genetic, nevergrad_search, random_search  # noqa: F401  (their registration fills SEARCHES)
+"""Adversarial Perturbation Search: space and feasible set, optimisers (one file each, registered by
+name behind optimizer.Optimizer: every module of this package is imported here), the loop."""
+from ..registry import import_modules
+
+import_modules(__name__, __path__)  # each optimiser's module registers it in SEARCHES
 from .bayesian import BayesianOptimization
 from .genetic import GeneticAlgorithm
 from .loop import Evaluation, best_of, run_search

@@ -1,6 +1,6 @@
 
 """The black-box optimisers' ask/tell interface; each optimiser is one file of this package,
-registered by name (rs, ga, bo, ng: nevergrad).
+registered by name (``asg.search.SEARCHES``).
 
 All work in normalised units x in [-1, 1]^D and minimise the loss. ``ask`` gets the candidates, the
 members of the feasible set Q not evaluated yet (K, D), and returns a point; the search loop

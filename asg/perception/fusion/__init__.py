@@ -1,21 +1,16 @@
 """Fusion methods, registered by name (one module of this package each: none, late, early, attfuse,
 attfuse-ft, fcooper, where2comm, v2xvit); and any detector plugin of the ``asg.detectors`` entry
 point group (see asg.perception.plugins)."""
-import importlib
-import pkgutil
 from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
-from ...registry import safe_name
+from ...registry import import_modules, safe_name
 from ..opencood import PREFIX as OPENCOOD_PREFIX, build_opencood_detector, check_opencood, is_opencood
 
 from .base import FUSIONS, Detections, V2XDetector
 
-# every module of this package registers its detectors when imported: a new shipped model is its
-# module here, with no import line to add (docs/extending.md)
-for _module in pkgutil.iter_modules(__path__):
-    importlib.import_module(f"{__name__}.{_module.name}")
+import_modules(__name__, __path__)  # each module registers its detectors: a new model adds no import line
 
 __all__ = ["FUSIONS", "Detections", "V2XDetector", "build_detector", "build_network", "check_weights_file", "detector_names",
            "card_settings_of", "detector_config_of", "feed_of", "fusions_of", "has_own_attention", "shipped_model", "shipped_weights_of", "weights_names"]

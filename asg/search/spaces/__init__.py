@@ -1,5 +1,8 @@
-"""Perturbation spaces, registered by name (``space``): poses, insert, pose-error, latency, dropout."""
-from . import dropout, insert, latency, pose_error, poses  # noqa: F401  (their registration fills SPACES)
+"""Perturbation spaces, registered by name (``space``): every module of this package is imported here
+and registers its space in SPACES."""
+from ...registry import import_modules
+
+import_modules(__name__, __path__)
 from .base import SPACES, PerturbationSpace, Slot, SpaceContext
 from .dropout import DropoutConfig
 from .insert import INSERT_PREFIX, InsertConfig
