@@ -13,9 +13,11 @@ from typing import Callable, Iterator
 
 from sumo_scenarios.errors import InputError
 
+from ...registry import import_modules
 from ...scene import Scene, load_scene
-from . import kitti, openscenario, opv2v, sumo  # noqa: F401  (their registration fills EXPORT_FORMATS)
 from .base import EXPORT_FORMATS, net_of  # noqa: F401  (this package's API)
+
+import_modules(__name__, __path__)  # each format's module registers its writer in EXPORT_FORMATS
 
 
 def source_scenes(source: Path | str) -> Iterator[Scene]:
