@@ -89,13 +89,17 @@ def test_every_search_entry_asks_inside_the_box():
             opt.tell(x, float(i))
 
 
-def test_nevergrad_search_is_seeded_and_learns():
-    """Same generator seed, same asks; on a quadratic it ends nearer the minimum than it started."""
+@pytest.mark.parametrize("name", ["ng", "ls"])
+def test_the_searches_that_step_freely_are_seeded_and_learn(name):
+    """nevergrad and local search ask points of their own (not Q's members): the same generator
+    seed gives the same asks, each inside the box, and on a quadratic they end nearer the minimum
+    than they started."""
     def run(seed):
-        opt = SEARCHES.entry("ng")(4, 40, np.random.default_rng(seed))
+        opt = SEARCHES.entry(name)(4, 40, np.random.default_rng(seed))
         xs = []
         for _ in range(40):
             x = opt.ask(np.zeros((1, 4)))
+            assert np.all(np.abs(x) <= 1.0)
             xs.append(x)
             opt.tell(x, float(np.sum((x - 0.5) ** 2)))
         return np.array(xs)

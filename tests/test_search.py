@@ -141,24 +141,3 @@ def test_random_combinations_and_fewer_candidates_than_needed():
     assert random_combinations(["a"], 2, 3, rng) == [("a",)]
     assert random_combinations([], 2, 3, rng) == []
 
-
-def test_local_search_steps_from_its_best_and_learns():
-    """ls: seeded (same generator seed, same asks); each ask after the first is its best point so far
-    plus a step, and on a quadratic it ends nearer the minimum than it began."""
-    from asg.search import build_optimizer
-
-    def run(seed):
-        opt = build_optimizer("ls", 4, 60, np.random.default_rng(seed))
-        start = np.random.default_rng(99).uniform(-1, 1, (1, 4))
-        xs = []
-        for i in range(60):
-            x = opt.ask(start) if i == 0 else opt.ask(np.zeros((1, 4)))
-            assert np.all(np.abs(x) <= 1.0)
-            xs.append(x)
-            opt.tell(x, float(np.sum((x - 0.5) ** 2)))
-        return np.array(xs)
-
-    a, b = run(3), run(3)
-    assert np.array_equal(a, b)
-    losses = np.sum((a - 0.5) ** 2, axis=1)
-    assert losses[-10:].min() < 0.25 * losses[0]
