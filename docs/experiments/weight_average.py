@@ -16,27 +16,17 @@ import json
 import sys
 from pathlib import Path
 
-import torch
-
 from asg.evaluation import evaluate
 from asg.objective.ap import Yardstick
 from asg.objective.paired import load_matches, paired_ap_gap, save_matches
 from asg.objective.pooled import PooledAP
+from asg.perception.weights_io import average_weights
 
 
 def averaged(start: Path, hardened: Path, a: float, work: Path) -> Path:
-    """The weights file of (1 - a) * start + a * hardened (floating tensors; counters: hardened's)."""
+    """The weights file of (1 - a) * start + a * hardened (asg harden's guard_average does the same)."""
     out = work / f"average-{a:g}.pt"
-    if not out.is_file():
-        s, h = torch.load(start, weights_only=True), torch.load(hardened, weights_only=True)
-        if set(s) != set(h):
-            raise SystemExit("the two weights files hold different tensors")
-        mixed = {k: ((1 - a) * s[k] + a * h[k]).to(s[k].dtype) if s[k].is_floating_point() else h[k] for k in s}
-        work.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_suffix(".tmp")
-        torch.save(mixed, tmp)
-        tmp.replace(out)
-    return out
+    return out if out.is_file() else average_weights(start, hardened, a, out)
 
 
 def scored(fusion: str, weights: Path, set_name: str, work: Path, label: str) -> tuple[dict, list]:
