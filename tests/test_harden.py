@@ -417,7 +417,7 @@ def test_paired_gap_and_matches_on_disk(tmp_path):
     import numpy as np
 
     from asg.objective.ap import ap_by_method_from_matches, frame_matches
-    from asg.objective.paired import load_matches, paired_ap_gap, save_matches
+    from asg.objective.paired import ApGap, load_matches, paired_ap_gap, save_matches
 
     rng = np.random.default_rng(0)
     gts = [np.array([[x, 0, 0, 4.0, 1.8, 1.5, 0] for x in rng.uniform(-40, 40, 4)]) for _ in range(20)]
@@ -427,6 +427,10 @@ def test_paired_gap_and_matches_on_disk(tmp_path):
     ap = lambda m: ap_by_method_from_matches(m)["global"]["0.7"]
     assert gap.gap == pytest.approx(ap(bad) - ap(good)) and gap.high < 0 and gap.low <= gap.gap <= gap.high
     assert paired_ap_gap(good, good, 0.7).to_dict() == {"threshold": 0.7, "gap": 0.0, "low": 0.0, "high": 0.0, "frames": 20}
+    # the guard's rule lives on the gap: worse only when the whole interval is below zero
+    assert not gap.not_worse and paired_ap_gap(good, good, 0.7).not_worse and paired_ap_gap(bad, good, 0.7).not_worse
+    record = gap.guard_record("holdout")
+    assert record["kept"] is False and record["set"] == "holdout" and ApGap.from_dict(record) == gap.from_dict(gap.to_dict())
     save_matches(tmp_path / "m.npz", bad)
     back = load_matches(tmp_path / "m.npz")
     assert ap(back) == ap(bad) and len(back) == 20

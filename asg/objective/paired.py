@@ -37,6 +37,20 @@ class ApGap:
     def to_dict(self) -> dict:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(self).items()}
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "ApGap":
+        """The gap ``to_dict`` wrote (extra keys, such as a guard's, are ignored)."""
+        return cls(float(d["threshold"]), float(d["gap"]), float(d["low"]), float(d["high"]), int(d["frames"]))
+
+    @property
+    def not_worse(self) -> bool:
+        """The guard's rule: not worse unless the whole 95 % interval lies below zero."""
+        return self.high >= 0.0
+
+    def guard_record(self, set_name: str) -> dict:
+        """{"set", "threshold", "gap", "low", "high", "frames", "kept"}: a guard's verdict on this gap."""
+        return {"set": set_name, **self.to_dict(), "kept": self.not_worse}
+
 
 def _ap(matches: Sequence[FrameMatches], idx: np.ndarray, threshold: float, method: str) -> float:
     picked = [matches[i][threshold] for i in idx]

@@ -251,12 +251,12 @@ def is_kept(row: dict) -> bool:
 def guard(before_cache: Path, after_cache: Path, guard_set: str) -> dict:
     """{"set", "threshold", "gap", "low", "high", "frames", "kept"}: the AP@0.7 gap on ``guard_set``
     of a round's weights over the weights it started from (their evaluations' cached matches),
-    paired bootstrap; kept unless the whole 95 % interval is below zero."""
+    paired bootstrap; kept unless the whole 95 % interval is below zero (``ApGap.not_worse``)."""
     from ..objective.paired import load_matches, paired_ap_gap
 
     gap = paired_ap_gap(load_matches(before_cache / f"{guard_set}.matches.npz"),
                         load_matches(after_cache / f"{guard_set}.matches.npz"), 0.7)
-    return {"set": guard_set, **gap.to_dict(), "kept": gap.high >= 0.0}
+    return gap.guard_record(guard_set)
 
 
 def scoring_digest() -> str:

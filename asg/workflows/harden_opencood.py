@@ -28,7 +28,7 @@ from sumo_scenarios.atomic import atomic_dir, write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ..objective.ap import Yardstick
-from ..objective.paired import load_matches, paired_ap_gap, save_matches
+from ..objective.paired import ApGap, load_matches, paired_ap_gap, save_matches
 from ..objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..perception.opencood import PREFIX, model_dir_of
 
@@ -69,7 +69,7 @@ def harden_opencood(fusion: str, out: Path, cfg, executor=None, force: bool = Fa
             "evaluation": evaluate_pair(fusion, after, cfg, out / "eval", executor, detector_factory, log)}
     if cfg.guard_set:
         gap = card["evaluation"][cfg.guard_set]["gap"][Yardstick.GLOBAL.value]
-        card["guard"] = {"set": cfg.guard_set, **gap, "kept": gap["high"] >= 0.0}
+        card["guard"] = ApGap.from_dict(gap).guard_record(cfg.guard_set)
         if not card["guard"]["kept"]:
             log(f"AP@0.7 on {cfg.guard_set} (never trained on) fell by {-100 * gap['gap']:.1f} points, 95 % interval "
                 f"[{100 * gap['low']:+.1f}, {100 * gap['high']:+.1f}]: keep {start}, not {model}")
