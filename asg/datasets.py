@@ -221,9 +221,10 @@ def _read_index(folder: Path) -> dict:
     return index
 
 
-#: --set names: the normal set's splits (the paper attacks its train split, reports fine-tuning on val)
+#: --set names: the normal set's splits (the paper attacks its train split, reports fine-tuning on val),
+#: the other built sets whole (detector-train: what the shipped detectors trained on, e.g. to export it)
 SETS = {"normal": ("normal", "train"), "normal-val": ("normal", "val"), "normal-all": ("normal", None),
-        "heuristic": ("heuristic", None), "holdout": ("holdout", None)}
+        "heuristic": ("heuristic", None), "holdout": ("holdout", None), "detector-train": ("detector-train", None)}
 
 
 def check_set_name(set_name: str) -> str:

@@ -155,3 +155,22 @@ def test_a_pooled_ap_reads_every_form_a_card_has_held():
     old_index = {"ap_normal": ours, "ap_challenging": paper, "per_frame": {"ap_normal": paper, "ap_challenging": ours}}
     assert pooled_pair(new, REATTACK_PAIR) == pooled_pair(old_card, REATTACK_PAIR) == pooled_pair(old_index, REATTACK_PAIR)
     assert pooled_pair({"normal": ours, "challenging": paper}, REATTACK_PAIR)["normal"].ap_per_frame is None
+
+
+def test_a_summary_aggregate_reads_under_one_key_per_stage_and_in_its_older_form():
+    """A stage's pooled AP sits under the same key as a scene's AP ("ap_final" for the final stage);
+    summaries written before that ("ap_challenging") read the same, under both yardsticks."""
+    from asg.generator.run_folder import aggregate_ap, aggregate_pooled
+    from asg.generator.stages import Stage
+    from asg.objective.pooled import PooledAP
+
+    ours, paper = {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7}, {"0.3": 0.8, "0.5": 0.7, "0.7": 0.6}
+    assert [s.ap_key for s in Stage] == ["ap_normal", "ap_after_acs", "ap_final"]
+    new = {"ap_normal": ours, "ap_final": paper, "by_method": {"global": {"ap_normal": ours, "ap_final": paper},
+                                                               "per-frame": {"ap_normal": paper, "ap_final": ours}}}
+    old = {"ap_normal": ours, "ap_challenging": paper,
+           "by_method": {"global": {"ap_normal": ours, "ap_challenging": paper},
+                         "per-frame": {"ap_normal": paper, "ap_challenging": ours}}}
+    for agg in (new, old):
+        assert aggregate_pooled(agg, Stage.FINAL) == PooledAP(paper, ours)
+        assert aggregate_ap(agg, Stage.NORMAL, "per-frame") == paper and aggregate_ap(agg, Stage.AFTER_ACS) is None

@@ -332,6 +332,7 @@ def test_the_summary_reads_each_scene_once_and_pools_as_from_scratch(tmp_path, m
     re-read and re-matched every scene each time: 12 s a rewrite), and pools the same AP as a
     computation from the files."""
     from asg.generator import run_folder
+    from asg.generator.stages import Stage
 
     reads = []
     real = run_folder.load_detections
@@ -340,9 +341,9 @@ def test_the_summary_reads_each_scene_once_and_pools_as_from_scratch(tmp_path, m
     assert sorted(reads) == ["s0", "s1", "s2"]
     agg = json.loads((out / "summary.json").read_text())["aggregate"]
     per_scene = [real(out, sid) for sid in ("s0", "s1", "s2")]
-    for stage_key, stage in run_folder.POOLED_STAGES.items():
+    for stage in Stage:
         fresh = run_folder.pooled_ap_by_method(per_scene, stage)
-        assert {m: agg["by_method"][m][stage_key] for m in fresh} == fresh
+        assert {m: agg["by_method"][m][stage.ap_key] for m in fresh} == fresh
 
 
 # ---- 5. a source smaller than --count ----------------------------------------------------------------

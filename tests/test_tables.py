@@ -229,3 +229,20 @@ def test_bad_models_are_one_line(capsys, tmp_path, models):
     code, err = run(capsys, "bench", "paper", "--table", "main", "--models", models, "--out", str(tmp_path / "o"))
     assert code == 2
     assert_one_line_error(err, "--models")
+
+
+def test_every_built_set_is_read_and_exported_by_its_name(data_root, tmp_path, capsys):
+    """Each name of ``datasets.SETS`` reads its built set (the split it names, or the whole set),
+    and ``asg export NAME`` takes it: detector-train included, which OpenCOOD's trainer reads."""
+    from asg.cli import main
+    from asg.datasets import SETS, scenes_of
+
+    write_set(data_root, "holdout", {"test": ["o0"]})
+    write_set(data_root, "detector-train", {"train": ["d0", "d1"], "val": ["d2"]})
+    want = {"normal": ["t0", "t1", "t2"], "normal-val": ["v0", "v1", "v2"], "normal-all": ["t0", "t1", "t2", "v0", "v1", "v2"],
+            "heuristic": ["h0", "h1"], "holdout": ["o0"], "detector-train": ["d0", "d1", "d2"]}
+    assert set(SETS) == set(want)
+    for name, ids in want.items():
+        assert [s.scene_id for s in scenes_of(name)] == ids, name
+    assert main(["export", "detector-train", "--format", "opv2v", "--out", str(tmp_path / "dt")]) == 0
+    assert (tmp_path / "dt").is_dir() and any((tmp_path / "dt").iterdir())

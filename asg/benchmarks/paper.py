@@ -19,6 +19,7 @@ from sumo_scenarios.errors import InputError
 
 from ..executors import Executor
 from ..generator.config import GenerateConfig
+from ..generator.stages import Stage
 from ..objective.ap import DEFAULT_AP_METHOD, check_ap_method
 
 CONFIGS = (("attention", "bo"), ("attention", "ga"), ("attention", "rs"), ("random", "bo"),
@@ -41,9 +42,9 @@ def bench_paper(out: Path, scenes: int = 30, budget: int = GenerateConfig.budget
     table = {}
     for run_dir, acs, search in todo:
         agg = json.loads((run_dir / "summary.json").read_text())["aggregate"]
-        table[f"{acs}-{search}"] = {"normal": aggregate_ap(agg, "ap_normal", ap_method),
-                                    "challenging": aggregate_ap(agg, "ap_challenging", ap_method),
-                                    "after_acs": aggregate_ap(agg, "ap_after_acs", ap_method),
+        table[f"{acs}-{search}"] = {"normal": aggregate_ap(agg, Stage.NORMAL, ap_method),
+                                    "challenging": aggregate_ap(agg, Stage.FINAL, ap_method),
+                                    "after_acs": aggregate_ap(agg, Stage.AFTER_ACS, ap_method),
                                     "after_acs_mean": agg["mean_scene_ap_after_acs"], "scenes": agg["scenes"],
                                     "seconds_per_scene_median": agg["seconds_per_scene_median"]}
     return {"fusion": fusion, "budget": budget, "ap_method": ap_method, "table": table}

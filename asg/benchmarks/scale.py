@@ -34,7 +34,7 @@ WAYS = (("local_1", "local", 1, 1), ("local_1_all", "local", 1, None), ("local_2
 def _numbers(out: Path) -> list:
     """The scenes' AP and loss, without timings."""
     summary = json.loads((out / "summary.json").read_text())
-    return [(e["scene_id"], e[Stage.FINAL.scene_key], e["loss_final"]) for e in summary["scenes"]]
+    return [(e["scene_id"], e[Stage.FINAL.ap_key], e["loss_final"]) for e in summary["scenes"]]
 
 
 def bench_scale(out: Path, scenes: int = 8, budget: int = GenerateConfig.budget, seed: int = 1, ways: tuple = WAYS) -> dict:

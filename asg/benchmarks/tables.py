@@ -321,6 +321,7 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     from ..generator.run import SceneSource, open_run
     from ..generator.config import load_generate_config, with_space_flags
     from ..generator.run_folder import aggregate_ap
+    from ..generator.stages import Stage
 
     cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
                            plausibility, kinds)
@@ -339,8 +340,8 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
                        seed=run.seed).run(detector_factory=run.detector_factory, executor=run.executor,
                                                artifacts=False).summary
     agg, entries = summary["aggregate"], summary["scenes"]
-    return {"scenes": agg["scenes"], "normal": aggregate_ap(agg, "ap_normal", run.ap_method),
-            "challenging": aggregate_ap(agg, "ap_challenging", run.ap_method),
+    return {"scenes": agg["scenes"], "normal": aggregate_ap(agg, Stage.NORMAL, run.ap_method),
+            "challenging": aggregate_ap(agg, Stage.FINAL, run.ap_method),
             "mean_loss": round(statistics.fmean(e["loss_final"] for e in entries), 6),
             "seconds_per_scene": round(statistics.median(e["seconds"] for e in entries), 3),
             "plausibility": cfg.space.plausibility, "movers": cfg.perturbed,

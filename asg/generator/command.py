@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"[yellow]skipped {scene_id}: {why}")
     print_table(done.summary, stdout)
     console.print(f"wrote {out}/summary.json and {len(done.summary['scenes'])} scene folders")
-    lost = lambda e: e[Stage.NORMAL.scene_key]["0.7"] - e[Stage.FINAL.scene_key]["0.7"]  # noqa: E731
+    lost = lambda e: e[Stage.NORMAL.ap_key]["0.7"] - e[Stage.FINAL.ap_key]["0.7"]  # noqa: E731
     hardest = max(done.summary["scenes"], key=lost, default=None)
     if hardest is not None and lost(hardest) > 0:
         console.print(f"the scene that lost most: {hardest['scene_id']} (AP@0.7 {hardest['ap_normal']['0.7']:.2f} -> "

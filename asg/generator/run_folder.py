@@ -42,7 +42,7 @@ from ..io.pcd import write_pcd
 def scene_entry(r: SceneResult) -> dict:
     return {
         "scene_id": r.scene_id,
-        **{stage.scene_key: r.ap(stage) for stage in Stage},
+        **{stage.ap_key: r.ap(stage) for stage in Stage},
         "loss_normal": round(r.loss_normal, 6), "loss_final": round(r.loss_final, 6),
         "evaluations": r.evaluations, "seconds": round(r.seconds, 3),
         "collaborators": {Stage.NORMAL: list(r.initial.collaborators), Stage.FINAL: list(r.after_acs.collaborators)},
@@ -160,23 +160,19 @@ def _pooled_from_matches(per_scene: list[dict[str, FrameMatches]], key: str) -> 
     return {m: {k: round(v, 6) for k, v in ap.items()} for m, ap in both.items()}
 
 
-#: the pooled AP of a summary's aggregate by stage; the global ranking at the top level (as ever),
-#: every AP method under "by_method" ({method: {stage key: AP}})
-POOLED_STAGES = {stage.pooled_key: stage for stage in Stage}
-
-
-def aggregate_ap(aggregate: dict, stage_key: str, method: str = DEFAULT_AP_METHOD) -> dict[str, float] | None:
-    """A summary aggregate's pooled AP of ``stage_key`` (a POOLED_STAGES key) ranked by ``method``;
-    None where the folder's summary holds none (the after-ACS stage of old folders)."""
-    if check_ap_method(method) == DEFAULT_AP_METHOD:
-        return aggregate.get(stage_key)
-    return aggregate.get("by_method", {}).get(method, {}).get(stage_key)
+def aggregate_ap(aggregate: dict, stage: Stage, method: str = DEFAULT_AP_METHOD) -> dict[str, float] | None:
+    """A summary aggregate's pooled AP of ``stage`` ranked by ``method``: the global ranking at the
+    top level under the stage's ``ap_key``, every AP method under "by_method" ({method: {ap_key:
+    AP}}). Summaries written before the key was one (the final stage's "ap_challenging") read the
+    same; None where the folder's summary holds none (the after-ACS stage of old folders)."""
+    held = aggregate if check_ap_method(method) == DEFAULT_AP_METHOD else aggregate.get("by_method", {}).get(method, {})
+    return held.get(stage.ap_key, held.get(stage.old_pooled_key))
 
 
 def aggregate_pooled(aggregate: dict, stage: Stage) -> PooledAP | None:
     """A summary aggregate's pooled AP of ``stage`` under both yardsticks (None: not recorded)."""
-    ap = aggregate_ap(aggregate, stage.pooled_key)
-    return None if ap is None else PooledAP(ap, aggregate_ap(aggregate, stage.pooled_key, Yardstick.PER_FRAME))
+    ap = aggregate_ap(aggregate, stage)
+    return None if ap is None else PooledAP(ap, aggregate_ap(aggregate, stage, Yardstick.PER_FRAME))
 
 
 def mean_ap(entries: list[dict], key: str) -> dict[str, float]:
@@ -204,7 +200,7 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
         if e["scene_id"] not in matches:
             matches[e["scene_id"]] = scene_matches(load_detections(out_dir, e["scene_id"]))
     per_scene = [matches[e["scene_id"]] for e in entries]
-    pooled = {stage_key: _pooled_from_matches(per_scene, stage) for stage_key, stage in POOLED_STAGES.items()}
+    pooled = {stage.ap_key: _pooled_from_matches(per_scene, stage) for stage in Stage}
     by_method = {m: {k: (None if v is None else v[m]) for k, v in pooled.items()} for m in AP_METHODS}
     summary = {
         "config": config,
@@ -213,7 +209,7 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
             "scenes": len(entries),
             **by_method[DEFAULT_AP_METHOD],
             "by_method": by_method,
-            **{f"mean_scene_{stage.pooled_key}": mean_ap(entries, stage.scene_key) for stage in Stage},
+            **{f"mean_scene_{stage.ap_key}": mean_ap(entries, stage.ap_key) for stage in Stage},
             "seconds_per_scene_median": round(float(np.median(seconds)), 3) if seconds else None,
             "scenes_per_hour": round(3600.0 * len(entries) / sum(seconds), 1) if seconds and sum(seconds) > 0 else None,
             "wall_s": round(wall_s, 1),
@@ -233,15 +229,14 @@ def print_table(summary: dict, out) -> None:
         table.add_column(col, justify="right")
     fmt = lambda ap: ap_text(ap, scale=1.0, digits=2)  # noqa: E731
     for e in summary["scenes"]:
-        table.add_row(e["scene_id"][-32:], fmt(e["ap_normal"]), fmt(e["ap_after_acs"]), fmt(e["ap_final"]),
+        table.add_row(e["scene_id"][-32:], *(fmt(e[stage.ap_key]) for stage in Stage),
                       str(len(e.get("moved", e["perturbed"] if e["delta"] else []))), f"{e['seconds']:.1f}")
     agg = summary["aggregate"]
-    after_ap, pooled = after_acs_ap(agg.get("ap_after_acs"), agg["mean_scene_ap_after_acs"])
-    table.add_row("[bold]pooled", fmt(agg["ap_normal"]), fmt(after_ap) + ("" if pooled else "*"),
-                  fmt(agg["ap_challenging"]), "", f"{agg['seconds_per_scene_median']:.1f}")
-    if aggregate_ap(agg, "ap_normal", Yardstick.PER_FRAME) is not None:
-        table.add_row("pooled per frame (paper)", *(fmt(aggregate_ap(agg, k, Yardstick.PER_FRAME)) for k in POOLED_STAGES),
-                      "", "")
+    after_ap, pooled = after_acs_ap(aggregate_ap(agg, Stage.AFTER_ACS), agg[f"mean_scene_{Stage.AFTER_ACS.ap_key}"])
+    table.add_row("[bold]pooled", fmt(aggregate_ap(agg, Stage.NORMAL)), fmt(after_ap) + ("" if pooled else "*"),
+                  fmt(aggregate_ap(agg, Stage.FINAL)), "", f"{agg['seconds_per_scene_median']:.1f}")
+    if aggregate_ap(agg, Stage.NORMAL, Yardstick.PER_FRAME) is not None:
+        table.add_row("pooled per frame (paper)", *(fmt(aggregate_ap(agg, s, Yardstick.PER_FRAME)) for s in Stage), "", "")
     out.print(table)
     if not pooled:
         out.print("* mean over scenes (this folder has scenes written before after-ACS detections were stored)")

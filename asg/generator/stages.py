@@ -1,5 +1,5 @@
-"""The stages of a scene along one run of the generator (a closed set), and the keys their AP has
-in a run folder's files."""
+"""The stages of a scene along one run of the generator (a closed set), and the one key their AP has
+in a run folder's summary (a scene's entry and the pooled aggregate alike)."""
 from __future__ import annotations
 
 import enum
@@ -16,15 +16,16 @@ class Stage(str, enum.Enum):
     FINAL = "final"  # after the perturbation search: the challenging scene
 
     @property
-    def scene_key(self) -> str:
-        """The key of its AP in a summary's scene entry."""
-        return _SCENE_KEYS[self]
+    def ap_key(self) -> str:
+        """The key of its AP in a summary: a scene entry's AP and the aggregate's pooled AP."""
+        return _AP_KEYS[self]
 
     @property
-    def pooled_key(self) -> str:
-        """The key of its pooled AP in a summary's aggregate (the final stage's: "ap_challenging")."""
-        return _POOLED_KEYS[self]
+    def old_pooled_key(self) -> str:
+        """The key summaries written before :attr:`ap_key` was one gave its pooled AP (the final
+        stage's was "ap_challenging"); read, never written."""
+        return _OLD_POOLED_KEYS.get(self, _AP_KEYS[self])
 
 
-_SCENE_KEYS = {Stage.NORMAL: "ap_normal", Stage.AFTER_ACS: "ap_after_acs", Stage.FINAL: "ap_final"}
-_POOLED_KEYS = {Stage.NORMAL: "ap_normal", Stage.AFTER_ACS: "ap_after_acs", Stage.FINAL: "ap_challenging"}
+_AP_KEYS = {Stage.NORMAL: "ap_normal", Stage.AFTER_ACS: "ap_after_acs", Stage.FINAL: "ap_final"}
+_OLD_POOLED_KEYS = {Stage.FINAL: "ap_challenging"}

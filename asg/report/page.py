@@ -41,7 +41,7 @@ from ..objective.ap import Yardstick  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
 from ..io.figures import points_above_ground  # noqa: E402
 from ..io.json_file import read_json  # noqa: E402
-from ..generator.run_folder import POOLED_STAGES, load_detections  # noqa: E402
+from ..generator.run_folder import aggregate_ap, load_detections  # noqa: E402
 from ..generator.stages import Stage  # noqa: E402
 from .training import training_folders, training_section  # noqa: E402
 from .view3d import plotly_script, scene_view_html  # noqa: E402
@@ -148,14 +148,13 @@ def _is_table(path: Path) -> bool:
 def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
     summary = read_json(run / "summary.json", "the run")
     cfg, agg, entries = summary["config"], summary["aggregate"], summary["scenes"]
-    rows = [["pooled", ap_text(agg["ap_normal"]), ap_text(agg.get("ap_after_acs")), ap_text(agg["ap_challenging"]),
-             "", ""]]
+    rows = [["pooled", *(ap_text(aggregate_ap(agg, stage)) for stage in Stage), "", ""]]
     per_frame = agg.get("by_method", {}).get(Yardstick.PER_FRAME) if isinstance(agg.get("by_method"), dict) else None
     if isinstance(per_frame, dict):  # the paper's yardstick: no sort across frames (docs/generate.md)
-        rows.append(["pooled per frame (paper)", *(ap_text(per_frame.get(k)) for k in POOLED_STAGES), "", ""])
+        rows.append(["pooled per frame (paper)", *(ap_text(aggregate_ap(agg, s, Yardstick.PER_FRAME)) for s in Stage), "", ""])
     for e in entries:
         p = e.get("plausibility", {})
-        rows.append([e["scene_id"], ap_text(e["ap_normal"]), ap_text(e["ap_after_acs"]), ap_text(e["ap_final"]),
+        rows.append([e["scene_id"], *(ap_text(e[stage.ap_key]) for stage in Stage),
                      str(len(e.get("moved", []))),
                      f"{p.get('collisions', '-')} / {p.get('off_road', '-')} / {p.get('out_of_range', '-')}"])
     implausible = sum(any(v for v in e.get("plausibility", {}).values()) for e in entries)
@@ -182,7 +181,7 @@ def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
 def _ap_lost(entry: dict) -> float:
     """AP@0.7 the attack took from the scene (normal minus final); 0 if unreadable."""
     try:
-        return float(entry[Stage.NORMAL.scene_key]["0.7"]) - float(entry[Stage.FINAL.scene_key]["0.7"])
+        return float(entry[Stage.NORMAL.ap_key]["0.7"]) - float(entry[Stage.FINAL.ap_key]["0.7"])
     except (KeyError, TypeError, ValueError):
         return 0.0
 
@@ -205,7 +204,7 @@ def _scene_views(run: Path, entry: dict, index: int) -> str:
     for ax, (key, label) in zip(axes, STAGES):
         scene_file = folder / f"{key}.yaml"
         if key in dets and scene_file.is_file():
-            ap = entry[key.scene_key]
+            ap = entry[key.ap_key]
             scene = load_scene(scene_file)
             frame = simulate_frame(scene, load_lidar_spec())
             _bev(ax, scene, frame, dets[key], entry.get("moved", []) if key == Stage.FINAL else [],

@@ -22,6 +22,8 @@ from asg.executors import build_executor
 from asg.datasets import scenes_of
 from asg.generator.run import open_run
 from asg.generator.pipeline import load_generate_config, with_space_flags
+from asg.generator.run_folder import aggregate_ap
+from asg.generator.stages import Stage
 
 
 def _value(text: str):
@@ -58,7 +60,7 @@ def run_variant(scenes: Path, out: Path, variant: str) -> dict:
         agg = run_folder.run(artifacts=False, executor=executor).summary["aggregate"]
     finally:
         pipeline.search_params = defaults
-    return {"variant": variant, "budget": cfg.budget, "movers": cfg.perturbed, "n_q": cfg.space.n_q, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": agg["ap_challenging"]}
+    return {"variant": variant, "budget": cfg.budget, "movers": cfg.perturbed, "n_q": cfg.space.n_q, "scenes": agg["scenes"], "normal": agg["ap_normal"], "challenging": aggregate_ap(agg, Stage.FINAL)}
 
 
 if __name__ == "__main__":
