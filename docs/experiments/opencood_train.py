@@ -2,7 +2,7 @@
 ``detector-train`` set exported in the OPV2V layout; resumable (rerun the same command).
 
     python docs/experiments/opencood_train.py MODEL_DIR TRAIN_EXPORT VAL_EXPORT [--fusion intermediate|fcooper]
-        [--epochs 15] [--layers 3,5,8]
+        [--epochs 15] [--layers 3,5,8] [--contiguous-attention]
     python docs/experiments/opencood_train.py NEW_DIR TRAIN_EXPORT VAL_EXPORT --finetune-from MODEL_DIR --epochs 3
 
 MODEL_DIR gets OpenCOOD's stock hypes of the fusion (point_pillar_intermediate_fusion.yaml: AttFuse;
@@ -18,6 +18,13 @@ OpenCOOD's own resume does). ``MODEL_DIR`` is then a target: ``--fusion opencood
 ``--finetune-from MODEL_DIR`` (hardening an OpenCOOD model, docs/opencood.md): NEW_DIR gets
 MODEL_DIR's config with the new data folders and its checkpoint (the highest ``net_epochN.pth``,
 kept as ``net_epochN.pth``), and ``--epochs`` more epochs run from it by the same trainer.
+
+``--contiguous-attention`` (AttFuse only): OpenCOOD's ``ScaledDotProductAttention`` gets its
+query, key and value as contiguous copies before its two ``bmm``: the same products and softmax
+(only the order of float sums may differ), a training step 20 % faster on CPU (OpenCOOD's
+AttFusion hands ``bmm`` a permuted view, which CPU ``bmm`` multiplies one small matrix at a time;
+measured on an AVX2 machine: 7.2 s -> 5.8 s a step, median of 7, batch 2, depths 1, 2, 2). The
+checkpoints are OpenCOOD's as ever, evaluated by its unpatched forward (``--fusion opencood:DIR``).
 
 The trainer runs as ``asg harden --fusion opencood:DIR`` runs it (asg/perception/opencood/trainer.py:
 in this process, after asg's runtime preparation, which ``python -m opencood.tools.train`` lacks).
@@ -58,6 +65,20 @@ def write_config(model_dir: Path, fusion: str, train: Path, val: Path, epochs: i
     return path
 
 
+def contiguous_attention() -> None:
+    """OpenCOOD's ScaledDotProductAttention.forward with contiguous operands (see the docstring)."""
+    import torch
+
+    attention = module("models.fuse_modules.self_attn").ScaledDotProductAttention
+
+    def forward(self, query, key, value):
+        query, key, value = query.contiguous(), key.contiguous(), value.contiguous()
+        score = torch.bmm(query, key.transpose(1, 2)) / self.sqrt_dim
+        return torch.bmm(torch.softmax(score, -1), value)
+
+    attention.forward = forward
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("model_dir", type=Path)
@@ -66,12 +87,15 @@ def main() -> None:
     p.add_argument("--fusion", choices=sorted(STOCK), default="intermediate")
     p.add_argument("--epochs", type=int, default=15)
     p.add_argument("--layers", default=None, help="backbone stage depths, e.g. 1,2,2 (default OpenCOOD's 3,5,8)")
+    p.add_argument("--contiguous-attention", action="store_true", help="AttFuse: contiguous bmm operands (same math, faster)")
     p.add_argument("--finetune-from", type=Path, default=None, help="a trained model folder: --epochs more from its checkpoint")
     args = p.parse_args()
     layers = [int(x) for x in args.layers.split(",")] if args.layers else None
     if args.finetune_from:
         seed_from(args.model_dir, args.finetune_from, args.train.resolve(), args.val.resolve(), args.epochs)
     write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers)
+    if args.contiguous_attention:
+        contiguous_attention()
     run_trainer(args.model_dir)
 
 
