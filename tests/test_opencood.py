@@ -428,3 +428,32 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
     err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--weights", str(trained),
                    "--out", str(tmp_path / "x"))
     assert "--weights" in err and not (tmp_path / "x").exists()
+
+
+def test_contiguous_attention_computes_opencoods_attention(monkeypatch):
+    """docs/experiments/opencood_train.py --contiguous-attention gives OpenCOOD's AttFusion the
+    same output (its attention over agents at every BEV cell, fed a permuted view as AttFusion feeds
+    it), within float rounding."""
+    import importlib.util
+
+    import torch
+
+    from asg.perception.opencood.runtime import module, opencood
+
+    opencood()
+    self_attn = module("models.fuse_modules.self_attn")
+    original = self_attn.ScaledDotProductAttention.forward
+    monkeypatch.setattr(self_attn.ScaledDotProductAttention, "forward", original)  # restored after the test
+    torch.manual_seed(0)
+    x = torch.randn(3, 64, 20, 24)  # two scenes' agents (2 + 1), C, H, W
+    record_len = torch.tensor([2, 1])
+    fusion = self_attn.AttFusion(64)
+    want = fusion(x, record_len)
+    path = Path(__file__).parents[1] / "docs" / "experiments" / "opencood_train.py"
+    spec = importlib.util.spec_from_file_location("opencood_train", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    script.contiguous_attention()
+    got = fusion(x, record_len)
+    assert self_attn.ScaledDotProductAttention.forward is not original and got.shape == want.shape == (2, 64, 20, 24)
+    assert torch.allclose(got, want, atol=1e-6, rtol=1e-6) and not torch.equal(x[:1], got[:1])
