@@ -64,8 +64,8 @@ COMMAND_MODULES: tuple[Command, ...] = tuple(Command(*c) for c in (
     ("render", "asg.commands.render", "render a scene's cooperative LiDAR frame to a bird's-eye picture (and PCD files)"),
     ("dataset build", "asg.commands.dataset_build", "simulate and extract a data set from configs/datasets.yaml, or "
      "generate a challenging set", True),
-    ("export", "asg.commands.export", "write scenes for other tools: OPV2V (OpenCOOD), KITTI (OpenPCDet), OpenSCENARIO "
-     "1.2 + OpenDRIVE, SUMO routes"),
+    ("export", "asg.commands.export", "write scenes in other tools' formats (--format: OpenCOOD's OPV2V, OpenPCDet's "
+     "KITTI, OpenSCENARIO, SUMO, ROS 2 bags)"),
     ("report", "asg.commands.report", "one self-contained HTML page of a run folder or an 'asg bench paper' folder"),
     ("generate", "asg.generator.command", "generate challenging scenes: collaborator search, then perturbation search "
      "(no arguments: a one-minute demo)", True),

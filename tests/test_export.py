@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import yaml
 
-from asg.io.export import export
+from asg.io.export import EXPORT_FORMATS, export
+from sumo_scenarios.errors import InputError
 from asg.io.export.kitti import TR_VELO_TO_CAM
 from asg.sensors.opv2v import opv2v_ids
 from asg.perception.data import in_range
@@ -290,7 +291,7 @@ def test_every_in_range_vehicle_survives_each_stacks_stock_range(scenes_dir, tmp
         assert in_xy.any() and _inside(centres[in_xy], OPENPCDET_RANGE).all(), (name, centres[in_xy, 2])
 
 
-@pytest.mark.parametrize("fmt", ["opv2v", "kitti", "openscenario", "sumo"])
+@pytest.mark.parametrize("fmt", EXPORT_FORMATS.names())
 def test_export_of_an_rsu_ego_run_exits_zero(capsys, scenes_dir, tmp_path, fmt):
     """A folder holding an RSU-ego scene (the default ``asg generate`` makes them) exports in every format
     with exit code 0 and no error."""
@@ -332,4 +333,94 @@ def test_a_link_out_of_a_run_folder_is_not_followed(capsys, scenes_dir, tmp_path
     code, err = run(capsys, "export", str(run_dir), "--format", "opv2v", "--out", str(tmp_path / "o"))
     assert code == 2
     assert_one_line_error(err, "a link, which asg never writes")
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_rosbag2_reads_back_as_the_frame(scenes_dir, tmp_path):
+    """Each scene's bag, read by rosbags' own reader and deserialiser: every sensing agent's cloud
+    equal to the simulated one in its sensor frame, its sensor pose on /tf_static, the ground truth
+    the AP counts as boxes in the map frame, every message at the scene's time."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from asg.io.export.rosbag2 import ros_names
+    from asg.perception.data import in_range
+
+    folder, scenes = scenes_dir
+    assert export(folder, "rosbag2", tmp_path) == 2
+    store = get_typestore(Stores.ROS2_JAZZY)
+    ids = yaml.safe_load((tmp_path / "ids.yaml").read_text())
+    spec = load_lidar_spec("v2xp")
+    for scene in scenes:
+        frame = simulate_frame(scene, spec)
+        names = ros_names(frame.sensing_ids)
+        assert ids[scene.scene_id]["ego"] == names[scene.ego_id] and ids[scene.scene_id]["agents"] == names
+        bag = tmp_path / scene.scene_id
+        assert {p.name for p in bag.iterdir()} == {"metadata.yaml", f"{scene.scene_id}.mcap"}
+        with Reader(bag) as reader:
+            msgs = {c.topic: store.deserialize_cdr(raw, c.msgtype) for c, t, raw in reader.messages()}
+            stamps = {t for _, t, _ in reader.messages()}
+        assert stamps == {round(scene.time_s * 1e9)}
+        assert set(msgs) == {"/tf_static", "/asg/ground_truth", *(f"/asg/{names[a]}/points" for a in frame.sensing_ids)}
+        tf = {t.child_frame_id: t for t in msgs["/tf_static"].transforms}
+        for agent in frame.sensing_ids:
+            cloud = msgs[f"/asg/{names[agent]}/points"]
+            assert cloud.header.frame_id == names[agent] and [f.name for f in cloud.fields] == ["x", "y", "z", "intensity"]
+            points = np.frombuffer(cloud.data.tobytes(), "<f4").reshape(cloud.width, 4)
+            assert np.array_equal(points, frame.clouds[agent][:, :4].astype(np.float32)) and len(points) > 100
+            t, pose = tf[names[agent]], frame.poses[agent]
+            assert t.header.frame_id == "map"
+            assert np.allclose([t.transform.translation.x, t.transform.translation.y, t.transform.translation.z],
+                               pose.origin, atol=1e-9)
+            q = t.transform.rotation
+            assert abs(_wrap(2 * math.atan2(q.z, q.w) - pose.yaw_rad)) < 1e-9 and q.x == q.y == 0.0
+        keep = in_range(frame.ego_boxes)
+        markers = msgs["/asg/ground_truth"].markers
+        assert [m.text for m in markers] == [v for v, k in zip(frame.gt_ids, keep) if k] == ids[scene.scene_id]["ground_truth"]
+        got = [[m.pose.position.x, m.pose.position.y, m.pose.position.z, m.scale.x, m.scale.y, m.scale.z,
+                2 * math.atan2(m.pose.orientation.z, m.pose.orientation.w)] for m in markers]
+        _assert_same_boxes(got, frame.gt_boxes_world[keep], 1e-9)
+        assert all(m.header.frame_id == "map" and m.type == 1 for m in markers)
+        # Foxglove's reader (its own ROS 2 decoder, from the schemas the bag carries) reads the same
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
+
+        with open(bag / f"{scene.scene_id}.mcap", "rb") as fh:
+            decoded = {c.topic: (s.name, m) for s, c, _, m in make_reader(fh, decoder_factories=[DecoderFactory()])
+                       .iter_decoded_messages()}
+        assert {t: name for t, (name, _) in decoded.items()} == {t: m.__msgtype__ for t, m in msgs.items()}
+        for agent in frame.sensing_ids:
+            theirs = decoded[f"/asg/{names[agent]}/points"][1]
+            assert theirs.width == len(frame.clouds[agent]) and bytes(theirs.data) == msgs[f"/asg/{names[agent]}/points"].data.tobytes()
+        assert [m.text for m in decoded["/asg/ground_truth"][1].markers] == [m.text for m in markers]
+
+
+def test_rosbag2_names_are_ros_names():
+    """Agent ids become ROS name tokens (a letter first; [A-Za-z0-9_]); two that would meet stay apart."""
+    from asg.io.export.rosbag2 import ros_names, stamp_ns
+
+    assert ros_names(["12", "flow.3", "flow_3", "-1"]) == {"12": "agent_12", "flow.3": "agent_flow_3",
+                                                          "flow_3": "agent_flow_3_2", "-1": "agent__1"}
+    assert stamp_ns(12.5) == 12_500_000_000
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(InputError, match="cannot stamp"):
+            stamp_ns(bad)
+
+
+def test_rosbag2_without_rosbags_is_one_line(capsys, scenes_dir, tmp_path, monkeypatch):
+    """Without the ros extra, --format rosbag2 names the extra in one line and writes nothing."""
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_rosbags(name, *args, **kwargs):
+        if name.startswith("rosbags"):
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_rosbags)
+    folder, _ = scenes_dir
+    code, err = run(capsys, "export", str(folder), "--format", "rosbag2", "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "asg[ros]")
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

@@ -15,7 +15,7 @@ SHIPPED = {"fusion": ["attfuse", "attfuse-ft", "attfuse-wide", "early", "fcooper
                       "v2xvit-noisy", "where2comm"],
            "search": ["bo", "ga", "ls", "ng", "rs"], "space": ["dropout", "insert", "latency", "pose-error", "poses"],
            "acs": ["attention", "random"], "executor": ["local", "ray"],
-           "export": ["kitti", "openscenario", "opv2v", "sumo"]}
+           "export": ["kitti", "openscenario", "opv2v", "rosbag2", "sumo"]}
 REGISTRIES = {"fusion": FUSIONS, "search": SEARCHES, "space": SPACES, "acs": ACS_STRATEGIES, "executor": EXECUTORS,
               "export": EXPORT_FORMATS}
 
@@ -23,6 +23,33 @@ REGISTRIES = {"fusion": FUSIONS, "search": SEARCHES, "space": SPACES, "acs": ACS
 @pytest.mark.parametrize("kind", sorted(SHIPPED))
 def test_each_registry_holds_the_shipped_set_once_its_package_is_imported(kind):
     assert REGISTRIES[kind].names() == SHIPPED[kind]
+
+
+#: a flag's choices as the docs write them, ``--flag a|b|c``; the words a list may add to its
+#: registry's names (a plugin, an OpenCOOD folder, ACS off)
+DOC_FLAGS = {"--fusion": ("fusion", {"PLUGIN", "opencood:DIR"}), "--search": ("search", set()),
+             "--format": ("export", set()), "--acs": ("acs", {"off"}), "--executor": ("executor", set())}
+
+
+def test_the_docs_list_every_name_of_a_registry():
+    """Every ``--flag a|b|c`` the README and docs/ write names the whole registry of that flag (and
+    nothing it lacks): a part added or removed shows in the docs or fails here."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).parents[1]
+    pages = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    seen = 0
+    for page in pages:
+        # (a list in a markdown table escapes its bars: a\|b)
+        for flag, words in re.findall(r"(--[a-z]+)[ =]`?([A-Za-z0-9:_-]+(?:\\?\|[A-Za-z0-9:_-]+)+)", page.read_text()):
+            if flag not in DOC_FLAGS:
+                continue
+            kind, extra = DOC_FLAGS[flag]
+            names = set(words.replace("\\|", "|").split("|")) - extra
+            assert names == set(REGISTRIES[kind].names()), (page.name, flag, words)
+            seen += 1
+    assert seen >= 4  # the lists this test exists for are there
 
 
 def test_the_export_formats_register_without_loading_the_lidar_or_torch():

@@ -1,5 +1,4 @@
-"""``asg export``: scenes for other tools: OPV2V (OpenCOOD), KITTI (OpenPCDet), OpenSCENARIO 1.2 +
-OpenDRIVE, SUMO routes."""
+"""``asg export``: scenes in other tools' formats (``asg.io.export.EXPORT_FORMATS``, docs/export.md)."""
 from __future__ import annotations
 
 import argparse

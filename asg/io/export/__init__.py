@@ -1,4 +1,4 @@
-"""``asg export SOURCE --format opv2v|kitti|openscenario|sumo --out DIR``: scenes other tools read.
+"""``asg export SOURCE --format FORMAT --out DIR``: scenes other tools read (a format: a module here).
 
 SOURCE is an ``asg generate`` run folder (its final scenes), a data set (a name such as
 ``challenging-attfuse-val`` or a folder with index.json) or a folder of scene yaml. Every scene is
