@@ -8,4 +8,7 @@ __version__ = "0.1.0"
 # need, and inference beside a busy process ran 2.5-3.5x slower (docs/results/speed.md). Read by the
 # OpenMP runtime when torch loads, so it is set before any asg module imports torch; a value the
 # user set (even empty: the runtime's default) is kept.
+#: the user's own OMP_WAIT_POLICY (None: unset), for a child process that trains (an OpenCOOD model's
+#: trainer spins its waiting threads unless the user chose otherwise: asg/perception/opencood/trainer.py)
+USER_OMP_WAIT_POLICY = _os.environ.get("OMP_WAIT_POLICY")
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

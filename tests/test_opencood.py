@@ -431,14 +431,13 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
 
 
 def test_contiguous_attention_computes_opencoods_attention(monkeypatch):
-    """docs/experiments/opencood_train.py --contiguous-attention gives OpenCOOD's AttFusion the
-    same output (its attention over agents at every BEV cell, fed a permuted view as AttFusion feeds
+    """The trainer's contiguous attention (opencood_train.py --contiguous-attention) gives OpenCOOD's
+    AttFusion the same output (its attention over agents at every BEV cell, fed a permuted view as AttFusion feeds
     it), within float rounding."""
-    import importlib.util
-
     import torch
 
     from asg.perception.opencood.runtime import module, opencood
+    from asg.perception.opencood.trainer import contiguous_attention
 
     opencood()
     self_attn = module("models.fuse_modules.self_attn")
@@ -449,11 +448,18 @@ def test_contiguous_attention_computes_opencoods_attention(monkeypatch):
     record_len = torch.tensor([2, 1])
     fusion = self_attn.AttFusion(64)
     want = fusion(x, record_len)
-    path = Path(__file__).parents[1] / "docs" / "experiments" / "opencood_train.py"
-    spec = importlib.util.spec_from_file_location("opencood_train", path)
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
-    script.contiguous_attention()
+    contiguous_attention()
     got = fusion(x, record_len)
     assert self_attn.ScaledDotProductAttention.forward is not original and got.shape == want.shape == (2, 64, 20, 24)
     assert torch.allclose(got, want, atol=1e-6, rtol=1e-6) and not torch.equal(x[:1], got[:1])
+
+
+def test_a_trainer_that_fails_is_one_line_naming_its_log(tmp_path):
+    """OpenCOOD's trainer runs in a child process; one that stops (here: a config it cannot read)
+    is one line naming the log that holds its own words."""
+    from asg.perception.opencood.trainer import TRAIN_LOG, run_trainer
+
+    (tmp_path / "config.yaml").write_text("model: [unclosed\n")
+    with pytest.raises(InputError, match="OpenCOOD's trainer stopped with exit code 1; its log: .*train.log"):
+        run_trainer(tmp_path)
+    assert "Error" in (tmp_path / TRAIN_LOG).read_text()

@@ -21,13 +21,13 @@ kept as ``net_epochN.pth``), and ``--epochs`` more epochs run from it by the sam
 
 ``--contiguous-attention`` (AttFuse only): OpenCOOD's ``ScaledDotProductAttention`` gets its
 query, key and value as contiguous copies before its two ``bmm``: the same products and softmax
-(only the order of float sums may differ), a training step 20 % faster on CPU (OpenCOOD's
-AttFusion hands ``bmm`` a permuted view, which CPU ``bmm`` multiplies one small matrix at a time;
-measured on an AVX2 machine: 7.2 s -> 5.8 s a step, median of 7, batch 2, depths 1, 2, 2). The
-checkpoints are OpenCOOD's as ever, evaluated by its unpatched forward (``--fusion opencood:DIR``).
+(only the order of float sums may differ), a training step 20 % faster on CPU
+(asg.perception.opencood.trainer.contiguous_attention). The checkpoints are OpenCOOD's as ever,
+evaluated by its unpatched forward (``--fusion opencood:DIR``).
 
 The trainer runs as ``asg harden --fusion opencood:DIR`` runs it (asg/perception/opencood/trainer.py:
-in this process, after asg's runtime preparation, which ``python -m opencood.tools.train`` lacks).
+in a child process with spinning OpenMP threads, after asg's runtime preparation, which
+``python -m opencood.tools.train`` lacks).
 Its log: MODEL_DIR/train.log (append).
 """
 from __future__ import annotations
@@ -65,20 +65,6 @@ def write_config(model_dir: Path, fusion: str, train: Path, val: Path, epochs: i
     return path
 
 
-def contiguous_attention() -> None:
-    """OpenCOOD's ScaledDotProductAttention.forward with contiguous operands (see the docstring)."""
-    import torch
-
-    attention = module("models.fuse_modules.self_attn").ScaledDotProductAttention
-
-    def forward(self, query, key, value):
-        query, key, value = query.contiguous(), key.contiguous(), value.contiguous()
-        score = torch.bmm(query, key.transpose(1, 2)) / self.sqrt_dim
-        return torch.bmm(torch.softmax(score, -1), value)
-
-    attention.forward = forward
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("model_dir", type=Path)
@@ -94,9 +80,7 @@ def main() -> None:
     if args.finetune_from:
         seed_from(args.model_dir, args.finetune_from, args.train.resolve(), args.val.resolve(), args.epochs)
     write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers)
-    if args.contiguous_attention:
-        contiguous_attention()
-    run_trainer(args.model_dir)
+    run_trainer(args.model_dir, contiguous_attention=args.contiguous_attention)
 
 
 if __name__ == "__main__":

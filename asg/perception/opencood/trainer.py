@@ -1,23 +1,33 @@
 """OpenCOOD's own trainer (``opencood/tools/train.py``, unmodified) on asg's exported scenes: a model
 folder seeded from a trained one (its config with new data folders and more epochs, its latest
-checkpoint), then trained in this process after asg's runtime preparation (runtime.py), which
-``python -m opencood.tools.train`` lacks. The trainer saves ``net_epochN.pth`` after each epoch and,
-run again on the folder, resumes from the highest N (its optimizer restarts, as OpenCOOD's own resume
-does)."""
+checkpoint), then trained in a child process (``python -m asg.perception.opencood.trainer DIR``:
+asg's runtime preparation, runtime.py, which ``python -m opencood.tools.train`` lacks, then the
+trainer). The trainer saves ``net_epochN.pth`` after each epoch and, run again on the folder,
+resumes from the highest N (its optimizer restarts, as OpenCOOD's own resume does).
+
+The child runs with ``OMP_WAIT_POLICY=ACTIVE`` (unless the user set the variable): asg's own
+``PASSIVE`` (asg/__init__.py: threads that wait sleep, for a shared machine) made OpenCOOD's
+trainer 4.4x slower (33 s a step against 7.6 s for its AttFuse, depths 1, 2, 2, batch 2, two
+threads, 2-core AVX2 machine): its many small parallel regions each wake sleeping threads. A
+training run owns the cores it runs on.
+"""
 from __future__ import annotations
 
-import contextlib
+import os
 import runpy
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
 import yaml
 
+import asg
 from sumo_scenarios.atomic import write_text_atomic
+from sumo_scenarios.errors import InputError
 
 from .folder import HypesLoader, checkpoint_of, read_hypes
-from .runtime import opencood
+from .runtime import module, opencood
 
 #: the trainer's log in a model folder (appended to: a resumed run adds to it)
 TRAIN_LOG = "train.log"
@@ -48,14 +58,44 @@ def seed_from(model_dir: Path, source: Path, train: Path, val: Path, more_epochs
     write_text_atomic(model_dir / "config.yaml", yaml.safe_dump(hypes, sort_keys=False))
 
 
-def run_trainer(model_dir: Path) -> None:
-    """OpenCOOD's ``tools/train.py --hypes_yaml model_dir/config.yaml --model_dir model_dir`` in this
-    process, its output appended to ``model_dir/train.log``."""
+def run_trainer(model_dir: Path, contiguous_attention: bool = False) -> None:
+    """OpenCOOD's ``tools/train.py --hypes_yaml model_dir/config.yaml --model_dir model_dir`` in a
+    child process (module docstring), its output appended to ``model_dir/train.log``; InputError
+    (one line, naming the log) if it fails. ``contiguous_attention``: see :func:`contiguous_attention`."""
+    env = {**os.environ, "OMP_WAIT_POLICY": asg.USER_OMP_WAIT_POLICY or "ACTIVE"}
+    command = [sys.executable, "-m", __name__, str(model_dir), *(["--contiguous-attention"] if contiguous_attention else [])]
+    with open(model_dir / TRAIN_LOG, "a", buffering=1) as log:
+        code = subprocess.run(command, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
+    if code:
+        raise InputError(f"OpenCOOD's trainer stopped with exit code {code}; its log: {model_dir / TRAIN_LOG}")
+
+
+def contiguous_attention() -> None:
+    """OpenCOOD's ``ScaledDotProductAttention`` (AttFuse) given contiguous query, key and value
+    before its two ``bmm``: the same products and softmax (only the order of float sums may
+    differ), a training step 20 % faster on CPU (AttFusion hands ``bmm`` a permuted view, which CPU
+    ``bmm`` multiplies one small matrix at a time: 7.2 s -> 5.8 s a step, batch 2, depths 1, 2, 2).
+    The checkpoints are OpenCOOD's as ever; asg's adapter runs OpenCOOD's unpatched forward."""
+    import torch
+
+    attention = module("models.fuse_modules.self_attn").ScaledDotProductAttention
+
+    def forward(self, query, key, value):
+        query, key, value = query.contiguous(), key.contiguous(), value.contiguous()
+        score = torch.bmm(query, key.transpose(1, 2)) / self.sqrt_dim
+        return torch.bmm(torch.softmax(score, -1), value)
+
+    attention.forward = forward
+
+
+def _train(model_dir: Path, patch_attention: bool) -> None:
+    """The child's work: asg's runtime preparation, then OpenCOOD's trainer on ``model_dir``."""
     opencood()  # box_overlaps compiled, get_cmap restored: the trainer imports as shipped
-    argv = sys.argv
+    if patch_attention:
+        contiguous_attention()
     sys.argv = ["opencood.tools.train", "--hypes_yaml", str(model_dir / "config.yaml"), "--model_dir", str(model_dir)]
-    try:
-        with open(model_dir / TRAIN_LOG, "a", buffering=1) as log, contextlib.redirect_stdout(log):
-            runpy.run_module("opencood.tools.train", run_name="__main__")
-    finally:
-        sys.argv = argv
+    runpy.run_module("opencood.tools.train", run_name="__main__")
+
+
+if __name__ == "__main__":
+    _train(Path(sys.argv[1]), "--contiguous-attention" in sys.argv[2:])
