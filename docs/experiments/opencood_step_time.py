@@ -35,11 +35,13 @@ def measure(model_dir: Path, steps: int, contiguous: bool) -> dict:
     if contiguous:
         contiguous_attention()
 
-    class Options:
-        model_dir = ""
-        hypes_yaml = str(model_dir / "config.yaml")
+    config = str(model_dir / "config.yaml")
 
-    hypes = module("hypes_yaml.yaml_utils").load_yaml(Options.hypes_yaml, Options)
+    class Options:  # what OpenCOOD's load_yaml reads of its command line (no model_dir: this config as given)
+        model_dir = ""
+        hypes_yaml = config
+
+    hypes = module("hypes_yaml.yaml_utils").load_yaml(config, Options)
     train_utils = module("tools.train_utils")
     dataset = module("data_utils.datasets").build_dataset(hypes, visualize=False, train=True)
     torch.manual_seed(0)
@@ -79,7 +81,9 @@ def main() -> None:
     for policy, contiguous in CONFIGS:
         env = {**os.environ, "OMP_WAIT_POLICY": policy}
         out = subprocess.run([sys.executable, __file__, str(args.model_dir), "--steps", str(args.steps),
-                              "--one", policy, str(int(contiguous))], env=env, capture_output=True, text=True, check=True)
+                              "--one", policy, str(int(contiguous))], env=env, capture_output=True, text=True)
+        if out.returncode:
+            sys.exit(f"{policy}, contiguous {contiguous}: exit {out.returncode}\n{out.stderr[-2000:]}")
         row = {"omp_wait_policy": policy, "contiguous_attention": contiguous, **json.loads(out.stdout.splitlines()[-1])}
         rows.append(row)
         print(json.dumps(row), flush=True)
