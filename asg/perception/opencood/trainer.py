@@ -7,8 +7,9 @@ resumes from the highest N (its optimizer restarts, as OpenCOOD's own resume doe
 
 The child runs with ``OMP_WAIT_POLICY=ACTIVE`` (unless the user set the variable): asg's own
 ``PASSIVE`` (asg/__init__.py: threads that wait sleep, for a shared machine) made OpenCOOD's
-trainer 4.4x slower (33 s a step against 7.6 s for its AttFuse, depths 1, 2, 2, batch 2, two
-threads, 2-core AVX2 machine): its many small parallel regions each wake sleeping threads. A
+trainer 5.1x slower (35.2 s a step against 6.8 s for its AttFuse, depths 1, 2, 2, batch 2, two
+threads, 2-core AVX2 machine; docs/experiments/opencood_step_time.py): its many small parallel
+regions each wake sleeping threads. A
 training run owns the cores it runs on.
 """
 from __future__ import annotations
@@ -73,8 +74,8 @@ def run_trainer(model_dir: Path, contiguous_attention: bool = False) -> None:
 def contiguous_attention() -> None:
     """OpenCOOD's ``ScaledDotProductAttention`` (AttFuse) given contiguous query, key and value
     before its two ``bmm``: the same products and softmax (only the order of float sums may
-    differ), a training step 20 % faster on CPU (AttFusion hands ``bmm`` a permuted view, which CPU
-    ``bmm`` multiplies one small matrix at a time: 7.2 s -> 5.8 s a step, batch 2, depths 1, 2, 2).
+    differ), a training step 18 % faster on CPU (AttFusion hands ``bmm`` a permuted view, which CPU
+    ``bmm`` multiplies one small matrix at a time: 6.8 s -> 5.6 s a step, batch 2, depths 1, 2, 2).
     The checkpoints are OpenCOOD's as ever; asg's adapter runs OpenCOOD's unpatched forward."""
     import torch
 
