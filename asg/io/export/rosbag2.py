@@ -90,7 +90,7 @@ class Rosbag2Writer:
 
         frame = simulate_frame(scene, self.spec)
         names = ros_names(frame.sensing_ids)
-        keep = in_range(frame.ego_boxes) if len(frame.gt_ids) else np.zeros(0, bool)
+        keep = in_range(frame.ego_boxes)
         ground_truth = [vid for vid, k in zip(frame.gt_ids, keep) if k]
         stamp = stamp_ns(scene.time_s)
         folder = inside(self.out, self.out / scene.scene_id)
