@@ -463,3 +463,32 @@ def test_a_trainer_that_fails_is_one_line_naming_its_log(tmp_path):
     with pytest.raises(InputError, match="OpenCOOD's trainer stopped with exit code 1; its log: .*train.log"):
         run_trainer(tmp_path)
     assert "Error" in (tmp_path / TRAIN_LOG).read_text()
+
+
+class _Unpicklable:
+    def __reduce__(self):
+        raise RuntimeError("stopped mid-save")
+
+
+def test_the_trainers_checkpoints_are_whole_or_absent(monkeypatch, tmp_path):
+    """In the trainer's child every torch.save to a path is atomic: a save that stops midway leaves
+    neither the checkpoint nor its temporary file (OpenCOOD's resume would load a truncated one),
+    a save that ends is the checkpoint, and a save to an open file is torch's own."""
+    import io
+
+    import torch
+
+    from asg.perception.opencood.trainer import atomic_checkpoints
+
+    monkeypatch.setattr(torch, "save", torch.save)  # restored after the test
+    atomic_checkpoints()
+    target = tmp_path / "net_epoch3.pth"
+    with pytest.raises(RuntimeError, match="stopped mid-save"):
+        torch.save({"w": torch.ones(4), "bad": _Unpicklable()}, target)
+    assert list(tmp_path.iterdir()) == []
+    torch.save({"w": torch.arange(4.0)}, target)
+    assert torch.equal(torch.load(target, weights_only=True)["w"], torch.arange(4.0))
+    assert [p.name for p in tmp_path.iterdir()] == ["net_epoch3.pth"]
+    buffer = io.BytesIO()
+    torch.save({"w": torch.ones(2)}, buffer)
+    assert buffer.getvalue()

@@ -11,6 +11,11 @@ trainer 5.1x slower (35.2 s a step against 6.8 s for its AttFuse, depths 1, 2, 2
 threads, 2-core AVX2 machine; docs/experiments/opencood_step_time.py): its many small parallel
 regions each wake sleeping threads. A
 training run owns the cores it runs on.
+
+OpenCOOD's trainer writes each checkpoint in place: a Ctrl-C or a crash during its ``torch.save``
+would leave a truncated ``net_epochN.pth`` that the resume then fails to load. In the child every
+``torch.save`` to a path goes through a temporary file renamed into place (:func:`atomic_checkpoints`),
+and the temporary files an interrupted run left are removed before the trainer starts.
 """
 from __future__ import annotations
 
@@ -24,7 +29,7 @@ from pathlib import Path
 import yaml
 
 import asg
-from sumo_scenarios.atomic import write_text_atomic
+from sumo_scenarios.atomic import atomic_path, remove_stale_partials, write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from .folder import HypesLoader, checkpoint_of, read_hypes
@@ -89,9 +94,29 @@ def contiguous_attention() -> None:
     attention.forward = forward
 
 
+def atomic_checkpoints() -> None:
+    """``torch.save`` to a path writes a temporary file beside it and renames it into place
+    (sumo_scenarios.atomic), so that the checkpoint OpenCOOD's trainer saves is whole or absent; a
+    save to an open file object is left as it was. The temporary name starts with a dot, which
+    OpenCOOD's resume (``glob('*epoch*.pth')``) never picks."""
+    import torch
+
+    save = torch.save
+
+    def save_atomically(obj, f, *args, **kwargs):
+        if not isinstance(f, (str, os.PathLike)):
+            return save(obj, f, *args, **kwargs)
+        with atomic_path(f) as tmp:
+            save(obj, tmp, *args, **kwargs)
+
+    torch.save = save_atomically
+
+
 def _train(model_dir: Path, patch_attention: bool) -> None:
     """The child's work: asg's runtime preparation, then OpenCOOD's trainer on ``model_dir``."""
     opencood()  # box_overlaps compiled, get_cmap restored: the trainer imports as shipped
+    remove_stale_partials(model_dir)  # what a killed save left; no other writer works in the folder
+    atomic_checkpoints()
     if patch_attention:
         contiguous_attention()
     sys.argv = ["opencood.tools.train", "--hypes_yaml", str(model_dir / "config.yaml"), "--model_dir", str(model_dir)]
