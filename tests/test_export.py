@@ -86,6 +86,44 @@ def test_opv2v_reads_back_as_opencood_reads_it(scenes_dir, tmp_path):
             _assert_same_boxes(boxes, mirrored, atol=1e-3)
 
 
+def test_views_all_writes_each_collaborators_view_as_its_own_scenario(scenes_dir, tmp_path):
+    """``--views all``: each scene once more as each collaborator sees it (SCENE-as-AGENT), that agent
+    OpenCOOD's ego; its cloud and its ground truth there are the ones it had as a collaborator, and
+    the scene's ego is a collaborator of it."""
+    from asg.io.export import Views
+
+    folder, scenes = scenes_dir
+    assert export(folder, "opv2v", tmp_path, views=Views.ALL) == sum(len(s.sensing_ids) for s in scenes) == 6
+    for scene in scenes:
+        ids = opv2v_ids(scene)
+        for agent_id in scene.collaborators:
+            view = tmp_path / f"{scene.scene_id}-as-{agent_id}"
+            record = yaml.safe_load((view / "ids.yaml").read_text())
+            assert record["ego"] == record["opencood_ego"] == 0
+            assert record["ids"][agent_id] == 0 and record["ids"][scene.ego_id] in record["sensing"]
+            as_collaborator = tmp_path / scene.scene_id / str(ids[agent_id])
+            assert (view / "0" / "000000.pcd").read_bytes() == (as_collaborator / "000000.pcd").read_bytes()
+            meta = [yaml.safe_load((d / "000000.yaml").read_text()) for d in (view / "0", as_collaborator)]
+            boxes = [boxes_from_opv2v_yaml(m["vehicles"], m["lidar_pose"]) for m in meta]
+            _assert_same_boxes(boxes[0], boxes[1], atol=1e-6)
+
+
+def test_views_all_refuses_a_scene_whose_links_were_degraded(capsys, cross_map, tmp_path):
+    """A link record (what a collaborator's message went through on its way to the ego) holds for
+    that ego only: ``--views all`` of such a scene is one line, not a scene with a wrong link."""
+    from dataclasses import replace
+
+    from asg.scene.link import LinkState
+    from conftest import car, make_scene, rsu
+
+    scene = make_scene(cross_map, [rsu("r", 8.0, 8.0), car("a", -10.0, -1.6)], collaborators=["a"])
+    save_scene(replace(scene, link={"a": LinkState(dx_m=0.2)}), tmp_path / "scenes" / "s.yaml")
+    code, err = run(capsys, "export", str(tmp_path / "scenes"), "--format", "opv2v", "--views", "all",
+                    "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "links were degraded", "--views ego")
+
+
 def openpcdet_info_builder_reads(root, frames: int) -> None:
     """What OpenPCDet's ``create_kitti_infos`` reads before it looks at a label, as its
     ``KittiDataset`` does it (8cacccec): the split lists ``ImageSets/{train,val,test}.txt``, each

@@ -492,3 +492,30 @@ def test_the_trainers_checkpoints_are_whole_or_absent(monkeypatch, tmp_path):
     buffer = io.BytesIO()
     torch.save({"w": torch.ones(2)}, buffer)
     assert buffer.getvalue()
+
+
+def test_the_trainer_reads_our_ego_where_an_rsu_collaborates(monkeypatch, tmp_path):
+    """opencoodx 0.1.19 takes the first agent folder in string order as the ego, so an RSU
+    collaborator (-1) would be trained as the ego; the trainer's child gives OpenCOOD's dataset the
+    later releases' rule: our ego (0) leads, the RSU goes last, other scenarios are unchanged."""
+    from asg.perception.opencood.folder import read_hypes
+    from asg.perception.opencood.runtime import module
+    from asg.perception.opencood.trainer import rsu_never_ego
+
+    for scenario, agents in {"a": ["0", "-1", "1003"], "b": ["0", "1001"]}.items():
+        for agent in agents:
+            (tmp_path / "data" / scenario / agent).mkdir(parents=True)
+            (tmp_path / "data" / scenario / agent / "000000.yaml").write_text("{}\n")
+    hypes = read_hypes(make_model_dir(tmp_path / "model", "intermediate"))
+    hypes.update(root_dir=str(tmp_path / "data"), validate_dir=str(tmp_path / "data"))
+    base = module("data_utils.datasets.basedataset").BaseDataset
+    monkeypatch.setattr(base, "__init__", base.__init__)  # restored after the test
+
+    def egos():
+        table = base(hypes, visualize=False, train=True).scenario_database
+        return [[(agent, content["ego"]) for agent, content in table[i].items()] for i in (0, 1)]
+
+    assert egos()[0][0] == ("-1", True)  # opencoodx as shipped: the RSU
+    rsu_never_ego()
+    rsu_never_ego()  # once is enough; twice changes nothing
+    assert egos() == [[("0", True), ("1003", False), ("-1", False)], [("0", True), ("1001", False)]]

@@ -16,6 +16,12 @@ OpenCOOD's trainer writes each checkpoint in place: a Ctrl-C or a crash during i
 would leave a truncated ``net_epochN.pth`` that the resume then fails to load. In the child every
 ``torch.save`` to a path goes through a temporary file renamed into place (:func:`atomic_checkpoints`),
 and the temporary files an interrupted run left are removed before the trainer starts.
+
+opencoodx 0.1.19's datasets take a scenario's first agent folder in string order as its ego, so a
+collaborating RSU (folder ``-1``) is read as the ego instead of ours (``0``); OpenCOOD's later
+releases move one leading negative folder to the end, the rule asg's OPV2V export is numbered for.
+The child trains with that rule (:func:`rsu_never_ego`), so that every scenario trains its own ego's
+view.
 """
 from __future__ import annotations
 
@@ -112,11 +118,34 @@ def atomic_checkpoints() -> None:
     torch.save = save_atomically
 
 
+def rsu_never_ego() -> None:
+    """OpenCOOD's ``BaseDataset`` with its later releases' ego rule: after its own ``__init__``, a
+    scenario whose first agent id is negative (an RSU) has that agent moved to the end and the ego
+    flag on the new first agent, as ``basedataset.py`` orders ``cav_list`` since (a leading RSU goes
+    last). Scenarios without a leading RSU are left as they are."""
+    base = module("data_utils.datasets.basedataset").BaseDataset
+    if getattr(base.__init__, "rsu_never_ego", False):
+        return
+    init = base.__init__
+
+    def __init__(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        for agents in self.scenario_database.values():
+            order = list(agents)
+            if len(order) > 1 and order[0].startswith("-") and order[0][1:].isdigit():
+                agents[order[0]]["ego"], agents[order[1]]["ego"] = False, True
+                agents.move_to_end(order[0])
+
+    __init__.rsu_never_ego = True
+    base.__init__ = __init__
+
+
 def _train(model_dir: Path, patch_attention: bool) -> None:
     """The child's work: asg's runtime preparation, then OpenCOOD's trainer on ``model_dir``."""
     opencood()  # box_overlaps compiled, get_cmap restored: the trainer imports as shipped
     remove_stale_partials(model_dir)  # what a killed save left; no other writer works in the folder
     atomic_checkpoints()
+    rsu_never_ego()
     if patch_attention:
         contiguous_attention()
     sys.argv = ["opencood.tools.train", "--hypes_yaml", str(model_dir / "config.yaml"), "--model_dir", str(model_dir)]
