@@ -46,6 +46,23 @@ def test_scene_missing_key(sumo_log, tmp_path):
         load_scene(path)
 
 
+@pytest.mark.parametrize("field, value, says", [
+    ("scene_id", "../up", "scene_id"), ("time_s", -1.0, "time_s"),
+    ("link", {"COLLAB": {"delay_s": 0.1}}, "link of 'COLLAB': delayed by 0.1 s")])
+def test_a_bad_field_names_the_file_once_and_the_field(sumo_log, tmp_path, field, value, says):
+    """An error in a scene file is one line: the file once, then the field that is wrong."""
+    s = next(iter(extract_scenes(sumo_log, ExtractParams(every=120, collaborators=1))))
+    data = s.to_dict()
+    data[field] = {s.collaborators[0]: value["COLLAB"]} if field == "link" else value
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(InputError) as error:
+        load_scene(path)
+    message = str(error.value)
+    assert message.count(str(path)) == 1 and message.startswith(f"{path}: ")
+    assert says.replace("COLLAB", s.collaborators[0]) in message
+
+
 def test_scene_unknown_ego(sumo_log):
     s = next(iter(extract_scenes(sumo_log, ExtractParams(every=120))))
     data = s.to_dict()

@@ -63,10 +63,10 @@ class LinkState:
         return out
 
     @staticmethod
-    def from_dict(d, agent_id: str, where: str) -> "LinkState":
+    def from_dict(d, agent_id: str) -> "LinkState":
         """A record from yaml; every number checked, ``earlier_agents`` must hold ``agent_id`` when
-        the message is delayed."""
-        where = f"{where}: link of '{agent_id}'"
+        the message is delayed (an error names the link; the scene's loader names the file)."""
+        where = f"link of '{agent_id}'"
         if not isinstance(d, dict):
             raise InputError(f"{where}: expected a mapping (dx_m, dy_m, dyaw_rad, delay_s, dropped)")
         unknown = sorted(set(d) - {"dx_m", "dy_m", "dyaw_rad", "delay_s", "dropped", "earlier_agents"})

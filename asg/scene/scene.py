@@ -117,16 +117,16 @@ class Scene:
         try:
             agents = tuple(Agent.from_dict(a) for a in _items(d["agents"], "agents"))
             scene = Scene(
-                scene_id=checks.safe_id(d["scene_id"], f"{where}: scene_id"), town=str(d["town"]),
-                source=str(d["source"]), time_s=checks.number(d["time_s"], f"{where}: time_s", 0.0, 1.0e7),
+                scene_id=checks.safe_id(d["scene_id"], "scene_id"), town=str(d["town"]),
+                source=str(d["source"]), time_s=checks.number(d["time_s"], "time_s", 0.0, 1.0e7),
                 ego_id=str(d["ego"]), agents=agents,
                 buildings=tuple(Building.from_dict(b) for b in _items(d["buildings"], "buildings")),
                 lane_map=LaneMap.from_dict(d["lanes"]),
                 collaborators=tuple(str(c) for c in _items(d.get("collaborators"), "collaborators")),
                 log=None if d.get("log") is None else str(d["log"]),
-                link=_link(d.get("link"), where),
+                link=_link(d.get("link")),
             )
-        except InputError as exc:
+        except InputError as exc:  # each part names itself; the file is named once, here
             raise InputError(f"{where}: {exc}") from None
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed scene ({type(exc).__name__}: {exc}); re-extract it") from None
@@ -149,12 +149,12 @@ class Scene:
         return scene
 
 
-def _link(value, where: str) -> dict[str, LinkState]:
+def _link(value) -> dict[str, LinkState]:
     if value is None:
         return {}
     if not isinstance(value, dict):
         raise TypeError("'link' must be a mapping of collaborator id to link state")
-    return {str(k): LinkState.from_dict(v, str(k), where) for k, v in value.items()}
+    return {str(k): LinkState.from_dict(v, str(k)) for k, v in value.items()}
 
 
 def _items(value, key: str) -> list:
