@@ -13,7 +13,7 @@ point_pillar_fcooper.yaml: F-Cooper) with three changes, each written into its c
 - ``--layers``: the backbone stages' depths, only when given (the stock depths are 3, 5, 8).
 Then OpenCOOD's trainer runs with ``--model_dir MODEL_DIR``: it saves ``net_epochN.pth`` after every
 epoch and, rerun, resumes from the highest N (the model's weights; its optimizer restarts, as
-OpenCOOD's own resume does). ``MODEL_DIR`` is then a target: ``--fusion opencood:MODEL_DIR``.
+OpenCOOD's own resume does), on the data folders of the command (those of its config replaced). ``MODEL_DIR`` is then a target: ``--fusion opencood:MODEL_DIR``.
 
 ``--finetune-from MODEL_DIR`` (hardening an OpenCOOD model, docs/opencood.md): NEW_DIR gets
 MODEL_DIR's config with the new data folders and its checkpoint (the highest ``net_epochN.pth``,
@@ -46,9 +46,15 @@ RANGE_M = [-51.2, -51.2, -3.0, 51.2, 51.2, 1.0]
 
 
 def write_config(model_dir: Path, fusion: str, train: Path, val: Path, epochs: int, layers: list[int] | None) -> Path:
-    """MODEL_DIR/config.yaml from OpenCOOD's stock hypes (kept if it exists: a resumed run)."""
+    """MODEL_DIR/config.yaml from OpenCOOD's stock hypes; a resumed run keeps its config, with the
+    data folders given now (a run may move to a larger export between epochs)."""
     path = model_dir / "config.yaml"
     if path.is_file():
+        hypes = yaml.load(path.read_text(), Loader=HypesLoader)
+        if (hypes.get("root_dir"), hypes.get("validate_dir")) != (str(train), str(val)):
+            print(f"{path}: data folders now {train} and {val}")
+            hypes.update(root_dir=str(train), validate_dir=str(val))
+            path.write_text(yaml.safe_dump(yaml.safe_load(yaml.safe_dump(hypes)), sort_keys=False))
         return path
     stock = Path(module("hypes_yaml").__file__).parent / STOCK[fusion]
     hypes = yaml.load(stock.read_text(), Loader=HypesLoader)
