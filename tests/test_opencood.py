@@ -230,7 +230,6 @@ def test_under_late_fusion_every_agent_frame_carries_its_boxes(scenes, tmp_path)
     from asg.io.export.opv2v import ScenarioWriter
     from asg.perception.opencood.folder import read_hypes
     from asg.perception.opencood.runtime import module
-    from asg.scene.neighbours import with_nearest_collaborators
 
     base = scenes["rsu", 2][0]
     car_ego = next(s for s in scenes["vehicle", 2])
