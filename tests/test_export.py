@@ -124,6 +124,32 @@ def test_views_all_refuses_a_scene_whose_links_were_degraded(capsys, cross_map, 
     assert_one_line_error(err, "links were degraded", "--views ego")
 
 
+def test_an_export_into_a_folder_of_another_export_is_refused(capsys, scenes_dir, tmp_path):
+    """The folder records what it holds: another format, views or source into it is one line and
+    writes nothing; the same command again redoes it; a bad source claims nothing."""
+    folder, scenes = scenes_dir
+    out = tmp_path / "o"
+    command = ["export", str(folder), "--format", "sumo", "--out", str(out)]
+    assert run(capsys, *command)[0] == 0
+    held = sorted(p.name for p in out.iterdir())
+    assert "asg-export.json" in held
+    for change, says in ((["--format", "openscenario"], "format 'sumo', not 'openscenario'"),
+                         (["--views", "all"], "views 'ego', not 'all'")):
+        code, err = run(capsys, *command, *change)
+        assert code == 2
+        assert_one_line_error(err, says, "give another --out")
+        assert sorted(p.name for p in out.iterdir()) == held
+    code, err = run(capsys, "export", str(tmp_path / "missing"), "--format", "sumo", "--out", str(out))
+    assert code == 2 and sorted(p.name for p in out.iterdir()) == held
+    assert run(capsys, *command)[0] == 0
+    code, err = run(capsys, "export", str(tmp_path / "missing"), "--format", "sumo", "--out", str(tmp_path / "new"))
+    assert code == 2 and not (tmp_path / "new" / "asg-export.json").exists()
+    (out / "asg-export.json").write_text("[1, 2]")
+    code, err = run(capsys, *command)
+    assert code == 2
+    assert_one_line_error(err, "not a record asg wrote")
+
+
 def openpcdet_info_builder_reads(root, frames: int) -> None:
     """What OpenPCDet's ``create_kitti_infos`` reads before it looks at a label, as its
     ``KittiDataset`` does it (8cacccec): the split lists ``ImageSets/{train,val,test}.txt``, each

@@ -9,9 +9,15 @@ each file is written atomically. Formats and their conventions: docs/export.md.
 ``--views all`` writes each scene once more as each collaborator sees it (that agent the ego, the
 others its collaborators; scene id ``SCENE-as-AGENT``): a training set for a tool that trains on its
 ego's view only (OpenCOOD's trainer), as asg's own training does with ``views: all``.
+
+DIR records what it holds (``asg-export.json``: the source, format, views and net); an export into a
+DIR that holds another one is refused in one line, and the same command again redoes it (a stopped
+export is finished so).
 """
 from __future__ import annotations
 
+import itertools
+import json
 from enum import Enum
 from pathlib import Path
 from typing import Callable, Iterator
@@ -69,13 +75,37 @@ def every_view(scenes: Iterator[Scene]) -> Iterator[Scene]:
     from dataclasses import replace
 
     for scene in scenes:
-        yield scene
         if scene.link:
             raise InputError(f"{scene.scene_id}: its collaborators' links were degraded on the way to its ego; "
                              "export it with --views ego")
+        yield scene
         for agent_id in scene.collaborators:
             others = tuple(a for a in scene.sensing_ids if a != agent_id)
             yield replace(scene, scene_id=f"{scene.scene_id}-as-{agent_id}", ego_id=agent_id, collaborators=others)
+
+
+#: the record of what an export folder holds (its first file written)
+RECORD = "asg-export.json"
+
+
+def claim(out: Path, settings: dict[str, str | None]) -> None:
+    """Record ``settings`` in ``out``; InputError (one line) if ``out`` holds an export of other settings."""
+    from sumo_scenarios.atomic import write_text_atomic
+
+    path = out / RECORD
+    if path.is_file():
+        try:
+            held = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError):
+            raise InputError(f"{path}: not a record asg wrote; give another --out") from None
+        if not isinstance(held, dict):
+            raise InputError(f"{path}: not a record asg wrote; give another --out")
+        for key, value in settings.items():
+            if held.get(key) != value:
+                raise InputError(f"{out} holds an export of {key} {held.get(key)!r}, not {value!r}; "
+                                 "give another --out, or the same settings to redo it")
+        return
+    write_text_atomic(path, json.dumps(settings, indent=1) + "\n")
 
 
 def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
@@ -85,14 +115,26 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     writer_class = EXPORT_FORMATS.entry(fmt)
     from sumo_scenarios.checks import output_dir
 
-    writer = writer_class(output_dir(Path(out)), net)
+    out = output_dir(Path(out))
     scenes = unique_ids(source_scenes(source))
+    if views is Views.ALL:
+        scenes = every_view(scenes)
+    first = next(scenes, None)  # the source read and its first scene checked before the folder is claimed
+    if first is None:
+        raise InputError(f"{source}: no scenes to export")
+    claim(out, {"source": _source_name(source), "format": fmt, "views": views.value,
+                "net": None if net is None else str(Path(net).resolve())})
+    writer = writer_class(out, net)
     n = 0
-    for n, scene in enumerate(every_view(scenes) if views is Views.ALL else scenes, start=1):
+    for n, scene in enumerate(itertools.chain([first], scenes), start=1):
         writer.write(scene)
         if progress:
             progress(n)
     writer.close()
-    if n == 0:
-        raise InputError(f"{source}: no scenes to export")
     return n
+
+
+def _source_name(source: Path | str) -> str:
+    """A folder's absolute path, or a data set's name as given (``normal-val``)."""
+    p = Path(source)
+    return str(p.resolve()) if p.exists() else str(source)
