@@ -356,15 +356,16 @@ def test_every_in_range_vehicle_survives_each_stacks_stock_range(scenes_dir, tmp
 
 
 @pytest.mark.parametrize("fmt", EXPORT_FORMATS.names())
-def test_export_of_an_rsu_ego_run_exits_zero(capsys, scenes_dir, tmp_path, fmt):
+@pytest.mark.parametrize("views", ["ego", "all"])
+def test_export_of_an_rsu_ego_run_exits_zero(capsys, scenes_dir, tmp_path, fmt, views):
     """A folder holding an RSU-ego scene (the default ``asg generate`` makes them) exports in every format
-    with exit code 0 and no error."""
+    with exit code 0 and no error, as its egos' views and as every sensing agent's."""
     folder, scenes = scenes_dir
     assert any(s.ego.kind == "rsu" for s in scenes)
-    code, err = run(capsys, "export", str(folder), "--format", fmt, "--out", str(tmp_path / "o"))
+    code, err = run(capsys, "export", str(folder), "--format", fmt, "--views", views, "--out", str(tmp_path / "o"))
     assert code == 0, err
     assert "error" not in err
-    assert len([p for p in (tmp_path / "o").iterdir() if not p.name.startswith(".")]) >= 1
+    assert len([p for p in (tmp_path / "o").iterdir() if not p.name.startswith(".") and p.name != "asg-export.json"]) >= 1
 
 
 def test_scenes_of_one_id_are_exported_apart(tmp_path, cross_map):
