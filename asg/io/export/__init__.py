@@ -22,6 +22,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Callable, Iterator
 
+from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ...registry import import_modules
@@ -84,28 +85,26 @@ def every_view(scenes: Iterator[Scene]) -> Iterator[Scene]:
             yield replace(scene, scene_id=f"{scene.scene_id}-as-{agent_id}", ego_id=agent_id, collaborators=others)
 
 
-#: the record of what an export folder holds (its first file written)
+#: the record of what an export folder holds (written once its format could start, before any scene)
 RECORD = "asg-export.json"
 
 
-def claim(out: Path, settings: dict[str, str | None]) -> None:
-    """Record ``settings`` in ``out``; InputError (one line) if ``out`` holds an export of other settings."""
-    from sumo_scenarios.atomic import write_text_atomic
-
+def held_export(out: Path, settings: dict[str, str | None]) -> bool:
+    """Does ``out`` already record these ``settings``? InputError (one line) if it records others."""
     path = out / RECORD
-    if path.is_file():
-        try:
-            held = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, ValueError):
-            raise InputError(f"{path}: not a record asg wrote; give another --out") from None
-        if not isinstance(held, dict):
-            raise InputError(f"{path}: not a record asg wrote; give another --out")
-        for key, value in settings.items():
-            if held.get(key) != value:
-                raise InputError(f"{out} holds an export of {key} {held.get(key)!r}, not {value!r}; "
-                                 "give another --out, or the same settings to redo it")
-        return
-    write_text_atomic(path, json.dumps(settings, indent=1) + "\n")
+    if not path.is_file():
+        return False
+    try:
+        held = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        raise InputError(f"{path}: not a record asg wrote; give another --out") from None
+    if not isinstance(held, dict):
+        raise InputError(f"{path}: not a record asg wrote; give another --out")
+    for key, value in settings.items():
+        if held.get(key) != value:
+            raise InputError(f"{out} holds an export of {key} {held.get(key)!r}, not {value!r}; "
+                             "give another --out, or the same settings to redo it")
+    return True
 
 
 def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
@@ -122,9 +121,12 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     first = next(scenes, None)  # the source read and its first scene checked before the folder is claimed
     if first is None:
         raise InputError(f"{source}: no scenes to export")
-    claim(out, {"source": _source_name(source), "format": fmt, "views": views.value,
-                "net": None if net is None else str(Path(net).resolve())})
-    writer = writer_class(out, net)
+    settings = {"source": _source_name(source), "format": fmt, "views": views.value,
+                "net": None if net is None else str(Path(net).resolve())}
+    held = held_export(out, settings)
+    writer = writer_class(out, net)  # a format whose library is missing stops here
+    if not held:
+        write_text_atomic(out / RECORD, json.dumps(settings, indent=1) + "\n")
     n = 0
     for n, scene in enumerate(itertools.chain([first], scenes), start=1):
         writer.write(scene)
