@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import os
 import signal
 import sys
 from typing import NamedTuple, Sequence
@@ -138,6 +139,7 @@ def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset(
     try:
         parser = build_parser(argv)
         args = parser.parse_args(argv)
+        _spin_for_opencood(argv)
         if held_signals:
             _preload(argv)
     except BaseException:
@@ -150,6 +152,18 @@ def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset(
         return 2
     with interrupts.handled():
         return _run(args, held_signals)
+
+
+def _spin_for_opencood(argv: Sequence[str]) -> None:
+    """An OpenCOOD model as a target (``opencood:DIR`` in the command) runs with OpenMP's waiting
+    threads spinning (``OMP_WAIT_POLICY=ACTIVE``) unless the user set the policy: under asg's
+    ``PASSIVE`` its forward took 7.8 s a frame against 1.1 s (``asg bench detect --fusion
+    opencood:DIR``, two threads, a 2-core AVX2 machine; docs/results/speed.md). Set before torch loads
+    (OpenMP reads it then)."""
+    import asg
+
+    if asg.USER_OMP_WAIT_POLICY is None and any("opencood:" in a for a in argv):
+        os.environ["OMP_WAIT_POLICY"] = "ACTIVE"
 
 
 def _run(args, held_signals: frozenset) -> int:

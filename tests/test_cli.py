@@ -301,3 +301,27 @@ def test_every_fusion_option_lists_every_installed_detector(command, capsys, mon
     assert done.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
     assert ", ".join(detector_names()) in text
+
+
+def test_an_opencood_target_runs_with_spinning_threads(capsys, monkeypatch, tmp_path):
+    """OpenCOOD's forward under asg's PASSIVE wait policy took 7x as long: a command naming an
+    OpenCOOD model (`opencood:DIR`, also inside a list of models) sets ACTIVE before torch loads,
+    unless the user set the policy; other commands keep PASSIVE."""
+    import os
+
+    import asg
+    from asg import cli
+
+    monkeypatch.setattr(asg, "USER_OMP_WAIT_POLICY", None)
+    monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
+    cli._spin_for_opencood(["evaluate", "--fusion", "attfuse", "--set", "normal-val"])
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+    cli._spin_for_opencood(["bench", "paper", "--models", f"attfuse,opencood:{tmp_path}"])
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+    monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
+    code, _ = run(capsys, "evaluate", "--fusion", f"opencood:{tmp_path / 'missing'}", "--set", "normal-val")
+    assert code == 2 and os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+    monkeypatch.setattr(asg, "USER_OMP_WAIT_POLICY", "PASSIVE")  # the user's own choice stands
+    monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
+    cli._spin_for_opencood(["evaluate", "--fusion", f"opencood:{tmp_path}"])
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
