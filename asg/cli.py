@@ -159,11 +159,12 @@ def _spin_for_opencood(argv: Sequence[str]) -> None:
     threads spinning (``OMP_WAIT_POLICY=ACTIVE``) unless the user set the policy: under asg's
     ``PASSIVE`` its forward took 7.8 s a frame against 1.1 s (``asg bench detect --fusion
     opencood:DIR``, two threads, a 2-core AVX2 machine; docs/results/speed.md). Set before torch loads
-    (OpenMP reads it then)."""
+    (OpenMP reads it then); the prefix is ``asg.perception.opencood.PREFIX``, written out here because
+    importing ``asg.perception`` loads torch."""
     import asg
 
-    if asg.USER_OMP_WAIT_POLICY is None and any("opencood:" in a for a in argv):
-        os.environ["OMP_WAIT_POLICY"] = "ACTIVE"
+    if any("opencood:" in a for a in argv):
+        os.environ["OMP_WAIT_POLICY"] = asg.spinning_omp_policy()
 
 
 def _run(args, held_signals: frozenset) -> int:

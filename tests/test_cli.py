@@ -311,7 +311,9 @@ def test_an_opencood_target_runs_with_spinning_threads(capsys, monkeypatch, tmp_
 
     import asg
     from asg import cli
+    from asg.perception.opencood import PREFIX
 
+    assert PREFIX == "opencood:"  # the prefix cli.py writes out (it runs before torch may load)
     monkeypatch.setattr(asg, "USER_OMP_WAIT_POLICY", None)
     monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
     cli._spin_for_opencood(["evaluate", "--fusion", "attfuse", "--set", "normal-val"])

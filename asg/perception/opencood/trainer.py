@@ -74,7 +74,7 @@ def run_trainer(model_dir: Path, contiguous_attention: bool = False) -> None:
     """OpenCOOD's ``tools/train.py --hypes_yaml model_dir/config.yaml --model_dir model_dir`` in a
     child process (module docstring), its output appended to ``model_dir/train.log``; InputError
     (one line, naming the log) if it fails. ``contiguous_attention``: see :func:`contiguous_attention`."""
-    env = {**os.environ, "OMP_WAIT_POLICY": asg.USER_OMP_WAIT_POLICY or "ACTIVE"}
+    env = {**os.environ, "OMP_WAIT_POLICY": asg.spinning_omp_policy()}
     command = [sys.executable, "-m", __name__, str(model_dir), *(["--contiguous-attention"] if contiguous_attention else [])]
     with open(model_dir / TRAIN_LOG, "a", buffering=1) as log:
         code = subprocess.run(command, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
