@@ -6,6 +6,7 @@ a value of the wrong type is an error that names the key and the expected type.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import re
 import types
@@ -134,6 +135,11 @@ def _check_value(value: Any, hint: Any, where: str) -> Any:
         if not isinstance(value, hint):
             raise InputError(f"{where}: expected {_name(hint)}, got {value!r}")
         return value
+    if isinstance(hint, type) and issubclass(hint, enum.Enum):
+        try:
+            return hint(value)
+        except ValueError:
+            raise InputError(f"{where}: {value!r} is not one of {', '.join(repr(m.value) for m in hint)}") from None
     return value
 
 

@@ -90,7 +90,7 @@ def test_views_all_writes_each_collaborators_view_as_its_own_scenario(scenes_dir
     """``--views all``: each scene once more as each collaborator sees it (SCENE-as-AGENT), that agent
     OpenCOOD's ego; its cloud and its ground truth there are the ones it had as a collaborator, and
     the scene's ego is a collaborator of it."""
-    from asg.io.export import Views
+    from asg.scene.views import Views
 
     folder, scenes = scenes_dir
     assert export(folder, "opv2v", tmp_path, views=Views.ALL) == sum(len(s.sensing_ids) for s in scenes) == 6

@@ -53,6 +53,7 @@ def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threa
     from ..perception.data import make_sample
     from ..perception.model import AttFuse
     from ..perception.feeds import AGENT_CLOUDS
+    from ..scene.views import Views
     from ..training.loop import BRANCH_KEYS, Batches, PhaseTimer, train_step
     from ..perception.weights_io import WEIGHTS_DIR, load_state
     from ..sensors import load_lidar_spec
@@ -63,7 +64,7 @@ def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threa
     spec = load_lidar_spec()
     scenes, frames_from = bench_frames(frames, seed)
     samples = [make_sample(s, spec) for s in scenes]
-    batches = Batches(AGENT_CLOUDS, samples, "all")
+    batches = Batches(AGENT_CLOUDS, samples, Views.ALL)
     model = AttFuse(cfg)
     load_state(model, WEIGHTS_DIR / "attfuse.pt", allow_missing=BRANCH_KEYS)  # the shipped weights' real activations
     model.train()

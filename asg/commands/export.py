@@ -4,8 +4,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..io.export import EXPORT_FORMATS, Views
+from ..io.export import EXPORT_FORMATS
 from ..progress import console, progress_bar
+from ..scene.views import Views
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

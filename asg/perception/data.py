@@ -14,6 +14,7 @@ from sumo_scenarios.geometry import wrap_rad
 
 from ..scene import Scene
 from ..scene.feasibility import EVAL_RANGE_M
+from ..scene.views import Views
 from ..sensors import LidarSpec, simulate_frame
 from ..sensors.frame import CooperativeFrame, boxes_to_sensor, count_points_in_boxes
 
@@ -65,21 +66,19 @@ class Sample:
             out.append((f.clouds[a], b[in_range(b) & (n >= min_points)]))
         return out
 
-    def detecting_agents(self, detecting: str = "ego") -> list[str]:
+    def detecting_agents(self, detecting: Views = Views.EGO) -> list[str]:
         """The detecting agent of each view :meth:`fused_views` gives, in its order."""
-        if detecting not in ("ego", "all"):
-            raise ValueError(f"detecting must be 'ego' or 'all', not {detecting!r}")
-        return [self.frame.ego_id] if detecting == "ego" else list(self.frame.sensing_ids)
+        return [self.frame.ego_id] if _views(detecting) is Views.EGO else list(self.frame.sensing_ids)
 
-    def fused_views(self, detecting: str = "ego", min_points: int = 1) -> list[tuple[list[np.ndarray], np.ndarray]]:
+    def fused_views(self, detecting: Views = Views.EGO, min_points: int = 1) -> list[tuple[list[np.ndarray], np.ndarray]]:
         """Training views for the fusion models: per detecting agent, (every sensing agent's cloud
         in its frame, its own first; the boxes in its frame in range with ``min_points`` fused
-        points). ``detecting``: "ego" (the ego only, as at inference) or "all" (each sensing agent
-        in turn: the same frame seen from 3 centres, 3 times the distinct examples). A detecting
-        agent's own body is never a label (the ego's is not at inference either)."""
+        points). ``detecting``: ``Views.EGO`` (the ego only, as at inference) or ``Views.ALL`` (each
+        sensing agent in turn: the same frame seen from 3 centres, 3 times the distinct examples).
+        A detecting agent's own body is never a label (the ego's is not at inference either)."""
         f = self.frame
         agents = self.detecting_agents(detecting)
-        if detecting == "ego":
+        if _views(detecting) is Views.EGO:
             return [(self.clouds_in_ego(), self.gt_visible_ego(min_points))]
         out = []
         for a in agents:
@@ -90,6 +89,14 @@ class Sample:
             n = count_points_in_boxes(np.vstack(clouds), boxes)
             out.append((clouds, boxes[in_range(boxes) & (n >= min_points)]))
         return out
+
+
+def _views(views: Views | str) -> Views:
+    """``views`` as the closed set (its value accepted); ValueError naming the choices otherwise."""
+    try:
+        return Views(views)
+    except ValueError:
+        raise ValueError(f"views must be one of {[v.value for v in Views]}, not {views!r}") from None
 
 
 def _ego_box_in(frame: CooperativeFrame, agent_id: str) -> np.ndarray:

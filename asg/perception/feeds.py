@@ -14,6 +14,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import torch
 
+from ..scene.views import Views
 from .data import Sample
 
 
@@ -44,9 +45,9 @@ class Feed:
     #: the name model cards and logs use
     name: str = ""
 
-    def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
-        """The training examples of one frame; ``views``: "ego" (the frame as its ego sees it) or
-        "all" (each sensing agent's view in turn), for feeds that fuse agents."""
+    def examples(self, sample: Sample, views: Views = Views.EGO) -> list[Example]:
+        """The training examples of one frame; ``views``: ``Views.EGO`` (the frame as its ego sees
+        it) or ``Views.ALL`` (each sensing agent's view in turn), for feeds that fuse agents."""
         raise NotImplementedError
 
     def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = (),
@@ -63,7 +64,7 @@ class OwnCloud(Feed):
 
     name = "own-cloud"
 
-    def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
+    def examples(self, sample: Sample, views: Views = Views.EGO) -> list[Example]:
         return [Example([cloud], boxes) for cloud, boxes in sample.own_views()]
 
 
@@ -73,7 +74,7 @@ class FusedCloud(Feed):
 
     name = "fused-cloud"
 
-    def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
+    def examples(self, sample: Sample, views: Views = Views.EGO) -> list[Example]:
         return [Example([np.vstack(clouds)], boxes) for clouds, boxes in sample.fused_views(views)]
 
 
@@ -83,7 +84,7 @@ class AgentClouds(Feed):
 
     name = "agent-clouds"
 
-    def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
+    def examples(self, sample: Sample, views: Views = Views.EGO) -> list[Example]:
         return [Example(clouds, boxes) for clouds, boxes in sample.fused_views(views)]
 
     def network_input(self, clouds: Sequence[Sequence[torch.Tensor]], kinds: Sequence[Sequence[str]] = (),
@@ -98,7 +99,7 @@ class KindedAgentClouds(AgentClouds):
 
     name = "kinded-agent-clouds"
 
-    def examples(self, sample: Sample, views: str = "ego") -> list[Example]:
+    def examples(self, sample: Sample, views: Views = Views.EGO) -> list[Example]:
         frame = sample.frame
         return [Example(clouds, boxes, frame.kinds_in_frame_of(a), frame.delays_in_frame_of(a))
                 for a, (clouds, boxes) in zip(sample.detecting_agents(views), sample.fused_views(views))]

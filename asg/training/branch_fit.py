@@ -41,6 +41,7 @@ from ..perception.data import augment
 from ..perception.feeds import Feed
 from ..perception.head import iou_loss, patch_features, refine_loss
 from ..perception.inference import fold_batch_norms
+from ..scene.views import Views
 
 CACHE_NAME = "branch-candidates.npz"
 
@@ -49,8 +50,8 @@ CACHE_NAME = "branch-candidates.npz"
 class BranchFitConfig:
     """train.yaml's ``iou_branch`` block."""
     dataset: str = "detector-train"
-    #: as TrainConfig.views: "ego" or "all" (each sensing agent's view of a frame in turn)
-    views: Literal["ego", "all"] = "all"
+    #: as TrainConfig.views: the ego's view of each frame, or each sensing agent's in turn
+    views: Views = Views.ALL
     #: collection passes over the training views: the first as is, the others augmented
     passes: int = 2
     min_score: float = 0.1

@@ -11,6 +11,7 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 
 from .branch_fit import BranchFitConfig
 from ..perception.data import Augmentation
+from ..scene.views import Views
 
 def weights_for(fusion: str) -> str:
     """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError for a
@@ -37,7 +38,7 @@ class TrainConfig:
     checkpoint_every: int = 200
     #: fusion models: "ego" trains on each frame as its ego sees it; "all" on each sensing agent's
     #: view in turn (3 times the distinct examples from the same frames)
-    views: Literal["ego", "all"] = "ego"
+    views: Views = Views.EGO
     #: the random flip, rotation and scale of each training example (``augment`` in train.yaml)
     augment: Augmentation = Augmentation()
     #: weight of the orientation-aware corner loss (asg.perception.head.corner_loss; 0: off)
@@ -61,7 +62,7 @@ class FinetuneConfig(TrainConfig):
     eval_sets: tuple[str, ...] = ("normal-val", "heuristic")
     #: the views of the challenging scenes' examples ("ego": only the attacked one, the view the
     #: attack made hard; None: ``views``, as the normal frames)
-    challenging_views: Literal["ego", "all"] | None = None
+    challenging_views: Views | None = None
 
 
 #: the train.yaml block of the branch fit (any weights): ``asg train --fusion F --iou-branch``

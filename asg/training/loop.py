@@ -25,6 +25,7 @@ from ..perception.feeds import Feed
 from ..perception.head import detection_loss, iou_loss, refine_loss
 from ..perception.model import PointPillars
 from ..scene.noisy import noise_rng, noisy_scene
+from ..scene.views import Views
 from ..sensors import load_lidar_spec
 from .checkpoint import save_checkpoint
 from .config import TrainConfig
@@ -49,13 +50,13 @@ def render_samples(dataset: str, split: str | None = "train", progress: Callable
 class Batches:
     """The training examples a feed makes of some frames, drawn with a seeded generator."""
 
-    def __init__(self, feed: Feed, samples: list[Sample], views: str = "ego", augmentation: Augmentation = Augmentation()):
+    def __init__(self, feed: Feed, samples: list[Sample], views: Views = Views.EGO, augmentation: Augmentation = Augmentation()):
         self.feed = feed
         self.augmentation = augmentation
         self.items = []
         self.add(samples, views)
 
-    def add(self, samples: list[Sample], views: str = "ego") -> None:
+    def add(self, samples: list[Sample], views: Views = Views.EGO) -> None:
         """Draw from the examples of ``samples`` (as ``views`` says) too."""
         self.items += [example for s in samples for example in self.feed.examples(s, views)]
 

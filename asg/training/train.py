@@ -25,6 +25,7 @@ from sumo_scenarios.paths import runs_dir
 
 from ..perception.fusion import build_network, detector_config_of, feed_of
 from ..perception.weights_io import seed_run_folder
+from ..scene.views import Views
 from .branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
 from .cards import card_validation, init_record, previous_training, write_card
 from .checkpoint import load_checkpoint
@@ -107,7 +108,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     batches = Batches(feed_of(name), samples, tcfg.views, tcfg.augment)
     if tcfg.noisy_links:
         log(f"rendering {tcfg.dataset} over noisy links ...")
-        batches.add(render_samples(tcfg.dataset, "train", noise_seed=tcfg.seed), "ego")
+        batches.add(render_samples(tcfg.dataset, "train", noise_seed=tcfg.seed), Views.EGO)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     steps_at = Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every, tcfg.corner_loss)
     wall = run_steps(model, opt, sched, batches, rng, steps_at, cfg, ckpt, wall, previous, log, progress)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import itertools
 import json
-from enum import Enum
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -27,6 +26,7 @@ from sumo_scenarios.errors import InputError
 
 from ...registry import import_modules
 from ...scene import Scene, load_scene
+from ...scene.views import Views, every_view
 from .base import EXPORT_FORMATS, net_of  # noqa: F401  (this package's API)
 
 import_modules(__name__, __path__)  # each format's module registers its writer in EXPORT_FORMATS
@@ -59,30 +59,6 @@ def unique_ids(scenes: Iterator[Scene]) -> Iterator[Scene]:
     for scene in scenes:
         k = seen[scene.scene_id] = seen.get(scene.scene_id, 0) + 1
         yield scene if k == 1 else replace(scene, scene_id=f"{scene.scene_id}-{k}")
-
-
-class Views(str, Enum):
-    """Which views of a scene an export writes: its ego's, or every sensing agent's in turn."""
-
-    EGO = "ego"
-    ALL = "all"
-
-
-def every_view(scenes: Iterator[Scene]) -> Iterator[Scene]:
-    """Each scene as it is, then as each collaborator sees it: that agent the ego, the ego and the
-    other collaborators its collaborators, id ``SCENE-as-AGENT``. A scene whose links were degraded
-    (``link``: what each collaborator's message went through on its way to the ego) is refused:
-    those records are the ego's and do not hold for another receiver."""
-    from dataclasses import replace
-
-    for scene in scenes:
-        if scene.link:
-            raise InputError(f"{scene.scene_id}: its collaborators' links were degraded on the way to its ego; "
-                             "export it with --views ego")
-        yield scene
-        for agent_id in scene.collaborators:
-            others = tuple(a for a in scene.sensing_ids if a != agent_id)
-            yield replace(scene, scene_id=f"{scene.scene_id}-as-{agent_id}", ego_id=agent_id, collaborators=others)
 
 
 #: the record of what an export folder holds (written once its format could start, before any scene)
