@@ -5,6 +5,7 @@ import gzip
 import io
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -222,6 +223,17 @@ def test_models_pick_the_rows_of_the_model_tables(capsys, tmp_path, data_root):
     assert [r["model"] for r in rows] == ["fcooper", "attfuse"]
     assert rows[0]["paper"] is None and rows[1]["paper"]["challenging"]["0.7"] == 0.405
     assert "| fcooper |" in (out / "main.md").read_text()
+
+
+@pytest.mark.parametrize("models, factory, said", [
+    (None, None, "shipped"), (("attfuse", "none"), None, "shipped"),
+    (("attfuse", "opencood:/m"), None, "shipped, and OpenCOOD model folders"),
+    (("opencood:/m",), None, "OpenCOOD model folders"), (("attfuse",), "fakes:oracle_factory", "fakes:oracle_factory")])
+def test_a_tables_header_says_what_detected(models, factory, said):
+    """A table with an OpenCOOD model among its rows does not call its detectors shipped."""
+    from asg.benchmarks.tables import TableRun, _detectors
+
+    assert _detectors(TableRun(Path("out"), models=models, detector_factory=factory)) == said
 
 
 @pytest.mark.parametrize("models", ["nope", "attfuse,attfuse", ","])

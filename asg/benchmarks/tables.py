@@ -78,6 +78,19 @@ def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None]
     return {table_stem(name, m): run_table(name, replace(run, ap_method=m), log) for name in names for m in methods}
 
 
+def _detectors(run: TableRun) -> str:
+    """What detected, for a table's header: the factory standing in for every model, or the shipped
+    weights and any OpenCOOD model folders among the models (named in the rows)."""
+    from ..perception.opencood import is_opencood
+
+    if run.detector_factory:
+        return run.detector_factory
+    folders = [m for m in run.models or () if is_opencood(m)]
+    if not folders:
+        return "shipped"
+    return "OpenCOOD model folders" if len(folders) == len(run.models) else "shipped, and OpenCOOD model folders"
+
+
 def table_stem(name: str, ap_method: str) -> str:
     """The file stem of a table written with ``ap_method``: NAME (global) or NAME.per-frame."""
     return name if ap_method == DEFAULT_AP_METHOD else f"{name}.{ap_method}"
@@ -88,7 +101,7 @@ def run_table(name: str, run: TableRun, log: Callable[[str], None] = print) -> d
     started = time.perf_counter()
     rows, scenes = TABLE_KINDS.entry(name).build(run)
     result = {"table": name, "command": run.command, "scenes": scenes, "seconds": round(time.perf_counter() - started, 1),
-              "commit": _commit(), "machine": _machine(), "detector": run.detector_factory or "shipped",
+              "commit": _commit(), "machine": _machine(), "detector": _detectors(run),
               "ap_method": run.ap_method, "rows": rows}
     stem = table_stem(name, run.ap_method)
     write_text_atomic(run.out / f"{stem}.json", json.dumps(result, indent=1))
