@@ -4,6 +4,7 @@ post-processor), and bad folders are one line."""
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -518,3 +519,36 @@ def test_the_trainer_reads_our_ego_where_an_rsu_collaborates(monkeypatch, tmp_pa
     rsu_never_ego()
     rsu_never_ego()  # once is enough; twice changes nothing
     assert egos() == [[("0", True), ("1003", False), ("-1", False)], [("0", True), ("1001", False)]]
+
+
+def test_the_trainer_reads_opencoods_yaml_by_libyaml_to_the_same_dicts(monkeypatch, tmp_path):
+    """The child's ``load_yaml`` gives what OpenCOOD's gives, for an agent's yaml as asg exports
+    it (anchors, integer keys, OpenCOOD's floats such as 1e-3) and for a config (its parser
+    applied), in every module that imported it; a yaml carrying a Python tag is refused, where
+    OpenCOOD's full loader would build the object."""
+    from asg.perception.opencood.runtime import module
+    from asg.perception.opencood.trainer import libyaml_reading
+
+    utils = module("hypes_yaml.yaml_utils")
+    base = module("data_utils.datasets.basedataset")
+    original = utils.load_yaml
+    module("data_utils.datasets")
+    for mod in [m for name, m in sys.modules.items() if name.startswith("opencood")]:
+        if getattr(mod, "load_yaml", None) is original:
+            monkeypatch.setattr(mod, "load_yaml", original)  # restored after the test
+    agent = tmp_path / "000000.yaml"
+    agent.write_text("lidar_pose: &id001\n- 115.2\n- -147.025\n- 2.15\ntrue_ego_pos: *id001\nego_speed: 0.0\n"
+                     "lr: 1e-3\nvehicles:\n  1000:\n    location: [124.8, -172.44, 0.0]\n    angle: [0.0, -90.0, 0.0]\n")
+    config = make_model_dir(tmp_path / "model", "intermediate") / "config.yaml"
+    expected = {path: original(str(path)) for path in (agent, config)}
+    assert expected[agent]["lr"] == 0.001 and 1000 in expected[agent]["vehicles"]
+    libyaml_reading()
+    libyaml_reading()  # once is enough
+    assert utils.load_yaml is base.load_yaml and utils.load_yaml.libyaml
+    for path, dicts in expected.items():
+        np.testing.assert_equal(base.load_yaml(str(path)), dicts)
+    hostile = tmp_path / "hostile.yaml"
+    hostile.write_text("vehicles: !!python/object/apply:os.getcwd []\n")
+    assert isinstance(original(str(hostile))["vehicles"], str)  # OpenCOOD's loader ran os.getcwd
+    with pytest.raises(yaml.constructor.ConstructorError):
+        utils.load_yaml(str(hostile))

@@ -44,6 +44,15 @@ HypesLoader.add_implicit_resolver(
     list("-+0123456789."))
 
 
+if getattr(yaml, "__with_libyaml__", False):
+    class LibyamlHypesLoader(yaml.CSafeLoader):
+        """:class:`HypesLoader`'s rules on libyaml's parser (the same dicts, several times faster)."""
+
+    LibyamlHypesLoader.yaml_implicit_resolvers = HypesLoader.yaml_implicit_resolvers
+else:  # PyYAML built without libyaml
+    LibyamlHypesLoader = HypesLoader
+
+
 def read_hypes(folder: Path) -> dict:
     """``folder/config.yaml`` as OpenCOOD's ``load_yaml`` returns it (its parser applied); InputError
     (one line) for a missing, malformed, oversized or unsupported config."""
