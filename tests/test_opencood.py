@@ -430,28 +430,33 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
     assert "--weights" in err and not (tmp_path / "x").exists()
 
 
-def test_contiguous_attention_computes_opencoods_attention(monkeypatch):
-    """The trainer's contiguous attention (opencood_train.py --contiguous-attention) gives OpenCOOD's
-    AttFusion the same output (its attention over agents at every BEV cell, fed a permuted view as AttFusion feeds
-    it), within float rounding."""
+def test_the_trainers_ego_row_attention_is_opencoods_attfusion(monkeypatch):
+    """The trainer child's AttFusion (the ego's attention row alone) gives OpenCOOD's output and the
+    same gradients to its input, for scenes of one to three agents, within float rounding."""
     import torch
 
     from asg.perception.opencood.runtime import module, opencood
-    from asg.perception.opencood.trainer import contiguous_attention
+    from asg.perception.opencood.trainer import ego_row_attention
 
     opencood()
     self_attn = module("models.fuse_modules.self_attn")
-    original = self_attn.ScaledDotProductAttention.forward
-    monkeypatch.setattr(self_attn.ScaledDotProductAttention, "forward", original)  # restored after the test
+    monkeypatch.setattr(self_attn.AttFusion, "forward", self_attn.AttFusion.forward)  # restored after the test
     torch.manual_seed(0)
-    x = torch.randn(3, 64, 20, 24)  # two scenes' agents (2 + 1), C, H, W
-    record_len = torch.tensor([2, 1])
+    record_len = torch.tensor([2, 1, 3])  # three scenes' agents, the ego of each first
     fusion = self_attn.AttFusion(64)
-    want = fusion(x, record_len)
-    contiguous_attention()
-    got = fusion(x, record_len)
-    assert self_attn.ScaledDotProductAttention.forward is not original and got.shape == want.shape == (2, 64, 20, 24)
-    assert torch.allclose(got, want, atol=1e-6, rtol=1e-6) and not torch.equal(x[:1], got[:1])
+
+    def run():
+        x = torch.randn(6, 64, 20, 24, generator=torch.Generator().manual_seed(1), requires_grad=True)
+        out = fusion(x, record_len)
+        (out * torch.linspace(-1, 1, out.numel()).view_as(out)).sum().backward()
+        return out.detach(), x.grad
+
+    want, want_grad = run()
+    ego_row_attention()
+    ego_row_attention()  # once is enough
+    got, got_grad = run()
+    assert got.shape == want.shape == (3, 64, 20, 24)
+    assert torch.allclose(got, want, atol=1e-5) and torch.allclose(got_grad, want_grad, atol=1e-5)
 
 
 def test_a_trainer_that_fails_is_one_line_naming_its_log(tmp_path):
