@@ -86,30 +86,12 @@ def run_trainer(model_dir: Path) -> None:
 
 
 def ego_row_attention() -> None:
-    """OpenCOOD's ``AttFusion`` (AttFuse's fusion) computes the attention of every agent's row at
-    every BEV cell with two ``bmm`` over a batch of one tiny N x N product a cell, and keeps the
-    ego's row. Here it computes the ego's row alone, channel-first: at each cell
-    a_j = softmax_j(x_0 . x_j / sqrt(C)), out = sum_j a_j x_j, the same function and gradients
-    (the other rows never reach the output), only the order of float sums differs. CPU ``bmm``
-    multiplies such batches one small matrix at a time: the fusion's forward and backward went from
-    74.4 s to 1.6 s on two scenes' maps at the three scales (docs/experiments/opencood_step_time.py
-    measures the training step). The checkpoints are OpenCOOD's as ever."""
-    import torch
+    """OpenCOOD's ``AttFusion`` class computes by the ego's row of its attention (asg/perception/
+    opencood/attention.py: the same function and gradients, without the batched tiny products that
+    took most of a training step on CPU). The checkpoints are OpenCOOD's as ever."""
+    from .attention import attfusion_type, ego_row_forward
 
-    fusion = module("models.fuse_modules.self_attn").AttFusion
-    if getattr(fusion.forward, "ego_row", False):
-        return
-
-    def forward(self, x, record_len):
-        out = []
-        for agents in self.regroup(x, record_len):  # (N, C, H, W), the ego first
-            score = (agents * agents[:1]).sum(dim=1) / self.att.sqrt_dim  # (N, H, W)
-            weight = torch.softmax(score, dim=0)
-            out.append((weight[:, None] * agents).sum(dim=0, keepdim=True))
-        return torch.cat(out, dim=0)
-
-    forward.ego_row = True
-    fusion.forward = forward
+    attfusion_type().forward = ego_row_forward
 
 
 def atomic_checkpoints() -> None:
