@@ -138,11 +138,11 @@ def libyaml_reading() -> None:
     """OpenCOOD's ``load_yaml`` (every agent's yaml of every training example, and the config)
     parsed by libyaml under a safe loader with OpenCOOD's float resolver (``folder.HypesLoader``'s
     rules): the same dicts from asg's exports, 5.8x faster (21 ms against 123 ms a file of the
-    exported detector-train set, docs/experiments/opencood-yaml-time.json), no Python object built from a tag (OpenCOOD's
-    own uses PyYAML's full ``Loader``), and no float resolver added to PyYAML's ``Loader`` on every
-    call (OpenCOOD's does, one more each file). Its ``yaml_parser`` is looked up by name in
-    ``yaml_utils``, where OpenCOOD evaluates the string. PyYAML built without libyaml parses in
-    Python under the same safe rules."""
+    exported detector-train set, docs/experiments/opencood-yaml-time.json), no Python object built
+    from a tag (OpenCOOD's own uses PyYAML's full ``Loader``), and no float resolver added to
+    PyYAML's ``Loader`` on every call (OpenCOOD's does, one more each file). Its ``yaml_parser`` is
+    looked up by name in ``yaml_utils``, where OpenCOOD evaluates the string. PyYAML built without
+    libyaml parses in Python under the same safe rules."""
     utils = module("hypes_yaml.yaml_utils")
     original = utils.load_yaml
     if getattr(original, "libyaml", False):
