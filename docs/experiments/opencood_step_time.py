@@ -31,8 +31,7 @@ def measure(model_dir: Path, steps: int, ego_row: bool) -> dict:
     import torch
 
     from asg.perception.opencood.folder import checkpoint_of
-    from asg.perception.opencood.runtime import module
-    from asg.perception.opencood.runtime import opencood
+    from asg.perception.opencood.runtime import module, opencood
     from asg.perception.opencood.trainer import ego_row_attention
 
     opencood()

@@ -41,7 +41,8 @@ def attfusion_type() -> type:
 def use_ego_row(model: torch.nn.Module) -> list[torch.nn.Module]:
     """Every ``AttFusion`` of ``model`` computes by the ego's row (this instance only: OpenCOOD's
     class, and any other model of it, stay as shipped); returns them."""
-    fusions = [m for m in model.modules() if isinstance(m, attfusion_type())]
+    fusion_type = attfusion_type()
+    fusions = [m for m in model.modules() if isinstance(m, fusion_type)]
     for fusion in fusions:
         fusion.forward = MethodType(ego_row_forward, fusion)
     return fusions
