@@ -34,6 +34,8 @@ def held_out_samples(tmp_path_factory):
 FLOOR = {"none": (0.65, 0.26), "late": (0.8, 0.65), "early": (0.8, 0.68), "attfuse": (0.8, 0.7),
          "attfuse-ft": (0.8, 0.7), "attfuse-wide": (0.8, 0.78), "fcooper": (0.8, 0.58), "where2comm": (0.78, 0.73),
          "v2xvit": (0.78, 0.73), "v2xvit-noisy": (0.78, 0.73)}
+#: the floor of a fusion model not listed above (a new one): the lowest of the fused models' floors
+FUSED_FLOOR = (0.78, 0.58)
 
 
 @pytest.mark.parametrize("fusion", FUSIONS.names())
@@ -41,7 +43,8 @@ def test_shipped_model_detects_vehicles(fusion, held_out_samples):
     det = build_detector(fusion)
     frames = [(*det.detect(s.frame), s.gt_eval()) for s in held_out_samples]
     ap = ap_at(frames)
-    assert ap["0.3"] > FLOOR[fusion][0] and ap["0.7"] > FLOOR[fusion][1], ap
+    floor = FLOOR.get(fusion, FUSED_FLOOR)
+    assert ap["0.3"] > floor[0] and ap["0.7"] > floor[1], ap
 
 
 def test_model_cards_describe_the_weights():
