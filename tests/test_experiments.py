@@ -42,3 +42,38 @@ def test_the_tables_index_lists_every_table_file():
     index = (root / "README.md").read_text()
     missing = [str(f.relative_to(root)) for f in root.rglob("*.json") if f"]({f.relative_to(root)})" not in index]
     assert not missing, missing
+
+
+def test_opencood_from_asg_folds_the_value_projection_exactly():
+    """asg's fused first-stage map V x + b through the second stage's first convolution and norm,
+    and through the first upsampling and its norm, equals OpenCOOD's unprojected x through the
+    folded layers (away from the zero-padded border, where b has no neighbours to sum)."""
+    import torch
+    from torch import nn
+
+    spec = importlib.util.spec_from_file_location("opencood_from_asg", SCRIPTS[0].parent / "opencood_from_asg.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    torch.manual_seed(0)
+    c, c2, cu = 8, 12, 6
+    v = nn.Linear(c, c)
+    conv, up = nn.Conv2d(c, c2, 3, padding=1, bias=False), nn.ConvTranspose2d(c, cu, 1, bias=False)
+    norm, up_norm = nn.BatchNorm2d(c2).eval(), nn.BatchNorm2d(cu).eval()
+    for n in (norm, up_norm):
+        n.running_mean.uniform_(-1, 1)
+        n.running_var.uniform_(0.5, 2)
+    state = {"backbone.blocks.1.1.weight": conv.weight.detach(), "backbone.blocks.1.2.running_mean": norm.running_mean.clone(),
+             "backbone.deblocks.0.0.weight": up.weight.detach(), "backbone.deblocks.0.1.running_mean": up_norm.running_mean.clone()}
+    script.fold_value_projection({"fusion.v.weight": v.weight.detach(), "fusion.v.bias": v.bias.detach()}, state)
+    x = torch.randn(1, c, 9, 9)
+    projected = v(x.permute(0, 2, 3, 1)).permute(0, 3, 1, 2)
+    with torch.no_grad():
+        asg_stage, asg_up = norm(conv(projected)), up_norm(up(projected))
+        conv.weight.copy_(state["backbone.blocks.1.1.weight"])
+        up.weight.copy_(state["backbone.deblocks.0.0.weight"])
+        norm.running_mean.copy_(state["backbone.blocks.1.2.running_mean"])
+        up_norm.running_mean.copy_(state["backbone.deblocks.0.1.running_mean"])
+        oc_stage, oc_up = norm(conv(x)), up_norm(up(x))
+    assert torch.allclose(asg_stage[..., 1:-1, 1:-1], oc_stage[..., 1:-1, 1:-1], atol=1e-5)
+    assert torch.allclose(asg_up, oc_up, atol=1e-5)
+    assert not torch.allclose(asg_stage[..., 0, :], oc_stage[..., 0, :], atol=1e-3)  # the border differs
