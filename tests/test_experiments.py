@@ -77,3 +77,25 @@ def test_opencood_from_asg_folds_the_value_projection_exactly():
     assert torch.allclose(asg_stage[..., 1:-1, 1:-1], oc_stage[..., 1:-1, 1:-1], atol=1e-5)
     assert torch.allclose(asg_up, oc_up, atol=1e-5)
     assert not torch.allclose(asg_stage[..., 0, :], oc_stage[..., 0, :], atol=1e-3)  # the border differs
+
+
+def test_opencood_from_asg_gives_opencood_asgs_anchors(tmp_path):
+    """The folder's config makes OpenCOOD's post-processor lay out asg's anchors: the same centres,
+    sizes (OpenCOOD's h, w, l order) and yaws, four a cell in asg's order."""
+    import numpy as np
+    pytest.importorskip("opencood")
+    from asg.perception.boxes import make_anchors
+    from asg.perception.config import load_detector_config
+    from asg.perception.opencood.folder import read_hypes
+    from asg.perception.opencood.runtime import module
+
+    spec = importlib.util.spec_from_file_location("opencood_from_asg", SCRIPTS[0].parent / "opencood_from_asg.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    script.write_config(tmp_path, tmp_path, tmp_path, "pointpillars-wide.yaml", epochs=1, lr=5e-4)
+    hypes = read_hypes(tmp_path)
+    post = module("data_utils.post_processor").build_postprocessor(hypes["postprocess"], train=False)
+    theirs = post.generate_anchor_box().reshape(-1, 7)  # x, y, z, h, w, l, yaw
+    ours = make_anchors(load_detector_config(SCRIPTS[0].parents[2] / "configs" / "detectors" / "pointpillars-wide.yaml"))
+    assert theirs.shape == ours.shape == (96 * 96 * 4, 7)
+    assert np.allclose(theirs[:, list(script.ORDER)], ours, atol=1e-9)

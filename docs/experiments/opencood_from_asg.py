@@ -8,17 +8,19 @@ as its starting point instead of OpenCOOD's random initialisation.
 The two networks are the same PointPillars at asg's wide size (pillar net of 64, stages of 64 /
 128 / 256 filters with 1 / 2 / 2 extra layers, each upsampled to 128 channels, a 1x1 head on the
 384), so the config takes asg's grid (0.5 m pillars, x and y in [-48, 48] m, z in [-5, 1.5] m: a
-96 x 96 head grid whose anchor centres are asg's) and one anchor size, asg's car anchor
-(4.6 x 1.9 x 1.6 m at z -1 m, yaw 0 and 90 deg; OpenCOOD's post-processor takes one size). The
-tensors, each checked for its shape:
+96 x 96 head grid whose anchor centres are asg's) and asg's four anchors a cell (4.6 x 1.9 x 1.6 m
+and 10 x 2.5 x 3.3 m at z -1 m, each at yaw 0 and 90 deg). OpenCOOD's stock hypes give one size
+(l, w, h scalars); its post-processor multiplies them into an array of one entry per anchor, so
+lists of one entry per anchor (``r`` with as many) give each its own size, the same anchors as
+asg's in the same order (tested). The tensors, each checked for its shape:
 - the pillar net: OpenCOOD's point features are asg's nine (x, y, z, intensity, offsets to the
   pillar's mean, offsets to its centre in x, y) plus the offset to its centre in z, whose column
   starts at 0;
 - the backbone: stage k's convolutions and norms one for one (OpenCOOD pads before the strided
   convolution, asg pads in it: the same function); the first upsampling is asg's 1x1 convolution,
   OpenCOOD's 1x1 transposed convolution (its weight transposed); the others as they are;
-- the head: the classification and box channels of asg's two car anchors (of its four: the truck
-  anchors have no place), the box residuals reordered from asg's (l, w, h) to OpenCOOD's (h, w, l)
+- the head: the classification and box channels of asg's four anchors, the box residuals
+  reordered from asg's (l, w, h) to OpenCOOD's (h, w, l)
   (both encode x, y by the anchor's diagonal, z by its height, sizes by logarithms, yaw by the
   difference);
 - asg's attention: its value projection V folded into the two layers that read the fused map
@@ -43,17 +45,16 @@ from asg.perception.config import load_detector_config
 from asg.perception.opencood.folder import HypesLoader, read_hypes
 from asg.perception.opencood.runtime import module
 from asg.perception.weights_io import WEIGHTS_DIR
+from sumo_scenarios.paths import configs_dir
 
 STOCK = "point_pillar_intermediate_fusion.yaml"
-#: asg's car anchor: its slots in asg's head (size 0: rotations 0 and 90 deg)
-CAR_SLOTS = (0, 1)
 #: OpenCOOD's box residual j (x, y, z, h, w, l, yaw) is asg's residual ORDER[j] (x, y, z, l, w, h, yaw)
 ORDER = (0, 1, 2, 5, 4, 3, 6)
 
 
 def write_config(out: Path, train: Path, val: Path, detector_file: str, epochs: int, lr: float) -> dict:
     """OpenCOOD's stock AttFuse hypes at asg's grid, size and car anchor (module docstring)."""
-    cfg = load_detector_config(Path("configs/detectors") / detector_file)
+    cfg = load_detector_config(configs_dir() / "detectors" / detector_file)
     r, (z0, z1) = cfg.range_m, cfg.z_range_m
     lidar_range = [-r, -r, z0, r, r, z1]
     voxel = [cfg.pillar_m, cfg.pillar_m, z1 - z0]
@@ -63,9 +64,12 @@ def write_config(out: Path, train: Path, val: Path, detector_file: str, epochs: 
     hypes["preprocess"]["cav_lidar_range"] = lidar_range
     hypes["preprocess"]["args"]["voxel_size"] = voxel
     hypes["postprocess"]["anchor_args"]["cav_lidar_range"] = lidar_range
-    length, width, height = cfg.anchors[0]
-    hypes["postprocess"]["anchor_args"].update(l=length, w=width, h=height, r=list(cfg.anchor_rotations_deg[:2]))
+    per_anchor = [(size, rotation) for size in cfg.anchors for rotation in cfg.anchor_rotations_deg]  # asg's order
+    hypes["postprocess"]["anchor_args"].update(
+        l=[size[0] for size, _ in per_anchor], w=[size[1] for size, _ in per_anchor],
+        h=[size[2] for size, _ in per_anchor], r=[rotation for _, rotation in per_anchor], num=len(per_anchor))
     model = hypes["model"]["args"]
+    model.update(anchor_num=len(per_anchor), anchor_number=len(per_anchor))
     model["lidar_range"] = lidar_range
     model["voxel_size"] = voxel
     model["base_bev_backbone"].update(layer_nums=list(cfg.layers), num_filters=list(cfg.filters),
@@ -102,10 +106,9 @@ def converted(asg_state: dict, oc_state: dict) -> dict:
                 value = value.transpose(0, 1)  # Conv2d (out, in, 1, 1) -> ConvTranspose2d (in, out, 1, 1)
             put(f"backbone.deblocks.{stage}.{index}.{part}", value)
     fold_value_projection(asg_state, out)
-    slots = list(CAR_SLOTS)
-    put("cls_head.weight", asg_state["head.cls.weight"][slots])
-    put("cls_head.bias", asg_state["head.cls.bias"][slots])
-    box_rows = [7 * s + j for s in slots for j in ORDER]
+    put("cls_head.weight", asg_state["head.cls.weight"])
+    put("cls_head.bias", asg_state["head.cls.bias"])
+    box_rows = [7 * slot + j for slot in range(len(asg_state["head.cls.bias"])) for j in ORDER]
     put("reg_head.weight", asg_state["head.box.weight"][box_rows])
     put("reg_head.bias", asg_state["head.box.bias"][box_rows])
     return out
