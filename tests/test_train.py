@@ -193,8 +193,40 @@ def test_train_init_from_starts_a_new_sequence(sumo_log, tmp_path):
     assert att["attfuse_fusion"] == TINY.attfuse_fusion and "attfuse_fusion" not in again
     with pytest.raises(InputError, match="choose one of"):
         train("early", out_dir=tmp_path / "run", init_from="nope", **kw)
-    (tmp_path / "run" / "last.pt").write_bytes((tmp_path / "weights" / "early.pt").read_bytes())
-    with pytest.raises(InputError, match="unfinished chunk"):
+
+
+def test_an_interrupted_init_from_chunk_resumes_when_the_same_command_is_rerun(sumo_log, tmp_path):
+    """Ctrl-C in a chunk started with --init-from: the same command resumes it (the card keeps its
+    origin and the chunk's length); --init-from on a chunk that continues the model's own weights,
+    or that started from other weights, is refused in one line."""
+    from asg.perception.model import PointPillars
+    from asg.perception.weights_io import save_state
+    from sumo_scenarios.errors import InputError
+
+    data = tiny_dataset(sumo_log, tmp_path / "tiny")
+    weights_dir = tmp_path / "weights"
+    weights_dir.mkdir()
+    save_state(PointPillars(TINY), weights_dir / "single.pt")
+    tcfg = TrainConfig(dataset=str(data), steps=3, batch_size=1, schedule="onecycle", seed=5, checkpoint_every=1)
+
+    def stop_at_2(step, total, loss):
+        if step == 2:
+            raise KeyboardInterrupt
+
+    kw = dict(log=lambda *_: None, threads=1, train_config=tcfg, detector_config=TINY, weights_dir=weights_dir,
+              validate=False)
+    with pytest.raises(KeyboardInterrupt):
+        train("early", out_dir=tmp_path / "run", init_from="single", progress=stop_at_2, **kw)
+    steps_seen = []
+    out = train("early", out_dir=tmp_path / "run", init_from="single",
+                progress=lambda step, total, loss: steps_seen.append(step), **kw)
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert steps_seen == [2, 3] and card["steps"] == 3 and card["init_from"]["weights"] == "single.pt"
+    assert not (tmp_path / "run" / "last.pt").exists()
+    # a continuation chunk of early's own weights, interrupted: --init-from single is not its command
+    with pytest.raises(KeyboardInterrupt):
+        train("early", out_dir=tmp_path / "run", progress=stop_at_2, **kw)
+    with pytest.raises(InputError, match="did not start from single"):
         train("early", out_dir=tmp_path / "run", init_from="single", **kw)
 
 

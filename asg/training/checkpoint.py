@@ -36,3 +36,11 @@ def save_checkpoint(path: Path, model, opt, sched, step: int, wall_s: float, rng
              "torch_rng": torch.get_rng_state(), "previous": json.dumps(previous)}
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
+
+
+def started_from(state: dict) -> str | None:
+    """The weights file (e.g. ``single.pt``) the unfinished chunk started from with ``--init-from``
+    (the first chunk of a new sequence), or None for a chunk that continues its model's own
+    weights (whose sequence may itself have started so)."""
+    previous = json.loads(state.get("previous", "{}"))
+    return None if previous.get("chunks") else previous.get("init_from", {}).get("weights")

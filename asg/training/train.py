@@ -28,7 +28,7 @@ from ..perception.weights_io import seed_run_folder
 from ..scene.views import Views
 from .branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
 from .cards import card_validation, init_record, previous_training, write_card
-from .checkpoint import load_checkpoint
+from .checkpoint import load_checkpoint, started_from
 from .config import TrainConfig, load_branch_config, load_train_config, weights_for
 from .loop import (BRANCH_KEYS, Batches, Steps, augment_record, corner_record, init_from_weights,
                    keep_configured_length, make_scheduler, render_samples, run_steps)
@@ -65,9 +65,13 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     torch.set_num_threads(threads)
     run_dir = out_dir or runs_dir() / "train" / name
     ckpt = run_dir / "last.pt"
-    if init_from and ckpt.is_file():
-        raise InputError(f"{ckpt} holds an unfinished chunk: resume it without --init-from, or delete it to start over")
     state = load_checkpoint(ckpt)
+    if init_from and state is not None:
+        # the same command rerun after an interruption resumes its chunk; another start is refused
+        if started_from(state) != f"{init_from}.pt":
+            raise InputError(f"{ckpt} holds an unfinished chunk that did not start from {init_from}: resume it without "
+                             "--init-from, or delete it to start over")
+        init_from = None
     # the chunks before this one: from the checkpoint when resuming, else from the shipped card
     if init_from:
         previous = {"init_from": init_record(init_from, weights_dir), "chunks": []}
