@@ -89,7 +89,7 @@ def seed_backbone(model_dir: Path, source: Path, epochs: int) -> None:
     last = checkpoint_of(source)
     given = torch.load(last, map_location="cpu", weights_only=True)
     own = network.state_dict()
-    taken = {k: v.float() for k, v in given.items() if k in own and own[k].shape == v.shape}
+    taken = {k: v.to(own[k].dtype) for k, v in given.items() if k in own and own[k].shape == v.shape}
     print(f"{len(taken)} of {len(own)} tensors from {last}; left as initialised: "
           f"{sorted({k.rsplit('.', 2)[0] for k in own if k not in taken})}")
     epoch = epoch_of(last)
