@@ -256,6 +256,32 @@ def test_under_late_fusion_every_agent_frame_carries_its_boxes(scenes, tmp_path)
 
 
 @pytest.mark.slow
+def test_bench_detect_times_opencoods_own_model_beside_the_adapter(scenes, tmp_path, monkeypatch):
+    """``asg bench detect --fusion opencood:DIR``'s reference is OpenCOOD's pipeline with its model as
+    shipped (its own AttFusion), not the adapter's model (the ego-row attention)."""
+    import asg.perception.opencood as oc
+    from asg.benchmarks.detect import opencood_own_ms
+
+    built, models = [], []
+
+    def build(name):
+        det = build_real(name)
+        infer = det.infer
+        det.infer = lambda batch, model, dataset: models.append(model) or infer(batch, model, dataset)
+        built.append(det)
+        return det
+
+    build_real = oc.build_opencood_detector
+    monkeypatch.setattr(oc, "build_opencood_detector", build)
+    folder = make_model_dir(tmp_path / "att", "intermediate", score_threshold=THRESHOLD)
+    assert opencood_own_ms(f"opencood:{folder}", scenes["rsu", 2], repeats=1) > 0
+    assert models and all(m is not built[0].model for m in models)
+    fusions = [f for f in models[0].modules() if type(f).__name__ == "AttFusion"]
+    assert fusions and not any("forward" in vars(f) for f in fusions)  # OpenCOOD's class method, as shipped
+    assert all("forward" in vars(f) for f in built[0].fusions)
+
+
+@pytest.mark.slow
 def test_generate_attacks_an_opencood_model_and_records_its_files(capsys, tmp_path):
     """``asg generate --fusion opencood:DIR`` runs end to end (ACS-A from its own attention), its
     run folder records the model folder's digests, and a rerun after its checkpoint changed is refused."""
@@ -430,28 +456,43 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
     assert "--weights" in err and not (tmp_path / "x").exists()
 
 
-def test_contiguous_attention_computes_opencoods_attention(monkeypatch):
-    """The trainer's contiguous attention (opencood_train.py --contiguous-attention) gives OpenCOOD's
-    AttFusion the same output (its attention over agents at every BEV cell, fed a permuted view as AttFusion feeds
-    it), within float rounding."""
+def test_ego_row_attention_is_opencoods_attfusion(monkeypatch, tmp_path):
+    """AttFusion by the ego's attention row (the trainer child's class, the adapter's instances)
+    gives OpenCOOD's output and the same gradients to its input, for scenes of one to three agents,
+    and the ego's row of OpenCOOD's attention (what ACS-A reads), within float rounding. The adapter
+    changes its own model's fusions only: OpenCOOD's class stays as shipped."""
     import torch
 
+    from asg.perception.opencood.attention import attfusion_type, ego_row_weights
     from asg.perception.opencood.runtime import module, opencood
-    from asg.perception.opencood.trainer import contiguous_attention
+    from asg.perception.opencood.trainer import ego_row_attention
 
     opencood()
     self_attn = module("models.fuse_modules.self_attn")
-    original = self_attn.ScaledDotProductAttention.forward
-    monkeypatch.setattr(self_attn.ScaledDotProductAttention, "forward", original)  # restored after the test
+    shipped = self_attn.AttFusion.forward
+    det = build_detector(f"opencood:{make_model_dir(tmp_path / 'att', 'intermediate')}")
+    assert det.fusions and all(f.forward.__func__ is not shipped for f in det.fusions)
+    assert attfusion_type().forward is shipped  # the adapter patched its instances only
+    monkeypatch.setattr(self_attn.AttFusion, "forward", shipped)  # restored after the test
     torch.manual_seed(0)
-    x = torch.randn(3, 64, 20, 24)  # two scenes' agents (2 + 1), C, H, W
-    record_len = torch.tensor([2, 1])
+    record_len = torch.tensor([2, 1, 3])  # three scenes' agents, the ego of each first
     fusion = self_attn.AttFusion(64)
-    want = fusion(x, record_len)
-    contiguous_attention()
-    got = fusion(x, record_len)
-    assert self_attn.ScaledDotProductAttention.forward is not original and got.shape == want.shape == (2, 64, 20, 24)
-    assert torch.allclose(got, want, atol=1e-6, rtol=1e-6) and not torch.equal(x[:1], got[:1])
+
+    def run():
+        x = torch.randn(6, 64, 20, 24, generator=torch.Generator().manual_seed(1), requires_grad=True)
+        out = fusion(x, record_len)
+        (out * torch.linspace(-1, 1, out.numel()).view_as(out)).sum().backward()
+        return out.detach(), x.grad
+
+    want, want_grad = run()
+    ego_row_attention()
+    got, got_grad = run()
+    assert got.shape == want.shape == (3, 64, 20, 24)
+    assert torch.allclose(got, want, atol=1e-5) and torch.allclose(got_grad, want_grad, atol=1e-5)
+    agents = torch.randn(3, 64, 20, 24)
+    cells = agents.view(3, 64, -1).permute(2, 0, 1)  # (cells, agents, C), as AttFusion feeds its attention
+    row = torch.softmax(torch.bmm(cells, cells.transpose(1, 2)) / fusion.att.sqrt_dim, -1)[:, 0, :]
+    assert torch.allclose(ego_row_weights(agents, fusion.att.sqrt_dim).view(3, -1).T, row, atol=1e-6)
 
 
 def test_a_trainer_that_fails_is_one_line_naming_its_log(tmp_path):

@@ -60,7 +60,8 @@ def _median_s(call, items, repeats: int) -> float:
 def opencood_own_ms(fusion: str, scenes, repeats: int) -> float:
     """Median ms a frame of OpenCOOD's own pipeline as its ``tools/inference.py`` runs it: its
     dataset reading the scenes' OPV2V export (``asg export --format opv2v``), its collate, its
-    model and post-processor (the calls of ``inference_utils``)."""
+    model as shipped (the adapter's computes AttFuse's attention by the ego's row) and
+    post-processor (the calls of ``inference_utils``)."""
     import tempfile
     from pathlib import Path
 
@@ -68,8 +69,13 @@ def opencood_own_ms(fusion: str, scenes, repeats: int) -> float:
 
     from ..io.export.opv2v import ScenarioWriter
     from ..perception.opencood import build_opencood_detector
+    from ..perception.opencood.folder import checkpoint_of, load_checkpoint
+    from ..perception.opencood.runtime import module
 
     det = build_opencood_detector(fusion)
+    model = module("tools.train_utils").create_model(det.dataset.params)
+    load_checkpoint(model, checkpoint_of(det.folder))
+    model.eval()
     with tempfile.TemporaryDirectory(prefix="asg-bench-opencood-") as tmp:
         writer = ScenarioWriter(Path(tmp))
         for s in scenes:
@@ -79,6 +85,6 @@ def opencood_own_ms(fusion: str, scenes, repeats: int) -> float:
         def own(i: int) -> None:
             batch = dataset.collate_batch_test([dataset[i]])
             with torch.no_grad():
-                det.infer(batch, det.model, dataset)
+                det.infer(batch, model, dataset)
 
         return round(_median_s(own, list(range(len(dataset))), repeats) * 1e3, 1)

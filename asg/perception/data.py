@@ -77,8 +77,9 @@ class Sample:
         sensing agent in turn: the same frame seen from 3 centres, 3 times the distinct examples).
         A detecting agent's own body is never a label (the ego's is not at inference either)."""
         f = self.frame
+        detecting = _views(detecting)
         agents = self.detecting_agents(detecting)
-        if _views(detecting) is Views.EGO:
+        if detecting is Views.EGO:
             return [(self.clouds_in_ego(), self.gt_visible_ego(min_points))]
         out = []
         for a in agents:

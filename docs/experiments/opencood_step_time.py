@@ -1,6 +1,7 @@
 """Seconds a training step of an OpenCOOD model takes, under asg's OpenMP wait policy (PASSIVE) and
-the spinning one (ACTIVE), with and without contiguous attention: what made asg run OpenCOOD's
-trainer in a child process with ``OMP_WAIT_POLICY=ACTIVE`` (asg/perception/opencood/trainer.py).
+the spinning one (ACTIVE), and with AttFuse's fusion computing the ego's attention row alone
+(asg.perception.opencood.trainer.ego_row_attention): what made asg run OpenCOOD's trainer in a child
+process with ``OMP_WAIT_POLICY=ACTIVE`` and that attention (asg/perception/opencood/trainer.py).
 
     python docs/experiments/opencood_step_time.py MODEL_DIR [--steps 8] [--out FILE.json]
 
@@ -21,19 +22,21 @@ import sys
 import time
 from pathlib import Path
 
-CONFIGS = [("PASSIVE", False), ("ACTIVE", False), ("PASSIVE", True), ("ACTIVE", True)]
+#: (wait policy, ego-row attention) of each configuration, in the order they run
+CONFIGS = [("PASSIVE", False), ("ACTIVE", False), ("ACTIVE", True)]
 
 
-def measure(model_dir: Path, steps: int, contiguous: bool) -> dict:
+def measure(model_dir: Path, steps: int, ego_row: bool) -> dict:
     """In this process: ``steps`` training steps from MODEL_DIR's latest checkpoint; seconds each."""
     import torch
 
     from asg.perception.opencood.folder import checkpoint_of
-    from asg.perception.opencood.runtime import module
-    from asg.perception.opencood.trainer import contiguous_attention
+    from asg.perception.opencood.runtime import module, opencood
+    from asg.perception.opencood.trainer import ego_row_attention
 
-    if contiguous:
-        contiguous_attention()
+    opencood()
+    if ego_row:
+        ego_row_attention()
 
     config = str(model_dir / "config.yaml")
 
@@ -72,19 +75,19 @@ def main() -> None:
     p.add_argument("model_dir", type=Path)
     p.add_argument("--steps", type=int, default=8)
     p.add_argument("--out", type=Path, default=None)
-    p.add_argument("--one", nargs=2, metavar=("POLICY", "CONTIGUOUS"), help=argparse.SUPPRESS)  # a child's configuration
+    p.add_argument("--one", nargs=2, metavar=("POLICY", "EGO_ROW"), help=argparse.SUPPRESS)  # a child's configuration
     args = p.parse_args()
     if args.one:
         print(json.dumps(measure(args.model_dir, args.steps, args.one[1] == "1")))
         return
     rows = []
-    for policy, contiguous in CONFIGS:
+    for policy, ego_row in CONFIGS:
         env = {**os.environ, "OMP_WAIT_POLICY": policy}
         out = subprocess.run([sys.executable, __file__, str(args.model_dir), "--steps", str(args.steps),
-                              "--one", policy, str(int(contiguous))], env=env, capture_output=True, text=True)
+                              "--one", policy, str(int(ego_row))], env=env, capture_output=True, text=True)
         if out.returncode:
-            sys.exit(f"{policy}, contiguous {contiguous}: exit {out.returncode}\n{out.stderr[-2000:]}")
-        row = {"omp_wait_policy": policy, "contiguous_attention": contiguous, **json.loads(out.stdout.splitlines()[-1])}
+            sys.exit(f"{policy}, ego-row attention {ego_row}: exit {out.returncode}\n{out.stderr[-2000:]}")
+        row = {"omp_wait_policy": policy, "ego_row_attention": ego_row, **json.loads(out.stdout.splitlines()[-1])}
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.out:

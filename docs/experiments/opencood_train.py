@@ -2,7 +2,7 @@
 ``detector-train`` set exported in the OPV2V layout; resumable (rerun the same command).
 
     python docs/experiments/opencood_train.py MODEL_DIR TRAIN_EXPORT VAL_EXPORT [--fusion intermediate|fcooper]
-        [--epochs 15] [--layers 3,5,8] [--contiguous-attention]
+        [--epochs 15] [--layers 3,5,8]
     python docs/experiments/opencood_train.py NEW_DIR TRAIN_EXPORT VAL_EXPORT --finetune-from MODEL_DIR --epochs 3
 
 MODEL_DIR gets OpenCOOD's stock hypes of the fusion (point_pillar_intermediate_fusion.yaml: AttFuse;
@@ -19,15 +19,10 @@ OpenCOOD's own resume does), on the data folders of the command (those of its co
 MODEL_DIR's config with the new data folders and its checkpoint (the highest ``net_epochN.pth``,
 kept as ``net_epochN.pth``), and ``--epochs`` more epochs run from it by the same trainer.
 
-``--contiguous-attention`` (AttFuse only): OpenCOOD's ``ScaledDotProductAttention`` gets its
-query, key and value as contiguous copies before its two ``bmm``: the same products and softmax
-(only the order of float sums may differ), a training step 20 % faster on CPU
-(asg.perception.opencood.trainer.contiguous_attention). The checkpoints are OpenCOOD's as ever,
-evaluated by its unpatched forward (``--fusion opencood:DIR``).
-
 The trainer runs as ``asg harden --fusion opencood:DIR`` runs it (asg/perception/opencood/trainer.py:
 in a child process with spinning OpenMP threads, after asg's runtime preparation, which
-``python -m opencood.tools.train`` lacks).
+``python -m opencood.tools.train`` lacks; checkpoints written whole, OpenCOOD's later ego rule, its
+yaml read by libyaml, AttFuse's attention computed for the ego's row alone: OpenCOOD's function).
 Its log: MODEL_DIR/train.log (append).
 """
 from __future__ import annotations
@@ -79,14 +74,13 @@ def main() -> None:
     p.add_argument("--fusion", choices=sorted(STOCK), default="intermediate")
     p.add_argument("--epochs", type=int, default=15)
     p.add_argument("--layers", default=None, help="backbone stage depths, e.g. 1,2,2 (default OpenCOOD's 3,5,8)")
-    p.add_argument("--contiguous-attention", action="store_true", help="AttFuse: contiguous bmm operands (same math, faster)")
     p.add_argument("--finetune-from", type=Path, default=None, help="a trained model folder: --epochs more from its checkpoint")
     args = p.parse_args()
     layers = [int(x) for x in args.layers.split(",")] if args.layers else None
     if args.finetune_from:
         seed_from(args.model_dir, args.finetune_from, args.train.resolve(), args.val.resolve(), args.epochs)
     write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers)
-    run_trainer(args.model_dir, contiguous_attention=args.contiguous_attention)
+    run_trainer(args.model_dir)
 
 
 if __name__ == "__main__":

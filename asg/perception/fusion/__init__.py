@@ -1,6 +1,6 @@
-"""Fusion methods, registered by name (one module of this package each: none, late, early, attfuse,
-attfuse-ft, fcooper, where2comm, v2xvit); and any detector plugin of the ``asg.detectors`` entry
-point group (see asg.perception.plugins)."""
+"""Fusion methods, registered by name in ``FUSIONS`` (one module of this package each, imported
+here; ``asg --help`` and ``FUSIONS.names()`` list them); and any detector plugin of the
+``asg.detectors`` entry point group (see asg.perception.plugins)."""
 from pathlib import Path
 
 from sumo_scenarios.errors import InputError

@@ -22,7 +22,9 @@ collaborating RSU (folder ``-1``) is read as the ego instead of ours (``0``); Op
 releases move one leading negative folder to the end, the rule asg's OPV2V export is numbered for.
 The child trains with that rule (:func:`rsu_never_ego`), so that every scenario trains its own ego's
 view. It reads OpenCOOD's yaml files by libyaml under a safe loader (:func:`libyaml_reading`):
-OpenCOOD's pure-Python parse of each agent's yaml was most of its data loading's time.
+OpenCOOD's pure-Python parse of each agent's yaml was most of its data loading's time. AttFuse's
+fusion computes the ego's row of its attention alone (:func:`ego_row_attention`): the same function,
+without the batched tiny matrix products that took most of a training step on CPU.
 """
 from __future__ import annotations
 
@@ -71,34 +73,25 @@ def seed_from(model_dir: Path, source: Path, train: Path, val: Path, more_epochs
     write_text_atomic(model_dir / "config.yaml", yaml.safe_dump(hypes, sort_keys=False))
 
 
-def run_trainer(model_dir: Path, contiguous_attention: bool = False) -> None:
+def run_trainer(model_dir: Path) -> None:
     """OpenCOOD's ``tools/train.py --hypes_yaml model_dir/config.yaml --model_dir model_dir`` in a
     child process (module docstring), its output appended to ``model_dir/train.log``; InputError
-    (one line, naming the log) if it fails. ``contiguous_attention``: see :func:`contiguous_attention`."""
+    (one line, naming the log) if it fails."""
     env = {**os.environ, "OMP_WAIT_POLICY": asg.spinning_omp_policy()}
-    command = [sys.executable, "-m", __name__, str(model_dir), *(["--contiguous-attention"] if contiguous_attention else [])]
+    command = [sys.executable, "-m", __name__, str(model_dir)]
     with open(model_dir / TRAIN_LOG, "a", buffering=1) as log:
         code = subprocess.run(command, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
     if code:
         raise InputError(f"OpenCOOD's trainer stopped with exit code {code}; its log: {model_dir / TRAIN_LOG}")
 
 
-def contiguous_attention() -> None:
-    """OpenCOOD's ``ScaledDotProductAttention`` (AttFuse) given contiguous query, key and value
-    before its two ``bmm``: the same products and softmax (only the order of float sums may
-    differ), a training step 18 % faster on CPU (AttFusion hands ``bmm`` a permuted view, which CPU
-    ``bmm`` multiplies one small matrix at a time: 6.8 s -> 5.6 s a step, batch 2, depths 1, 2, 2).
-    The checkpoints are OpenCOOD's as ever; asg's adapter runs OpenCOOD's unpatched forward."""
-    import torch
+def ego_row_attention() -> None:
+    """OpenCOOD's ``AttFusion`` class computes by the ego's row of its attention (asg/perception/
+    opencood/attention.py: the same function and gradients, without the batched tiny products that
+    took most of a training step on CPU). The checkpoints are OpenCOOD's as ever."""
+    from .attention import attfusion_type, ego_row_forward
 
-    attention = module("models.fuse_modules.self_attn").ScaledDotProductAttention
-
-    def forward(self, query, key, value):
-        query, key, value = query.contiguous(), key.contiguous(), value.contiguous()
-        score = torch.bmm(query, key.transpose(1, 2)) / self.sqrt_dim
-        return torch.bmm(torch.softmax(score, -1), value)
-
-    attention.forward = forward
+    attfusion_type().forward = ego_row_forward
 
 
 def atomic_checkpoints() -> None:
@@ -145,11 +138,11 @@ def libyaml_reading() -> None:
     """OpenCOOD's ``load_yaml`` (every agent's yaml of every training example, and the config)
     parsed by libyaml under a safe loader with OpenCOOD's float resolver (``folder.HypesLoader``'s
     rules): the same dicts from asg's exports, 5.8x faster (21 ms against 123 ms a file of the
-    exported detector-train set, docs/experiments/opencood-yaml-time.json), no Python object built from a tag (OpenCOOD's
-    own uses PyYAML's full ``Loader``), and no float resolver added to PyYAML's ``Loader`` on every
-    call (OpenCOOD's does, one more each file). Its ``yaml_parser`` is looked up by name in
-    ``yaml_utils``, where OpenCOOD evaluates the string. PyYAML built without libyaml parses in
-    Python under the same safe rules."""
+    exported detector-train set, docs/experiments/opencood-yaml-time.json), no Python object built
+    from a tag (OpenCOOD's own uses PyYAML's full ``Loader``), and no float resolver added to
+    PyYAML's ``Loader`` on every call (OpenCOOD's does, one more each file). Its ``yaml_parser`` is
+    looked up by name in ``yaml_utils``, where OpenCOOD evaluates the string. PyYAML built without
+    libyaml parses in Python under the same safe rules."""
     utils = module("hypes_yaml.yaml_utils")
     original = utils.load_yaml
     if getattr(original, "libyaml", False):
@@ -171,18 +164,17 @@ def libyaml_reading() -> None:
             mod.load_yaml = load_yaml
 
 
-def _train(model_dir: Path, patch_attention: bool) -> None:
+def _train(model_dir: Path) -> None:
     """The child's work: asg's runtime preparation, then OpenCOOD's trainer on ``model_dir``."""
     opencood()  # box_overlaps compiled, get_cmap restored: the trainer imports as shipped
     remove_stale_partials(model_dir)  # what a killed save left; no other writer works in the folder
     atomic_checkpoints()
     rsu_never_ego()
     libyaml_reading()
-    if patch_attention:
-        contiguous_attention()
+    ego_row_attention()
     sys.argv = ["opencood.tools.train", "--hypes_yaml", str(model_dir / "config.yaml"), "--model_dir", str(model_dir)]
     runpy.run_module("opencood.tools.train", run_name="__main__")
 
 
 if __name__ == "__main__":
-    _train(Path(sys.argv[1]), "--contiguous-attention" in sys.argv[2:])
+    _train(Path(sys.argv[1]))
