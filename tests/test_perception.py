@@ -596,6 +596,44 @@ def test_fcooper_fuses_by_maxout_and_is_single_with_one_agent():
     assert torch.allclose(a, b, atol=1e-5)
 
 
+def test_v2vnet_passes_the_pairwise_messages_and_starts_near_the_ego_alone():
+    """V2VNet's factored messages equal the pairwise conv3x3([h_j, h_i]) averaged over the agents
+    present (an absent slot sends nothing); the collaborators' order changes nothing; from AttFuse's
+    weights it starts close to AttFuse on the ego's cloud alone, and training can open it."""
+    from asg.perception.fusion.v2vnet import MessagePassing, V2VNet
+    from asg.perception.model import AttFuse
+
+    torch.manual_seed(0)
+    passing = MessagePassing(4)
+    feats = torch.randn(2, 3, 4, 5, 6)
+    mask = torch.tensor([[True, True, True], [True, True, False]])
+    got = passing.messages(feats, mask)
+    for b in range(2):
+        senders = [j for j in range(3) if mask[b, j]]
+        for i in range(3):
+            pairs = torch.stack([torch.cat([feats[b, j], feats[b, i]]) for j in senders])
+            assert torch.allclose(got[b, i], passing.message(pairs).mean(dim=0), atol=1e-5)
+    feats[1, 2] = 1e3  # the absent agent's slot
+    assert torch.allclose(passing(feats, mask)[0][1], passing(feats[:, :2], mask[:, :2])[0][1], atol=1e-4)
+    attfuse, v2vnet = AttFuse(TINY), V2VNet(TINY)
+    missing = v2vnet.load_state_dict(attfuse.state_dict(), strict=False).missing_keys
+    assert missing and all(k.startswith(V2VNet.parts_beyond_base) for k in missing)
+    v2vnet.start_from_base(missing)
+    attfuse.eval(), v2vnet.eval()
+    rng = np.random.default_rng(1)
+    clouds = [torch.from_numpy(np.c_[rng.uniform(-15, 15, (400, 2)), rng.uniform(-2, 1, (400, 1)),
+                                     rng.uniform(0, 1, (400, 1))].astype(np.float32)) for _ in range(3)]
+    with torch.no_grad():
+        alone, fused = attfuse([[clouds[0]]])[0], v2vnet([clouds])[0]
+        swapped = v2vnet([[clouds[0], clouds[2], clouds[1]]])[0]
+    assert torch.allclose(fused, swapped, atol=1e-5)
+    assert (fused - alone).abs().max() < 0.1 * alone.abs().max()  # near the ego alone, not equal
+    assert not torch.allclose(fused, alone, atol=1e-6)
+    v2vnet.train()
+    v2vnet([clouds])[0].sum().backward()
+    assert v2vnet.fusion.message.weight.grad.abs().sum() > 0  # the messages get gradients from the start
+
+
 def test_where2comm_sends_the_cells_its_confidence_asks_for():
     """Where2comm with AttFuse's weights: a threshold of 0 sends every cell (the network is AttFuse);
     a threshold no confidence reaches sends none (the ego alone: AttFuse on the ego's cloud); in

@@ -11,7 +11,7 @@ from asg.search import SEARCHES
 from asg.search.spaces import SPACES
 
 #: the shipped set of each registry, pinned (every other test walks the registries themselves)
-SHIPPED = {"fusion": ["attfuse", "attfuse-ft", "attfuse-wide", "early", "fcooper", "late", "none", "v2xvit",
+SHIPPED = {"fusion": ["attfuse", "attfuse-ft", "attfuse-wide", "early", "fcooper", "late", "none", "v2vnet", "v2xvit",
                       "v2xvit-noisy", "where2comm"],
            "search": ["bo", "ga", "ls", "ng", "rs"], "space": ["dropout", "insert", "latency", "pose-error", "poses"],
            "acs": ["attention", "random"], "executor": ["local", "ray"],
