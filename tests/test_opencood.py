@@ -371,7 +371,22 @@ def test_a_challenging_set_is_built_against_an_opencood_model_and_evaluated(caps
     assert json.loads((built / "index.json").read_text())["frames"] == 1
     capsys.readouterr()
     assert main(["evaluate", "--fusion", fusion, "--set", built.name, "--json"]) == 0
-    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["frames"] == 1
+    out = capsys.readouterr()
+    assert json.loads(out.out.strip().splitlines()[-1])["frames"] == 1
+    assert "remove_large_pred_bbx" in out.err and "truck" in out.err  # what its post-processor cannot output
+
+
+def test_opencoods_post_processor_drops_asgs_trucks_and_buses():
+    """OpenCOOD's own filters, asked through asg's vehicle types: a car, an SUV and a van are kept at
+    any heading, a truck (8.5 m) and a bus (12 m) never; a box kept on the ground is dropped once it
+    is longer than 6 m or raised above 1 m."""
+    from asg.perception.opencood.limits import dropped_vehicle_types, kept_by_post_processor
+
+    assert dropped_vehicle_types() == ["truck", "bus"]
+    car = [0.0, 0.0, -1.15, 4.6, 1.9, 1.5, 0.3]
+    longer, raised = list(car), list(car)
+    longer[3], raised[2] = 6.5, 0.5
+    assert kept_by_post_processor(np.array([car, longer, raised])).tolist() == [True, False, False]
 
 
 @pytest.mark.slow
