@@ -99,3 +99,41 @@ def test_opencood_from_asg_gives_opencood_asgs_anchors(tmp_path):
     ours = make_anchors(load_detector_config(SCRIPTS[0].parents[2] / "configs" / "detectors" / "pointpillars-wide.yaml"))
     assert theirs.shape == ours.shape == (96 * 96 * 4, 7)
     assert np.allclose(theirs[:, list(script.ORDER)], ours, atol=1e-9)
+
+
+def test_opencood_train_backbone_from_keeps_the_sources_grid(tmp_path):
+    """``opencood_train.py --backbone-from``: the new fusion's folder takes the trained folder's grid,
+    range and anchors (its stock ones would differ), its own model from its stock hypes, and every
+    pillar-net and backbone tensor of the source, the fusion's own layers left as initialised."""
+    import sys
+
+    import torch
+    import yaml
+    pytest.importorskip("opencood")
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from opencood_models import make_model_dir
+
+    from asg.perception.opencood.folder import read_hypes
+    from asg.perception.opencood.runtime import module
+
+    spec = importlib.util.spec_from_file_location("opencood_train", SCRIPTS[0].parent / "opencood_train.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    source = make_model_dir(tmp_path / "att", "intermediate")
+    raw = yaml.safe_load((source / "config.yaml").read_text())
+    raw["preprocess"]["args"]["voxel_size"] = raw["model"]["args"]["voxel_size"] = [0.5, 0.5, 4]  # not F-Cooper's stock 0.4
+    (source / "config.yaml").write_text(yaml.safe_dump(raw))
+    new = tmp_path / "fc"
+    script.config_from_source(new, "fcooper", source, tmp_path / "train", tmp_path / "val", epochs=2, lr=None)
+    script.seed_backbone(new, source, epochs=2)
+    hypes = read_hypes(new)
+    assert hypes["model"]["core_method"] == "point_pillar_fcooper" and "shrink_header" in hypes["model"]["args"]
+    assert hypes["preprocess"]["args"]["voxel_size"] == [0.5, 0.5, 4]
+    assert hypes["postprocess"]["anchor_args"]["cav_lidar_range"] == raw["postprocess"]["anchor_args"]["cav_lidar_range"]
+    assert hypes["train_params"]["epoches"] == 3 and hypes["optimizer"]["lr"] == 0.001  # epoch 1 given, F-Cooper's rate
+    seeded = torch.load(new / "net_epoch1.pth", weights_only=True)
+    given = torch.load(source / "net_epoch1.pth", weights_only=True)
+    own = module("tools.train_utils").create_model(hypes).state_dict()
+    shared = [k for k in own if k.startswith(("pillar_vfe.", "backbone.")) and given[k].shape == own[k].shape]
+    assert shared and all(torch.equal(seeded[k], given[k]) for k in shared)
+    assert not any(k.startswith("shrink_conv.") for k in seeded)

@@ -17,7 +17,8 @@ epoch and, rerun, resumes from the highest N (the model's weights; its optimizer
 OpenCOOD's own resume does), on the data folders of the command (those of its config replaced). ``MODEL_DIR`` is then a target: ``--fusion opencood:MODEL_DIR``.
 
 ``--backbone-from MODEL_DIR`` (a new fusion from a trained one, e.g. F-Cooper from AttFuse): the new
-folder's first checkpoint, ``net_epochN.pth`` with MODEL_DIR's N, holds MODEL_DIR's pillar net and
+folder's config is MODEL_DIR's (its grid, range, anchors and backbone, which the tensors taken were
+trained for) with the new fusion's name, model and own arguments from its stock hypes; its first checkpoint, ``net_epochN.pth`` with MODEL_DIR's N, holds MODEL_DIR's pillar net and
 backbone tensors (every tensor of the new network with the same name and shape), and OpenCOOD's
 resume (``load_saved_model``, which loads with ``strict=False``) leaves the rest as initialised (F-Cooper's
 ``shrink_conv`` and heads, whose input differs from AttFuse's); the tensors taken and those left are
@@ -79,6 +80,30 @@ def write_config(model_dir: Path, fusion: str, train: Path, val: Path, epochs: i
     return path
 
 
+def config_from_source(model_dir: Path, fusion: str, source: Path, train: Path, val: Path, epochs: int,
+                       lr: float | None) -> None:
+    """A new folder's config.yaml for ``--backbone-from``: the source's hypes (its grid, range,
+    anchors, backbone, augmentation and post-processing, which its pillar net and backbone were
+    trained for) with the new fusion's parts from its stock hypes: its ``name``, model
+    ``core_method``, the model arguments and training parameters the source lacks (F-Cooper's
+    ``shrink_header``, ``max_cav``) and its rate (or ``lr``). Nothing done for a resumed folder."""
+    path = model_dir / "config.yaml"
+    if path.is_file():
+        return
+    stock = yaml.safe_load(yaml.safe_dump(yaml.load(
+        (Path(module("hypes_yaml").__file__).parent / STOCK[fusion]).read_text(), Loader=HypesLoader)))
+    read_hypes(source)  # refused in one line if it cannot be run
+    hypes = yaml.safe_load(yaml.safe_dump(yaml.load((source / "config.yaml").read_text(), Loader=HypesLoader)))
+    hypes.update(name=stock["name"], root_dir=str(train), validate_dir=str(val))
+    hypes["model"]["core_method"] = stock["model"]["core_method"]
+    for part, into in ((stock["model"]["args"], hypes["model"]["args"]), (stock["train_params"], hypes["train_params"])):
+        into.update({k: v for k, v in part.items() if k not in into})
+    hypes["train_params"]["epoches"] = epochs
+    hypes["optimizer"]["lr"] = stock["optimizer"]["lr"] if lr is None else lr
+    model_dir.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(yaml.safe_load(yaml.safe_dump(hypes)), sort_keys=False))
+
+
 def seed_backbone(model_dir: Path, source: Path, epochs: int) -> None:
     """``model_dir``'s first checkpoint from ``source``'s latest (module docstring); its config's
     epochs become N + ``epochs``. Nothing done if ``model_dir`` already has a checkpoint (a resumed
@@ -116,6 +141,9 @@ def main() -> None:
     layers = [int(x) for x in args.layers.split(",")] if args.layers else None
     if args.finetune_from:
         seed_from(args.model_dir, args.finetune_from, args.train.resolve(), args.val.resolve(), args.epochs)
+    if args.backbone_from:
+        config_from_source(args.model_dir, args.fusion, args.backbone_from, args.train.resolve(), args.val.resolve(),
+                           args.epochs, args.lr)
     write_config(args.model_dir, args.fusion, args.train.resolve(), args.val.resolve(), args.epochs, layers, args.lr)
     if args.backbone_from:
         seed_backbone(args.model_dir, args.backbone_from, args.epochs)
