@@ -377,8 +377,8 @@ def test_a_challenging_set_is_built_against_an_opencood_model_and_evaluated(caps
 
 
 def test_opencoods_post_processor_drops_asgs_trucks_and_buses():
-    """OpenCOOD's own filters, asked through asg's vehicle types: a car, an SUV and a van are kept at
-    any heading, a truck (8.5 m) and a bus (12 m) never; a box kept on the ground is dropped once it
+    """OpenCOOD's own filters, asked through asg's vehicle types: a car, an SUV and a van are kept
+    (along an axis and diagonally), a truck (8.5 m) and a bus (12 m) never; a box kept on the ground is dropped once it
     is longer than 6 m or raised above 1 m."""
     from asg.perception.opencood.limits import dropped_vehicle_types, kept_by_post_processor
 

@@ -23,8 +23,9 @@ HEADINGS_RAD = (0.0, np.pi / 4)
 
 def kept_by_post_processor(boxes: np.ndarray) -> np.ndarray:
     """(K,) bool: whether OpenCOOD's post-processor keeps each of ``boxes`` (K, 7) x, y, z (centre),
-    l, w, h, yaw in OpenCOOD's ego frame (the exported one: 1.9 m above the ground under a car's
-    or a lowered sensor), by its own ``remove_large_pred_bbx`` and ``remove_bbx_abnormal_z``."""
+    l, w, h, yaw in OpenCOOD's ego frame (the exported one: its origin at the ego's sensor, lowered
+    to 1.9 m above the ground when the sensor stands higher), by its own ``remove_large_pred_bbx``
+    and ``remove_bbx_abnormal_z``."""
     import torch
 
     box_utils = module("utils.box_utils")
