@@ -14,12 +14,9 @@ RANGE = [-51.2, -51.2, -3.0, 51.2, 51.2, 1.0]
 
 
 def tiny_hypes(kind: str) -> dict:
-    from asg.perception.opencood.folder import HypesLoader
-    from asg.perception.opencood.runtime import module
+    from asg.perception.opencood.folder import stock_hypes
 
-    text = (Path(module("hypes_yaml").__file__).parent / STOCK[kind]).read_text()
-    hypes = yaml.load(text, Loader=HypesLoader)
-    hypes = yaml.safe_load(yaml.safe_dump(hypes))  # aliases written out: each value its own
+    hypes = stock_hypes(STOCK[kind])  # aliases written out: each value its own
     hypes["preprocess"]["cav_lidar_range"] = list(RANGE)
     hypes["postprocess"]["anchor_args"]["cav_lidar_range"] = list(RANGE)
     args = hypes["model"]["args"]

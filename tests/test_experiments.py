@@ -105,12 +105,9 @@ def test_opencood_train_backbone_from_keeps_the_sources_grid(tmp_path):
     """``opencood_train.py --backbone-from``: the new fusion's folder takes the trained folder's grid,
     range and anchors (its stock ones would differ), its own model from its stock hypes, and every
     pillar-net and backbone tensor of the source, the fusion's own layers left as initialised."""
-    import sys
-
     import torch
     import yaml
     pytest.importorskip("opencood")
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from opencood_models import make_model_dir
 
     from asg.perception.opencood.folder import read_hypes

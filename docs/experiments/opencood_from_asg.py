@@ -42,7 +42,7 @@ import torch
 import yaml
 
 from asg.perception.config import load_detector_config
-from asg.perception.opencood.folder import HypesLoader, read_hypes
+from asg.perception.opencood.folder import read_hypes, stock_hypes
 from asg.perception.opencood.runtime import module
 from asg.perception.weights_io import WEIGHTS_DIR
 from sumo_scenarios.paths import configs_dir
@@ -58,8 +58,7 @@ def write_config(out: Path, train: Path, val: Path, detector_file: str, epochs: 
     r, (z0, z1) = cfg.range_m, cfg.z_range_m
     lidar_range = [-r, -r, z0, r, r, z1]
     voxel = [cfg.pillar_m, cfg.pillar_m, z1 - z0]
-    stock = Path(module("hypes_yaml").__file__).parent / STOCK
-    hypes = yaml.safe_load(yaml.safe_dump(yaml.load(stock.read_text(), Loader=HypesLoader)))
+    hypes = stock_hypes(STOCK)
     hypes.update(root_dir=str(train.resolve()), validate_dir=str(val.resolve()))
     hypes["preprocess"]["cav_lidar_range"] = lidar_range
     hypes["preprocess"]["args"]["voxel_size"] = voxel

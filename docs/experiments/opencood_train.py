@@ -43,7 +43,7 @@ from pathlib import Path
 import torch
 import yaml
 
-from asg.perception.opencood.folder import HypesLoader, checkpoint_of, read_hypes
+from asg.perception.opencood.folder import checkpoint_of, plain_hypes, read_hypes, stock_hypes
 from asg.perception.opencood.runtime import module
 from asg.perception.opencood.trainer import epoch_of, run_trainer, seed_from
 
@@ -57,15 +57,13 @@ def write_config(model_dir: Path, fusion: str, train: Path, val: Path, epochs: i
     data folders given now (a run may move to a larger export between epochs)."""
     path = model_dir / "config.yaml"
     if path.is_file():
-        hypes = yaml.load(path.read_text(), Loader=HypesLoader)
+        hypes = plain_hypes(path)
         if (hypes.get("root_dir"), hypes.get("validate_dir")) != (str(train), str(val)):
             print(f"{path}: data folders now {train} and {val}")
             hypes.update(root_dir=str(train), validate_dir=str(val))
-            path.write_text(yaml.safe_dump(yaml.safe_load(yaml.safe_dump(hypes)), sort_keys=False))
+            path.write_text(yaml.safe_dump(hypes, sort_keys=False))
         return path
-    stock = Path(module("hypes_yaml").__file__).parent / STOCK[fusion]
-    hypes = yaml.load(stock.read_text(), Loader=HypesLoader)
-    hypes = yaml.safe_load(yaml.safe_dump(hypes))
+    hypes = stock_hypes(STOCK[fusion])
     hypes.update(root_dir=str(train), validate_dir=str(val))
     hypes["train_params"]["epoches"] = epochs
     hypes["preprocess"]["cav_lidar_range"] = list(RANGE_M)
@@ -90,10 +88,9 @@ def config_from_source(model_dir: Path, fusion: str, source: Path, train: Path, 
     path = model_dir / "config.yaml"
     if path.is_file():
         return
-    stock = yaml.safe_load(yaml.safe_dump(yaml.load(
-        (Path(module("hypes_yaml").__file__).parent / STOCK[fusion]).read_text(), Loader=HypesLoader)))
+    stock = stock_hypes(STOCK[fusion])
     read_hypes(source)  # refused in one line if it cannot be run
-    hypes = yaml.safe_load(yaml.safe_dump(yaml.load((source / "config.yaml").read_text(), Loader=HypesLoader)))
+    hypes = plain_hypes(source / "config.yaml")
     hypes.update(name=stock["name"], root_dir=str(train), validate_dir=str(val))
     hypes["model"]["core_method"] = stock["model"]["core_method"]
     for part, into in ((stock["model"]["args"], hypes["model"]["args"]), (stock["train_params"], hypes["train_params"])):
@@ -101,7 +98,7 @@ def config_from_source(model_dir: Path, fusion: str, source: Path, train: Path, 
     hypes["train_params"]["epoches"] = epochs
     hypes["optimizer"]["lr"] = stock["optimizer"]["lr"] if lr is None else lr
     model_dir.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump(yaml.safe_load(yaml.safe_dump(hypes)), sort_keys=False))
+    path.write_text(yaml.safe_dump(hypes, sort_keys=False))
 
 
 def seed_backbone(model_dir: Path, source: Path, epochs: int) -> None:

@@ -53,6 +53,18 @@ else:  # PyYAML built without libyaml
     LibyamlHypesLoader = HypesLoader
 
 
+def plain_hypes(path: Path) -> dict:
+    """A hypes yaml as plain dicts, to edit and write again: read by HypesLoader (OpenCOOD's float
+    rule), each alias written out so that every value is its own, no ``yaml_parser`` applied.
+    Unchecked: read a user's folder through :func:`read_hypes` first."""
+    return yaml.safe_load(yaml.safe_dump(yaml.load(Path(path).read_text(encoding="utf-8"), Loader=HypesLoader)))
+
+
+def stock_hypes(file_name: str) -> dict:
+    """OpenCOOD's shipped hypes file ``file_name`` (its ``hypes_yaml`` folder) as :func:`plain_hypes`."""
+    return plain_hypes(Path(module("hypes_yaml").__file__).parent / file_name)
+
+
 def read_hypes(folder: Path) -> dict:
     """``folder/config.yaml`` as OpenCOOD's ``load_yaml`` returns it (its parser applied); InputError
     (one line) for a missing, malformed, oversized or unsupported config."""

@@ -41,7 +41,7 @@ import asg
 from sumo_scenarios.atomic import atomic_path, remove_stale_partials, write_text_atomic
 from sumo_scenarios.errors import InputError
 
-from .folder import HypesLoader, LibyamlHypesLoader, checkpoint_of, read_hypes
+from .folder import LibyamlHypesLoader, checkpoint_of, plain_hypes, read_hypes
 from .runtime import module, opencood
 
 #: the trainer's log in a model folder (appended to: a resumed run adds to it)
@@ -63,8 +63,7 @@ def seed_from(model_dir: Path, source: Path, train: Path, val: Path, more_epochs
         return
     read_hypes(source)  # one line for a folder OpenCOOD's adapter would refuse
     last = checkpoint_of(source)
-    hypes = yaml.load((source / "config.yaml").read_text(encoding="utf-8"), Loader=HypesLoader)
-    hypes = yaml.safe_load(yaml.safe_dump(hypes))
+    hypes = plain_hypes(source / "config.yaml")
     hypes.update(root_dir=str(Path(train).resolve()), validate_dir=str(Path(val).resolve()))
     epoch = epoch_of(last)
     hypes["train_params"]["epoches"] = epoch + more_epochs
