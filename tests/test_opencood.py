@@ -464,6 +464,18 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
     assert main(argv) == 0 and trained.stat().st_mtime_ns == stamp  # resumed: nothing trained again
     capsys.readouterr()
     _refusal(capsys, *[a if a != "random" else "normal" for a in argv])  # other settings, same folder
+    from asg.workflows import harden_opencood
+
+    shared = harden_opencood.start_cache(f"opencood:{model}")
+    assert json.loads((shared / "normal-val.json").read_text())["ap"] == card["evaluation"]["normal-val"]["before"]["ap"]
+    import asg.evaluation
+
+    evaluated, real = [], asg.evaluation.evaluate
+    monkeypatch.setattr(asg.evaluation, "evaluate", lambda fusion, *a, **k: evaluated.append(fusion) or real(fusion, *a, **k))
+    control = [a if a != "random" else "normal" for a in argv[:-4]] + ["--out", str(tmp_path / "control"), "--workers", "1"]
+    assert main(control) == 0  # the control at equal compute: the start's evaluations are not made again
+    assert evaluated and f"opencood:{model}" not in evaluated
+    capsys.readouterr()
     err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "2", "--out", str(tmp_path / "x"))
     assert "--rounds 1" in err and not (tmp_path / "x").exists()
     err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--weights", str(trained),

@@ -15,7 +15,8 @@ trainer on scenes asg made against it, scored before and after with paired inter
    paired-bootstrap interval; then the paper's protocol on normal-val against the new model.
 
 Every step resumes: the scenes and exports are written whole or not at all, the trainer resumes from
-its last epoch, evaluations are cached in ``OUT/eval``. ``OUT/card.json`` holds the result.
+its last epoch, the new model's evaluations are cached in ``OUT/eval`` and the starting model's in
+the data root (:func:`start_cache`, shared by a run and its controls). ``OUT/card.json`` holds the result.
 """
 from __future__ import annotations
 
@@ -133,7 +134,8 @@ def evaluate_pair(before: str, after: str, cfg, cache: Path, executor, detector_
                   log: Callable[[str], None]) -> dict:
     """{set: {"before", "after": pooled APs, "frames", "gap": {yardstick: the AP@0.7 gap after -
     before with its 95 % paired interval}}} on the config's evaluation sets, ``before``'s own
-    challenging val set and the guard set; each evaluation cached in ``cache``."""
+    challenging val set and the guard set; ``after``'s evaluations cached in ``cache``, ``before``'s
+    in :func:`start_cache` (shared with the controls)."""
     from ..evaluation import evaluate
     from .challenging import build_challenging
 
@@ -143,10 +145,11 @@ def evaluate_pair(before: str, after: str, cfg, cache: Path, executor, detector_
     for set_name in sets:
         scored = {}
         for when, fusion in zip(FINETUNE_PAIR, (before, after)):
-            hit, matches = cache / f"{when}-{set_name}.json", cache / f"{when}-{set_name}.matches.npz"
+            folder, name = (start_cache(before), set_name) if when == "before" else (cache, f"{when}-{set_name}")
+            hit, matches = folder / f"{name}.json", folder / f"{name}.matches.npz"
             if not (hit.is_file() and matches.is_file()):
                 result = evaluate(fusion, set_name, executor=executor, keep_matches=True)
-                cache.mkdir(parents=True, exist_ok=True)
+                folder.mkdir(parents=True, exist_ok=True)
                 save_matches(matches, result["matches"])
                 write_text_atomic(hit, json.dumps(PooledAP.from_result(result).to_json(4) | {"frames": result["frames"]}))
             scored[when] = (json.loads(hit.read_text()), load_matches(matches))
@@ -157,6 +160,23 @@ def evaluate_pair(before: str, after: str, cfg, cache: Path, executor, detector_
         log(f"  {set_name}: AP@0.7 ours / per frame {pair['before'].text()} -> {pair['after'].text()}")
         table[set_name] = row
     return table
+
+
+def start_cache(fusion: str) -> Path:
+    """Where the evaluations of the round's starting model (``opencood:DIR``) are cached: a folder of
+    the data root named by the digest of DIR's config and checkpoint and by the scoring code's
+    (asg.workflows.harden.scoring_digest), shared by every run and control that starts from it."""
+    import hashlib
+
+    from ..datasets import data_root
+    from ..generator.run import file_digest
+    from ..perception.opencood import model_files
+    from .harden import scoring_digest
+
+    h = hashlib.sha256()
+    for name, path in sorted(model_files(model_dir_of(fusion)).items()):
+        h.update(name.encode() + b"\0" + file_digest(path).encode())
+    return data_root() / ".harden-start" / f"{PREFIX.rstrip(':')}-{h.hexdigest()[:16]}-{scoring_digest()[:12]}"
 
 
 def reattack_pair(before: str, after: str, executor, detector_factory: str | None, log: Callable[[str], None]) -> dict:
