@@ -134,3 +134,37 @@ def test_opencood_train_backbone_from_keeps_the_sources_grid(tmp_path):
     shared = [k for k in own if k.startswith(("pillar_vfe.", "backbone.")) and given[k].shape == own[k].shape]
     assert shared and all(torch.equal(seeded[k], given[k]) for k in shared)
     assert not any(k.startswith("shrink_conv.") for k in seeded)
+
+
+def test_opencood_rounds_puts_the_attack_beside_its_control_with_a_paired_interval(tmp_path):
+    """opencood_rounds.py: each round's after and gap from its card, and the first round over the
+    other by the frames both cached: a round that finds every vehicle against one that finds none
+    is ahead by the whole AP, interval clear of zero."""
+    import json
+
+    import numpy as np
+
+    from asg.objective.ap import REPORTED_THRESHOLDS
+    from asg.objective.paired import save_matches
+
+    spec = importlib.util.spec_from_file_location("opencood_rounds", SCRIPTS[0].parent / "opencood_rounds.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    ap = {"ap": {"0.7": 0.5}, "ap_per_frame": {"0.7": 0.4}}
+    gap = {"threshold": 0.7, "gap": 0.1, "low": 0.0, "high": 0.2, "frames": 20}
+    for data, hit in (("adversarial", True), ("random", False)):
+        out = tmp_path / data
+        (out / "eval").mkdir(parents=True)
+        frames = [{t: (np.array([0.9]), np.array([hit]), 1) for t in REPORTED_THRESHOLDS} for _ in range(20)]
+        save_matches(out / "eval" / "after-normal-val.matches.npz", frames)
+        row = {"frames": 20, "before": ap, "after": ap, "gap": {"global": gap, "per-frame": gap}}
+        card = {"data": data, "epochs": 3, "evaluation": {"normal-val": row},
+                "reattack": {"frames": 20, "before": {"normal": ap, "challenging": ap},
+                             "after": {"normal": ap, "challenging": ap}}}
+        (out / "card.json").write_text(json.dumps(card))
+    result = script.compare([tmp_path / "adversarial", tmp_path / "random"])
+    ahead = result["sets"]["normal-val"]["first_over"]["random"]
+    assert ahead["global"]["gap"] == pytest.approx(1.0) and ahead["per-frame"]["low"] == pytest.approx(1.0)
+    assert set(result["reattack"]) == {"adversarial", "random"}
+    table = script.markdown(result)
+    assert "adversarial - random" in table and "+100.0 [+100.0, +100.0]" in table and "re-attack" in table

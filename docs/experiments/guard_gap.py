@@ -4,7 +4,8 @@ the set's frames, seed 0: asg.objective.paired, the code `asg harden` keeps or d
 
 usage: .venv/bin/python docs/experiments/guard_gap.py SET BEFORE AFTER [OUT.json]
   SET: any --set of asg evaluate (holdout, normal-val, ...); BEFORE, AFTER: a shipped model name
-  (attfuse, attfuse-ft, ...) or FUSION:path/to/weights.pt (e.g. attfuse:runs/harden/attfuse/round-1/weights.pt).
+  (attfuse, attfuse-ft, ...), FUSION:path/to/weights.pt (e.g. attfuse:runs/harden/attfuse/round-1/weights.pt)
+  or an OpenCOOD model folder, opencood:DIR.
 """
 import json
 import sys
@@ -13,9 +14,12 @@ from asg.evaluation import evaluate
 from asg.objective.ap import Yardstick
 from asg.objective.paired import paired_ap_gap
 from asg.objective.pooled import PooledAP
+from asg.perception.opencood import is_opencood
 
 
 def scored(spec: str, set_name: str) -> dict:
+    if is_opencood(spec):  # an OpenCOOD model folder is a target by itself
+        return evaluate(spec, set_name, keep_matches=True)
     fusion, _, weights = spec.partition(":")
     return evaluate(fusion, set_name, weights_file=weights or None, keep_matches=True)
 
