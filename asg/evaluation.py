@@ -5,6 +5,7 @@ hardening and the tables score with it.
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Callable, Iterable
 
 from .datasets import scenes_of
@@ -93,3 +94,22 @@ def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None
     result["fusion"] = fusion
     result["set"] = set_name
     return result
+
+
+def scoring_digest() -> str:
+    """sha256 of what decides a set's AP besides the weights: the LiDAR simulation and the
+    detectors' code (asg/sensors, asg/perception, asg/objective), the LiDAR presets and the
+    detector config. A cached evaluation made by other code (say, other vehicle meshes) is not
+    reused."""
+    import hashlib
+
+    from sumo_scenarios.paths import configs_dir
+
+    root = Path(__file__).resolve().parent
+    files = sorted(p for part in ("sensors", "perception", "objective") for p in (root / part).rglob("*.py"))
+    files += sorted((configs_dir() / "lidar").glob("*.yaml")) + [configs_dir() / "detectors" / "pointpillars.yaml"]
+    h = hashlib.sha256()
+    for path in files:
+        h.update(str(path.relative_to(path.parents[1])).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()

@@ -233,9 +233,10 @@ def _averaged_round(fusion: str, row: dict, current: Path, current_round: int, w
 def _eval_cache(out: Path, k: int, weights: Path) -> Path:
     """Where round ``k``'s evaluations are cached: the round's folder (``eval``, or ``eval-averaged``
     for its averaged weights), but for round 0 (the start weights) a folder of the data root named by
-    the weights' digest and :func:`scoring_digest`, shared by every run (and control) that starts
+    the weights' digest and :func:`asg.evaluation.scoring_digest`, shared by every run (and control) that starts
     from the same weights with the same code."""
     from ..datasets import data_root
+    from ..evaluation import scoring_digest
     from ..generator.run import file_digest
 
     if k:
@@ -257,25 +258,6 @@ def guard(before_cache: Path, after_cache: Path, guard_set: str) -> dict:
     gap = paired_ap_gap(load_matches(before_cache / f"{guard_set}.matches.npz"),
                         load_matches(after_cache / f"{guard_set}.matches.npz"), 0.7)
     return gap.guard_record(guard_set)
-
-
-def scoring_digest() -> str:
-    """sha256 of what decides a set's AP besides the weights: the LiDAR simulation and the
-    detectors' code (asg/sensors, asg/perception, asg/objective), the LiDAR presets and the
-    detector config. A cached evaluation made by other code (say, other vehicle meshes) is not
-    reused."""
-    import hashlib
-
-    from sumo_scenarios.paths import configs_dir
-
-    root = Path(__file__).resolve().parents[1]
-    files = sorted(p for part in ("sensors", "perception", "objective") for p in (root / part).rglob("*.py"))
-    files += sorted((configs_dir() / "lidar").glob("*.yaml")) + [configs_dir() / "detectors" / "pointpillars.yaml"]
-    h = hashlib.sha256()
-    for path in files:
-        h.update(str(path.relative_to(path.parents[1])).encode())
-        h.update(path.read_bytes())
-    return h.hexdigest()
 
 
 def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:

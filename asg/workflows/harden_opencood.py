@@ -165,13 +165,13 @@ def evaluate_pair(before: str, after: str, cfg, cache: Path, executor, detector_
 def start_cache(fusion: str) -> Path:
     """Where the evaluations of the round's starting model (``opencood:DIR``) are cached: a folder of
     the data root named by the digest of DIR's config and checkpoint and by the scoring code's
-    (asg.workflows.harden.scoring_digest), shared by every run and control that starts from it."""
+    (asg.evaluation.scoring_digest), shared by every run and control that starts from it."""
     import hashlib
 
     from ..datasets import data_root
+    from ..evaluation import scoring_digest
     from ..generator.run import file_digest
     from ..perception.opencood import model_files
-    from .harden import scoring_digest
 
     h = hashlib.sha256()
     for name, path in sorted(model_files(model_dir_of(fusion)).items()):
