@@ -113,3 +113,12 @@ def scoring_digest() -> str:
         h.update(str(path.relative_to(path.parents[1])).encode())
         h.update(path.read_bytes())
     return h.hexdigest()
+
+
+def start_evaluations_dir(model_digest: str) -> Path:
+    """Where a hardening run caches the evaluations of the model it starts from: a folder of the data
+    root named by ``model_digest`` (what identifies the model's files) and :func:`scoring_digest`,
+    shared by every run and control that starts from the same model with the same code."""
+    from .datasets import data_root
+
+    return data_root() / ".harden-start" / f"{model_digest}-{scoring_digest()[:12]}"

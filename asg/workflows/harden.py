@@ -233,15 +233,14 @@ def _averaged_round(fusion: str, row: dict, current: Path, current_round: int, w
 def _eval_cache(out: Path, k: int, weights: Path) -> Path:
     """Where round ``k``'s evaluations are cached: the round's folder (``eval``, or ``eval-averaged``
     for its averaged weights), but for round 0 (the start weights) a folder of the data root named by
-    the weights' digest and :func:`asg.evaluation.scoring_digest`, shared by every run (and control) that starts
-    from the same weights with the same code."""
-    from ..datasets import data_root
-    from ..evaluation import scoring_digest
+    the weights' digest (asg.evaluation.start_evaluations_dir), shared by every run (and control)
+    that starts from the same weights with the same code."""
+    from ..evaluation import start_evaluations_dir
     from ..generator.run import file_digest
 
     if k:
         return out / f"round-{k}" / ("eval" if weights.name != AVERAGED_WEIGHTS else f"eval-{Path(AVERAGED_WEIGHTS).stem}")
-    return data_root() / ".harden-start" / f"{file_digest(weights)[:16]}-{scoring_digest()[:12]}"
+    return start_evaluations_dir(file_digest(weights)[:16])
 
 
 def is_kept(row: dict) -> bool:

@@ -141,11 +141,11 @@ def evaluate_pair(before: str, after: str, cfg, cache: Path, executor, detector_
 
     own_val = build_challenging(before, "val", executor, detector_factory=detector_factory, log=log).name
     sets = dict.fromkeys((*cfg.eval_sets, own_val, *([cfg.guard_set] if cfg.guard_set else [])))
-    table = {}
+    table, start = {}, start_cache(before)
     for set_name in sets:
         scored = {}
         for when, fusion in zip(FINETUNE_PAIR, (before, after)):
-            folder, name = (start_cache(before), set_name) if when == "before" else (cache, f"{when}-{set_name}")
+            folder, name = (start, set_name) if when == "before" else (cache, f"{when}-{set_name}")
             hit, matches = folder / f"{name}.json", folder / f"{name}.matches.npz"
             if not (hit.is_file() and matches.is_file()):
                 result = evaluate(fusion, set_name, executor=executor, keep_matches=True)
@@ -164,19 +164,18 @@ def evaluate_pair(before: str, after: str, cfg, cache: Path, executor, detector_
 
 def start_cache(fusion: str) -> Path:
     """Where the evaluations of the round's starting model (``opencood:DIR``) are cached: a folder of
-    the data root named by the digest of DIR's config and checkpoint and by the scoring code's
-    (asg.evaluation.scoring_digest), shared by every run and control that starts from it."""
+    the data root named by the digest of DIR's config and checkpoint (asg.evaluation.start_evaluations_dir),
+    shared by every run and control that starts from it."""
     import hashlib
 
-    from ..datasets import data_root
-    from ..evaluation import scoring_digest
+    from ..evaluation import start_evaluations_dir
     from ..generator.run import file_digest
     from ..perception.opencood import model_files
 
     h = hashlib.sha256()
     for name, path in sorted(model_files(model_dir_of(fusion)).items()):
         h.update(name.encode() + b"\0" + file_digest(path).encode())
-    return data_root() / ".harden-start" / f"{PREFIX.rstrip(':')}-{h.hexdigest()[:16]}-{scoring_digest()[:12]}"
+    return start_evaluations_dir(f"{PREFIX.rstrip(':')}-{h.hexdigest()[:16]}")
 
 
 def reattack_pair(before: str, after: str, executor, detector_factory: str | None, log: Callable[[str], None]) -> dict:
