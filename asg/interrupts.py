@@ -5,13 +5,18 @@ Third-party code catches ``BaseException`` in places (trimesh wraps its optional
 few computations), so a Ctrl-C that lands inside them raises a KeyboardInterrupt nobody sees: the run
 went on and exited 0. Here the handlers record the signal before raising; :func:`raise_if_taken`,
 called where a run passes from one item to the next (the executors) and when a command returns
-(:func:`asg.cli.main`), raises it again. This module imports nothing heavy.
+(:func:`asg.cli.main`), raises it again. Where the interpreter itself swallows it (a signal landing
+in an at-fork hook, such as logging's lock release after a worker is forked, or in a ``__del__``),
+it prints "Exception ignored in ..." with a traceback; inside :func:`handled` that print is dropped
+for a signal already taken (its one line follows when it is raised again). This module imports
+nothing heavy.
 """
 from __future__ import annotations
 
 import contextlib
 import os
 import signal
+import sys
 from typing import Iterator
 
 #: the signals a command ends on
@@ -43,16 +48,32 @@ def raise_if_taken() -> None:
         raise _exception(_taken[0])
 
 
+def _quiet_about_taken_signals(previous_hook):
+    """A ``sys.unraisablehook`` that says nothing of a KeyboardInterrupt or Terminated the
+    interpreter could not raise, once its signal is taken (it is raised again later), and hands every
+    other unraisable exception to ``previous_hook``."""
+
+    def hook(unraisable) -> None:
+        if _taken and unraisable.exc_type is not None and issubclass(unraisable.exc_type, (KeyboardInterrupt, Terminated)):
+            return
+        previous_hook(unraisable)
+
+    return hook
+
+
 @contextlib.contextmanager
 def handled() -> Iterator[None]:
     """SIGINT and SIGTERM raise (and are remembered) while inside; the previous handlers after."""
     _taken.clear()
     previous = {sig: signal.signal(sig, _on_signal) for sig in HANDLED}
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_about_taken_signals(previous_hook)
     try:
         yield
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        sys.unraisablehook = previous_hook
         _taken.clear()
 
 

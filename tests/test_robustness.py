@@ -963,6 +963,44 @@ def test_a_signal_swallowed_by_code_it_interrupts_still_ends_the_run(capsys, tmp
     assert not list(out.rglob("final.yaml"))  # ended at once: no scene finished its search
 
 
+_SIGNAL_IN_AN_AT_FORK_HOOK = """
+import os, signal, sys
+from asg import interrupts
+
+def after_fork_in_parent():  # as logging's lock release is, when the signal lands inside it
+    if sys.argv[1] == "signal":
+        interrupts._on_signal(signal.SIGTERM, None)
+    else:
+        raise ValueError("a real fault")
+
+with interrupts.handled():
+    os.register_at_fork(after_in_parent=after_fork_in_parent)
+    child = os.fork()
+    if child == 0:
+        os._exit(0)
+    os.waitpid(child, 0)
+    try:
+        interrupts.raise_if_taken()
+    except interrupts.Terminated:
+        print("raised again")
+"""
+
+
+@pytest.mark.parametrize("what", ["signal", "fault"])
+def test_a_signal_the_interpreter_swallows_in_a_fork_hook_prints_no_traceback(what):
+    """A SIGTERM landing in an at-fork hook (CI caught one in logging's ``_releaseLock`` while
+    ``asg harden`` forked its workers) is swallowed by the interpreter with an "Exception ignored"
+    traceback: that print is dropped and the signal is raised again; any other exception swallowed
+    there is still reported."""
+    proc = subprocess.run([sys.executable, "-c", _SIGNAL_IN_AN_AT_FORK_HOOK, what], cwd=ROOT, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    if what == "signal":
+        assert proc.stdout.strip() == "raised again" and proc.stderr == "", proc.stderr
+    else:
+        assert proc.stdout == "" and "Exception ignored" in proc.stderr and "a real fault" in proc.stderr
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("workers", ["1", "2"])
 def test_a_detector_that_never_returns_and_swallows_every_exception_is_stopped(tmp_path, workers):
