@@ -83,7 +83,8 @@ class HardenConfig(FinetuneConfig):
     #: None: dropped as it is
     guard_average: float | None = 0.5
     #: an OpenCOOD model (--fusion opencood:DIR): the epochs OpenCOOD's trainer fine-tunes it a round
-    #: (one gained where three lost per frame on normal-val: docs/results/README.md, OpenCOOD)
+    #: (one gained on its challenging set and holdout where three lost per frame on normal-val:
+    #: docs/results/README.md, OpenCOOD)
     opencood_epochs: int = 1
 
 
