@@ -187,6 +187,24 @@ def test_opencood_is_refused_where_asg_would_train_it(capsys, tmp_path):
     assert "OpenCOOD's own trainer" in err
 
 
+def test_a_harden_config_setting_an_opencood_round_would_ignore_is_refused(capsys, tmp_path):
+    """``asg harden --fusion opencood:DIR --config F``: a setting of asg's own trainer changed in F
+    (it would be ignored) is one line naming it, before anything is written; the settings a round
+    reads, or a copy of train.yaml's block, pass."""
+    from asg.training.config import train_block
+    from asg.workflows.harden import HARDEN_BLOCK
+    from asg.workflows.harden_opencood import check_opencood_settings
+
+    model = make_model_dir(tmp_path / "m", "early")
+    config, out = tmp_path / "harden.yaml", tmp_path / "out"
+    config.write_text(yaml.safe_dump({"harden": {"opencood_epochs": 2, "steps": 5, "mix_with": ["normal"]}}))
+    err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--config", str(config),
+                   "--out", str(out))
+    assert "mix_with, steps set asg's own trainer" in err and "opencood_epochs" in err and not out.exists()
+    shipped = train_block(HARDEN_BLOCK, None)
+    check_opencood_settings(config, shipped | {"opencood_epochs": 2, "data": "random", "guard_set": None}, shipped)
+
+
 def test_a_missing_opencood_install_names_the_extra(monkeypatch):
     import builtins
 
@@ -440,8 +458,7 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
     monkeypatch.setattr(generator_config, "load_generate_config", lambda *a, **k: load(*a, **{**k, "budget": 2}))
     model = make_model_dir(tmp_path / "m", "intermediate", score_threshold=THRESHOLD)
     config = tmp_path / "harden.yaml"
-    config.write_text(yaml.safe_dump({"harden": {"eval_sets": ["normal-val"], "guard_set": None, "opencood_epochs": 1,
-                                                 "noisy": False}}))
+    config.write_text(yaml.safe_dump({"harden": {"eval_sets": ["normal-val"], "guard_set": None, "opencood_epochs": 1}}))
     out = tmp_path / "hard"
     argv = ["harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--data", "random", "--config", str(config),
             "--out", str(out), "--workers", "1"]

@@ -459,10 +459,12 @@ def _run_opencood(args: argparse.Namespace) -> int:
     from ..objective.pooled import FINETUNE_PAIR, pooled_pair
     from ..perception.opencood import target_label
     from ..progress import console, stdout
-    from .harden_opencood import check_opencood_run, harden_opencood
+    from .harden_opencood import check_opencood_run, check_opencood_settings, harden_opencood
 
     check_opencood_run(args)
     config = load_harden_config(args.config, data=args.data)
+    if args.config is not None:
+        check_opencood_settings(args.config, train_block(HARDEN_BLOCK, args.config), train_block(HARDEN_BLOCK, None))
     out = args.out or default_out(target_label(args.fusion), config.data)
     with executor_from_args(args, 10**6) as executor:
         card = harden_opencood(args.fusion, out, config, executor, force=args.force, log=console.print)

@@ -192,6 +192,21 @@ def reattack_pair(before: str, after: str, executor, detector_factory: str | Non
             "after": pair_json(pooled_pair(index, REATTACK_PAIR))}
 
 
+#: the harden block's settings a round of an OpenCOOD model reads; the others set asg's own trainer
+OPENCOOD_SETTINGS = ("data", "opencood_epochs", "eval_sets", "guard_set", "reattack")
+
+
+def check_opencood_settings(config: Path, given: dict, shipped: dict) -> None:
+    """A ``--config`` whose harden block (``given``) changes, from train.yaml's (``shipped``), a
+    setting an OpenCOOD round does not read (asg's trainer's steps, rate, mixing, augmentation, ...)
+    is refused in one line: it would be ignored. Settings left as train.yaml has them pass."""
+    ignored = sorted(k for k, v in given.items() if k not in OPENCOOD_SETTINGS and v != shipped.get(k))
+    if ignored:
+        raise InputError(f"{config}: {', '.join(ignored)} set asg's own trainer; a round of an OpenCOOD model reads "
+                         f"only {', '.join(OPENCOOD_SETTINGS)} (OpenCOOD's trainer takes the rest from the folder's "
+                         "config.yaml)")
+
+
 def check_opencood_run(args) -> None:
     """What ``asg harden`` takes for an asg model and not for an OpenCOOD one, refused in one line."""
     if args.rounds != 1:
