@@ -54,7 +54,7 @@ def _quiet_about_taken_signals(previous_hook):
     other unraisable exception to ``previous_hook``."""
 
     def hook(unraisable) -> None:
-        if _taken and unraisable.exc_type is not None and issubclass(unraisable.exc_type, (KeyboardInterrupt, Terminated)):
+        if _taken and isinstance(unraisable.exc_value, (KeyboardInterrupt, Terminated)):
             return
         previous_hook(unraisable)
 
