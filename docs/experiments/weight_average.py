@@ -29,9 +29,11 @@ def averaged(start: Path, hardened: Path, a: float, work: Path) -> Path:
     return out if out.is_file() else average_weights(start, hardened, a, out)
 
 
-def scored(fusion: str, weights: Path, set_name: str, work: Path, label: str) -> tuple[dict, list]:
-    """(the evaluation's pooled AP and frames, its matches), cached in ``work``."""
-    hit, matches = work / f"{label}-{set_name}.json", work / f"{label}-{set_name}.matches.npz"
+def scored(fusion: str, weights: Path, set_name: str, work: Path, label: str, key: str | None = None) -> tuple[dict, list]:
+    """(the evaluation's pooled AP and frames, its matches), cached in ``work`` under ``label`` and
+    ``key`` (default ``set_name``; give one for a set named by its folder)."""
+    name = f"{label}-{key or set_name}"
+    hit, matches = work / f"{name}.json", work / f"{name}.matches.npz"
     if hit.is_file() and matches.is_file():
         return json.loads(hit.read_text()), load_matches(matches)
     result = evaluate(fusion, set_name, weights_file=str(weights), keep_matches=True)

@@ -1,0 +1,182 @@
+"""Hardening gain against where the model starts: for each base (a start weights file and the
+`asg harden` runs made from it: the attack and its random control), AP@0.7 of the start on every
+fixed set by both yardsticks, each round's gap over the start with its 95 % paired-bootstrap
+interval (1,000 resamples of the set's frames, seed 0: asg.objective.paired, the code `asg harden`'s
+guard keeps or drops a round by), and the adversarial round over the random control on the same
+frames; then under a new attack: each round's weights on normal-val attacked against them (the run's
+`round-1/reattack`) against the start on normal-val attacked against it, paired by the normal-val
+scene each attacked frame came from. The paper's point (AttFuse 70.6 per frame on its normal val
+split before fine-tuning; +4.0 / +8.2 / +12.4 on normal / heuristic / challenging) is printed beside.
+
+usage: .venv/bin/python docs/experiments/harden_curve.py WORK_DIR OUT.json BASE [BASE ...]
+  BASE: LABEL=FUSION,START,ADVERSARIAL_RUN,RANDOM_RUN  (START a weights file; a run is an
+  `asg harden --rounds 1 --out` folder, '-' for one not at hand)
+  e.g. weak=attfuse,docs/experiments/size-sequence/shipped/attfuse.pt,docs/experiments/harden-weak,docs/experiments/harden-weak-random
+
+A round is measured by the weights it trained (`round-1/weights.pt`) and, when its guard averaged
+them with the start, by the averaged weights too ("KIND-averaged"). The fixed sets: normal-val,
+heuristic, holdout and challenging-FUSION-val (normal-val attacked against the shipped FUSION model,
+the challenging set `asg harden` evaluates every round on); "own-attack" is the start's own attack
+(a run's `round-0/reattack`, or challenging-FUSION-val for the shipped weights): the paper's
+challenging set for that start. Resumable: each (model, set) evaluation is kept in WORK_DIR
+(docs/experiments/weight_average.py's cache), and OUT.json is rewritten after each base.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from weight_average import scored  # the same cached evaluation (AP and matches in WORK_DIR)
+
+from asg.datasets import scenes_of
+from asg.generator.run import file_digest
+from asg.objective.ap import Yardstick
+from asg.objective.paired import paired_ap_gap
+from asg.objective.pooled import PooledAP
+
+THRESHOLD = 0.7
+ROUNDS = ("adversarial", "random")
+#: the paper's AttFuse fine-tuned on its generated scenes (Table II, AP@0.7 by its per-frame yardstick)
+PAPER = {"start": {"normal-val": 70.6, "heuristic": 64.9, "own-attack": 43.9},
+         "gain": {"normal-val": 4.0, "heuristic": 8.2, "own-attack": 12.4}}
+
+
+def built(folder: Path) -> bool:
+    return (folder / "index.json").is_file()
+
+
+def parse_base(spec: str) -> dict:
+    """``LABEL=FUSION,START,ADV_RUN,RANDOM_RUN`` -> {"label", "fusion", "start", "own_attack",
+    "models": {name: weights}, "reattacks": {name: folder}}, every file checked."""
+    label, _, rest = spec.partition("=")
+    parts = rest.split(",")
+    if not label or len(parts) != 4:
+        raise SystemExit(f"a base is LABEL=FUSION,START,ADVERSARIAL_RUN,RANDOM_RUN, got {spec!r}")
+    fusion, start, *runs = parts
+    if not Path(start).is_file():
+        raise SystemExit(f"{label}: no weights file {start}")
+    base = {"label": label, "fusion": fusion, "start": start, "own_attack": f"challenging-{fusion}-val",
+            "models": {"start": start}, "reattacks": {}}
+    for kind, run in zip(ROUNDS, runs):
+        if run == "-":
+            continue
+        card_path = Path(run) / "card.json"
+        if not card_path.is_file():
+            raise SystemExit(f"{label}: {run} is not an asg harden run folder (no card.json)")
+        rows = {r["round"]: r for r in json.loads(card_path.read_text())["rounds"]}
+        if 1 not in rows:
+            raise SystemExit(f"{label}: {run} has no finished round 1")
+        trained = Path(run) / "round-1" / "weights.pt"
+        evaluated = Path(run) / rows[1]["weights"]  # the trained weights, or their average with the start
+        for name, path in ((kind, trained), (f"{kind}-averaged", evaluated)):
+            if name == kind or path != trained:
+                if not path.is_file():
+                    raise SystemExit(f"{label}: {path} is missing (restore it, see docs/experiments/removed.json)")
+                base["models"][name] = str(path)
+        reattack = Path(run) / "round-1" / "reattack"
+        if built(reattack):
+            base["reattacks"][kind if evaluated == trained else f"{kind}-averaged"] = str(reattack)
+        if built(Path(run) / "round-0" / "reattack"):
+            base["own_attack"] = str(Path(run) / "round-0" / "reattack")
+    return base
+
+
+def sets_of(base: dict) -> dict[str, str]:
+    """{the name a set goes by in the results: what asg evaluate's --set takes}."""
+    named = ["normal-val", "heuristic", f"challenging-{base['fusion']}-val", "holdout"]
+    return {n: n for n in named} | {"own-attack": base["own_attack"]}
+
+
+def cache_key(set_name: str, set_spec: str) -> str:
+    """The cache's name for a set; a folder's carries its index's digest (two folders, two keys)."""
+    return set_name if set_name == set_spec else f"{set_name}-{file_digest(Path(set_spec) / 'index.json')[:16]}"
+
+
+def measured(fusion: str, weights: str, set_name: str, set_spec: str, work: Path) -> tuple[dict, list]:
+    return scored(fusion, Path(weights), set_spec, work, file_digest(Path(weights))[:16], key=cache_key(set_name, set_spec))
+
+
+def gaps(runs: dict[str, tuple[dict, list]], before: str) -> dict:
+    """Per yardstick: AP@0.7 of ``before`` and of each other model with its gap over ``before``; and
+    each round over its random control (the same kind of weights, trained or averaged)."""
+    out = {}
+    for y in Yardstick:
+        row = {before: round(PooledAP.from_json(runs[before][0]).of(y)["0.7"], 4)}
+        for name, (ap, matches) in runs.items():
+            if name != before:
+                row[name] = {"after": round(PooledAP.from_json(ap).of(y)["0.7"], 4),
+                             **paired_ap_gap(runs[before][1], matches, THRESHOLD, method=y).to_dict()}
+        for name in [n for n in runs if n.startswith("adversarial")]:
+            rival = name.replace("adversarial", "random")
+            if rival in runs:
+                row[f"{name}_over_random"] = paired_ap_gap(runs[rival][1], runs[name][1], THRESHOLD, method=y).to_dict()
+        out[y.value] = row
+    return out
+
+
+def measure(base: dict, work: Path) -> dict:
+    """One base: every fixed set (start and rounds), then the re-attacks."""
+    fusion, models = base["fusion"], base["models"]
+    record = {"label": base["label"], "fusion": fusion,
+              "weights": {k: {"path": p, "sha256": file_digest(Path(p))} for k, p in models.items()}, "sets": {}}
+    for set_name, set_spec in sets_of(base).items():
+        runs = {k: measured(fusion, p, set_name, set_spec, work) for k, p in models.items()}
+        record["sets"][set_name] = {"set": set_spec, "frames": runs["start"][0]["frames"], **gaps(runs, "start")}
+        print(f"{base['label']}: {set_name} measured", flush=True)
+    if base["reattacks"]:
+        runs = {"start": measured(fusion, models["start"], "own-attack", base["own_attack"], work)}
+        for name, folder in base["reattacks"].items():
+            runs[name] = measured(fusion, models[name], "reattack", folder, work)
+        folders = {"start": base["own_attack"]} | base["reattacks"]
+        ids = {k: [scene.scene_id for scene in scenes_of(f)] for k, f in folders.items()}
+        if all(v == ids["start"] for v in ids.values()):  # each attack made its frame from the same scene
+            record["reattack"] = {"sets": folders, "frames": len(ids["start"]), **gaps(runs, "start")}
+        else:
+            record["reattack"] = {"unpaired": {k: len(v) for k, v in ids.items()}}
+    return record
+
+
+def pct(gap: dict) -> str:
+    return f"{100 * gap['gap']:+.1f} [{100 * gap['low']:+.1f}, {100 * gap['high']:+.1f}]"
+
+
+def table_rows(label: str, set_name: str, row: dict) -> list[str]:
+    names = [n for n in row if n != "start" and not n.endswith("_over_random")]
+    cells = [label, set_name, f"{100 * row['start']:.1f}"] + [f"{n}: {pct(row[n])}" for n in names]
+    cells += [f"{n.removesuffix('_over_random')} - random: {pct(row[n])}" for n in row if n.endswith("_over_random")]
+    return ["| " + " | ".join(cells) + " |"]
+
+
+def markdown(result: dict) -> str:
+    """The curve as a table: a row per base and set, both yardsticks; the paper's point last."""
+    lines = []
+    for y in Yardstick:
+        lines += [f"\nAP@0.7 ({y.value}): the start, then each model's gain over it [95 % paired interval], in points",
+                  "| base | set | start | gains ... |", "|---|---|---|---|"]
+        for base in sorted(result["bases"], key=lambda b: b["sets"]["normal-val"][y.value]["start"]):
+            for set_name, entry in base["sets"].items():
+                lines += table_rows(base["label"], set_name, entry[y.value])
+            if "frames" in base.get("reattack", {}):
+                lines += table_rows(base["label"], "re-attack (own attack -> each model's)", base["reattack"][y.value])
+    lines.append("\nthe paper (per frame): start " + ", ".join(f"{k} {v}" for k, v in PAPER["start"].items())
+                 + "; gain " + ", ".join(f"{k} +{v}" for k, v in PAPER["gain"].items()))
+    return "\n".join(lines)
+
+
+def main(work_dir: str, out: str, *bases: str) -> None:
+    work = Path(work_dir)
+    work.mkdir(parents=True, exist_ok=True)
+    parsed = [parse_base(b) for b in bases]  # every base checked before the first evaluation
+    result = {"threshold": THRESHOLD, "paper": PAPER, "bases": []}
+    for base in parsed:
+        result["bases"].append(measure(base, work))
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(json.dumps(result, indent=1))
+    print(markdown(result))
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 4:
+        raise SystemExit(__doc__)
+    main(*sys.argv[1:])
