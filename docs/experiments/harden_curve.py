@@ -69,14 +69,14 @@ def parse_base(spec: str) -> dict:
             raise SystemExit(f"{label}: {run} has no finished round 1")
         trained = Path(run) / "round-1" / "weights.pt"
         evaluated = Path(run) / rows[1]["weights"]  # the trained weights, or their average with the start
-        for name, path in ((kind, trained), (f"{kind}-averaged", evaluated)):
-            if name == kind or path != trained:
-                if not path.is_file():
-                    raise SystemExit(f"{label}: {path} is missing (restore it, see docs/experiments/removed.json)")
-                base["models"][name] = str(path)
+        weights = {kind: trained} | ({f"{kind}-averaged": evaluated} if evaluated != trained else {})
+        for name, path in weights.items():
+            if not path.is_file():
+                raise SystemExit(f"{label}: {path} is missing (restore it, see docs/experiments/removed.json)")
+            base["models"][name] = str(path)
         reattack = Path(run) / "round-1" / "reattack"
-        if built(reattack):
-            base["reattacks"][kind if evaluated == trained else f"{kind}-averaged"] = str(reattack)
+        if built(reattack):  # the run re-attacked the weights it evaluated last
+            base["reattacks"][list(weights)[-1]] = str(reattack)
         if built(Path(run) / "round-0" / "reattack"):
             base["own_attack"] = str(Path(run) / "round-0" / "reattack")
     return base
