@@ -366,6 +366,37 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
     assert any("not kept" in l and "fell by 10.0 points" in l for l in lines)
 
 
+def test_a_round_resumed_on_an_empty_data_root_guards_against_its_start_evaluated_again(tmp_path, data_root, monkeypatch):
+    """The start's evaluations are cached under the data root, not in the run folder: a run folder
+    resumed after its training on another machine (its data sets rebuilt, that cache gone) evaluates
+    the start on the guard set again instead of failing on the missing matches."""
+    import shutil
+
+    import asg.workflows.harden as h
+    from asg.evaluation import start_evaluations_dir
+    from test_tables import write_set
+
+    write_set(data_root, "holdout", {"test": ["g0", "g1", "g2"]})
+    cfg, out = replace(TINY, guard_set="holdout"), tmp_path / "h"
+    real = h.evaluate_round
+
+    def stop_in_round_one(fusion, weights, *args, **kw):
+        if "round-1" in str(weights):
+            raise KeyboardInterrupt
+        return real(fusion, weights, *args, **kw)
+
+    monkeypatch.setattr(h, "evaluate_round", stop_in_round_one)
+    with pytest.raises(KeyboardInterrupt):
+        harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    monkeypatch.setattr(h, "evaluate_round", real)
+    start_cache = start_evaluations_dir("x").parent
+    assert any(start_cache.iterdir())
+    shutil.rmtree(start_cache)
+    card = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    g = card["rounds"][1]["guard"]
+    assert g["set"] == "holdout" and g["frames"] == 3 and g["kept"] == (g["high"] >= 0)
+
+
 @pytest.mark.slow
 def test_a_round_the_guard_drops_is_averaged_with_its_start_and_kept_if_that_passes(tmp_path, data_root, monkeypatch):
     """The guard's cure: a round worse on the guard set is averaged with the weights it started from

@@ -170,7 +170,9 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         log(f"round {k}: evaluating {weights} ...")
         row["evaluation"] = evaluate_round(fusion, weights, cfg, _eval_cache(out, k, weights), executor, log)
         if k and cfg.guard_set is not None:
-            row["guard"] = guard(_eval_cache(out, current_round, current), _eval_cache(out, k, weights), cfg.guard_set)
+            before = _eval_cache(out, current_round, current)  # evaluated again if gone (a resume on another data root)
+            evaluated_set(fusion, current, cfg.guard_set, cfg.guard_set, before, True, executor, log)
+            row["guard"] = guard(before, _eval_cache(out, k, weights), cfg.guard_set)
             if not row["guard"]["kept"] and cfg.guard_average:
                 _log_guard(log, k, row["guard"], "its weights are averaged with the ones it started from")
                 weights = _averaged_round(fusion, row, current, current_round, weights, cfg, out, k, executor, log)
@@ -353,32 +355,38 @@ def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, e
     it was recorded, is evaluated again), the guard set's per-frame matches beside it
     (``SET.matches.npz``, for the guard's paired interval)."""
     from .challenging import own_val_set
-    from ..evaluation import evaluate
-    from ..objective.paired import save_matches
 
     own_val = own_val_set(fusion, executor, log)
     sets = {s: s for s in (*cfg.eval_sets, own_val, *([cfg.guard_set] if cfg.guard_set else []))}
     if cfg.noisy:
         sets[NOISY_SET] = str(noisy_val_set())
-    table = {}
-    for label, set_arg in sets.items():
-        hit, matches = cache / f"{label}.json", cache / f"{label}.matches.npz"
-        guarded = label == cfg.guard_set
-        if hit.is_file():
-            cached = json.loads(hit.read_text())
-            pooled = PooledAP.from_json(cached)
-            if pooled.ap_per_frame is not None and (matches.is_file() or not guarded):
-                table[label] = pooled.to_json() | {"frames": cached["frames"]}
-                continue
-        result = evaluate(fusion, set_arg, weights_file=str(weights), executor=executor, keep_matches=guarded)
-        pooled = PooledAP.from_result(result)
-        table[label] = pooled.to_json(4) | {"frames": result["frames"]}
-        cache.mkdir(parents=True, exist_ok=True)
-        if guarded:
-            save_matches(matches, result["matches"])
-        write_text_atomic(hit, json.dumps(table[label]))
-        log(f"  {label}: AP@0.7 ours / per frame {pooled.text()} ({result['frames']} frames)")
-    return table
+    return {label: evaluated_set(fusion, weights, label, set_arg, cache, label == cfg.guard_set, executor, log)
+            for label, set_arg in sets.items()}
+
+
+def evaluated_set(fusion: str, weights: Path, label: str, set_arg: str, cache: Path, guarded: bool,
+                  executor, log: Callable[[str], None]) -> dict:
+    """``weights`` on one set (``{"ap", "ap_per_frame", "frames"}``), cached in ``cache`` as
+    ``LABEL.json``; ``guarded``: its per-frame matches too (``LABEL.matches.npz``), a cached result
+    without them evaluated again."""
+    from ..evaluation import evaluate
+    from ..objective.paired import save_matches
+
+    hit, matches = cache / f"{label}.json", cache / f"{label}.matches.npz"
+    if hit.is_file():
+        cached = json.loads(hit.read_text())
+        pooled = PooledAP.from_json(cached)
+        if pooled.ap_per_frame is not None and (matches.is_file() or not guarded):
+            return pooled.to_json() | {"frames": cached["frames"]}
+    result = evaluate(fusion, set_arg, weights_file=str(weights), executor=executor, keep_matches=guarded)
+    pooled = PooledAP.from_result(result)
+    row = pooled.to_json(4) | {"frames": result["frames"]}
+    cache.mkdir(parents=True, exist_ok=True)
+    if guarded:
+        save_matches(matches, result["matches"])
+    write_text_atomic(hit, json.dumps(row))
+    log(f"  {label}: AP@0.7 ours / per frame {pooled.text()} ({result['frames']} frames)")
+    return row
 
 
 def upgraded_rounds(rounds: list[dict]) -> list[dict]:
