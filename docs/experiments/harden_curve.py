@@ -89,8 +89,11 @@ def sets_of(base: dict) -> dict[str, str]:
 
 
 def cache_key(set_name: str, set_spec: str) -> str:
-    """The cache's name for a set; a folder's carries its index's digest (two folders, two keys)."""
-    return set_name if set_name == set_spec else f"{set_name}-{file_digest(Path(set_spec) / 'index.json')[:16]}"
+    """The cache's name for a set: a named set's own name (the shipped model's own attack is
+    challenging-F-val, one evaluation under both names); a folder's carries its index's digest
+    (two folders, two keys)."""
+    index = Path(set_spec) / "index.json"
+    return f"{set_name}-{file_digest(index)[:16]}" if index.is_file() else set_spec
 
 
 def measured(fusion: str, weights: str, set_name: str, set_spec: str, work: Path) -> tuple[dict, list]:
