@@ -149,7 +149,8 @@ def test_the_pool_gives_every_scene_its_own_id(data_root):
 
 
 @pytest.mark.slow
-def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, data_root, monkeypatch):
+def _stopped_before_round_one_is_evaluated(out, cfg, monkeypatch) -> None:
+    """Run one round of ``cfg`` into ``out`` and stop it (Ctrl-C) once its training is written."""
     import asg.workflows.harden as h
 
     real = h.evaluate_round
@@ -159,10 +160,14 @@ def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, 
             raise KeyboardInterrupt
         return real(fusion, weights, *args, **kw)
 
-    monkeypatch.setattr(h, "evaluate_round", stop_in_round_one)
-    with pytest.raises(KeyboardInterrupt):
-        harden("attfuse", 1, tmp_path / "h", config=TINY, detector_factory=ORACLE, log=_quiet)
-    monkeypatch.setattr(h, "evaluate_round", real)
+    with monkeypatch.context() as m:
+        m.setattr(h, "evaluate_round", stop_in_round_one)
+        with pytest.raises(KeyboardInterrupt):
+            harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+
+
+def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, data_root, monkeypatch):
+    _stopped_before_round_one_is_evaluated(tmp_path / "h", TINY, monkeypatch)
     card = harden("attfuse", 1, tmp_path / "h", config=TINY, detector_factory=ORACLE, log=_quiet)
     assert card["rounds"][1]["trained"]["steps"] == 2
 
@@ -372,23 +377,12 @@ def test_a_round_resumed_on_an_empty_data_root_guards_against_its_start_evaluate
     the start on the guard set again instead of failing on the missing matches."""
     import shutil
 
-    import asg.workflows.harden as h
     from asg.evaluation import start_evaluations_dir
     from test_tables import write_set
 
     write_set(data_root, "holdout", {"test": ["g0", "g1", "g2"]})
     cfg, out = replace(TINY, guard_set="holdout"), tmp_path / "h"
-    real = h.evaluate_round
-
-    def stop_in_round_one(fusion, weights, *args, **kw):
-        if "round-1" in str(weights):
-            raise KeyboardInterrupt
-        return real(fusion, weights, *args, **kw)
-
-    monkeypatch.setattr(h, "evaluate_round", stop_in_round_one)
-    with pytest.raises(KeyboardInterrupt):
-        harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
-    monkeypatch.setattr(h, "evaluate_round", real)
+    _stopped_before_round_one_is_evaluated(out, cfg, monkeypatch)
     start_cache = start_evaluations_dir("x").parent
     assert any(start_cache.iterdir())
     shutil.rmtree(start_cache)
