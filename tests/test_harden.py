@@ -148,7 +148,6 @@ def test_the_pool_gives_every_scene_its_own_id(data_root):
     assert sorted(ids) == ["n0", "n0_2", "n1", "n1_2", "x"]
 
 
-@pytest.mark.slow
 def _stopped_before_round_one_is_evaluated(out, cfg, monkeypatch) -> None:
     """Run one round of ``cfg`` into ``out`` and stop it (Ctrl-C) once its training is written."""
     import asg.workflows.harden as h
@@ -166,6 +165,7 @@ def _stopped_before_round_one_is_evaluated(out, cfg, monkeypatch) -> None:
             harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
 
 
+@pytest.mark.slow
 def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, data_root, monkeypatch):
     _stopped_before_round_one_is_evaluated(tmp_path / "h", TINY, monkeypatch)
     card = harden("attfuse", 1, tmp_path / "h", config=TINY, detector_factory=ORACLE, log=_quiet)
@@ -371,6 +371,7 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
     assert any("not kept" in l and "fell by 10.0 points" in l for l in lines)
 
 
+@pytest.mark.slow
 def test_a_round_resumed_on_an_empty_data_root_guards_against_its_start_evaluated_again(tmp_path, data_root, monkeypatch):
     """The start's evaluations are cached under the data root, not in the run folder: a run folder
     resumed after its training on another machine (its data sets rebuilt, that cache gone) evaluates
