@@ -2,6 +2,7 @@
 and is public (no leading underscore: a script uses what a user could, so a refactoring of the
 internals does not break it silently)."""
 import ast
+import json
 import importlib.util
 from pathlib import Path
 
@@ -168,3 +169,20 @@ def test_opencood_rounds_puts_the_attack_beside_its_control_with_a_paired_interv
     assert set(result["reattack"]) == {"adversarial", "random"}
     table = script.markdown(result)
     assert "adversarial - random" in table and "+100.0 [+100.0, +100.0]" in table and "re-attack" in table
+
+
+def test_harden_curve_measures_the_bases_it_is_given_and_keeps_the_others(monkeypatch, tmp_path):
+    """A base measured again replaces its own entry in OUT.json; one not given is kept as it was."""
+    monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
+    spec = importlib.util.spec_from_file_location("harden_curve", SCRIPTS[0].parent / "harden_curve.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    out = tmp_path / "curve.json"
+    out.write_text('{"bases": [{"label": "weak", "old": true}, {"label": "shipped", "old": true}]}')
+    monkeypatch.setattr(script, "parse_base", lambda spec: {"label": spec.partition("=")[0]})
+    monkeypatch.setattr(script, "measure", lambda base, work: {"label": base["label"], "old": False})
+    monkeypatch.setattr(script, "markdown", lambda result: "")
+    script.main(str(tmp_path / "work"), str(out), "shipped=attfuse,s.pt,adv,rand", "wide=attfuse-wide,w.pt,-,-")
+    bases = json.loads(out.read_text())["bases"]
+    assert bases == [{"label": "weak", "old": True}, {"label": "shipped", "old": False},
+                     {"label": "wide", "old": False}]

@@ -19,7 +19,8 @@ heuristic, holdout and challenging-FUSION-val (normal-val attacked against the s
 the challenging set `asg harden` evaluates every round on); "own-attack" is the start's own attack
 (a run's `round-0/reattack`, or challenging-FUSION-val for the shipped weights): the paper's
 challenging set for that start. Resumable: each (model, set) evaluation is kept in WORK_DIR
-(docs/experiments/weight_average.py's cache), and OUT.json is rewritten after each base.
+(docs/experiments/weight_average.py's cache), and OUT.json is rewritten after each base; a base
+already in OUT.json under another label is kept (so one base can be measured again, or added, alone).
 """
 from __future__ import annotations
 
@@ -171,7 +172,9 @@ def main(work_dir: str, out: str, *bases: str) -> None:
     work = Path(work_dir)
     work.mkdir(parents=True, exist_ok=True)
     parsed = [parse_base(b) for b in bases]  # every base checked before the first evaluation
-    result = {"threshold": THRESHOLD, "paper": PAPER, "bases": []}
+    kept = json.loads(Path(out).read_text())["bases"] if Path(out).is_file() else []
+    labels = {b["label"] for b in parsed}
+    result = {"threshold": THRESHOLD, "paper": PAPER, "bases": [b for b in kept if b["label"] not in labels]}
     for base in parsed:
         result["bases"].append(measure(base, work))
         Path(out).parent.mkdir(parents=True, exist_ok=True)
