@@ -148,7 +148,8 @@ def pct(gap: dict) -> str:
 def table_rows(label: str, set_name: str, row: dict) -> list[str]:
     names = [n for n in row if n != "start" and not n.endswith("_over_random")]
     cells = [label, set_name, f"{100 * row['start']:.1f}"] + [f"{n}: {pct(row[n])}" for n in names]
-    cells += [f"{n.removesuffix('_over_random')} - random: {pct(row[n])}" for n in row if n.endswith("_over_random")]
+    cells += [f"{n.removesuffix('_over_random')} - {n.removesuffix('_over_random').replace('adversarial', 'random')}: "
+              f"{pct(row[n])}" for n in row if n.endswith("_over_random")]
     return ["| " + " | ".join(cells) + " |"]
 
 
