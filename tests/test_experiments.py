@@ -2,8 +2,8 @@
 and is public (no leading underscore: a script uses what a user could, so a refactoring of the
 internals does not break it silently)."""
 import ast
-import json
 import importlib.util
+import json
 from pathlib import Path
 
 import pytest
