@@ -11,6 +11,15 @@ import pytest
 SCRIPTS = sorted((Path(__file__).resolve().parent.parent / "docs" / "experiments").glob("*.py"))
 
 
+def _script(name: str):
+    """docs/experiments/NAME.py loaded as a module (its imports of sibling scripts need the folder on
+    sys.path: a test that loads such a script prepends it)."""
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS[0].parent / f"{name}.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    return script
+
+
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
 def test_experiment_imports_resolve(script):
     tree = ast.parse(script.read_text(), str(script))
@@ -27,9 +36,7 @@ def test_experiment_imports_resolve(script):
 def test_ap_bootstrap_builds_any_shipped_fusion_named_before_a_weights_path(monkeypatch):
     """``NAME=FUSION:weights.pt`` loads the weights into that shipped network (attfuse-wide too);
     ``NAME=weights.pt`` into AttFuse's; a bare name is the shipped model."""
-    spec = importlib.util.spec_from_file_location("ap_bootstrap", SCRIPTS[0].parent / "ap_bootstrap.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = _script("ap_bootstrap")
     monkeypatch.setattr(script, "build_detector", lambda fusion, weights_file=None: (fusion, weights_file))
     built = script.build_models(["hw=attfuse-wide:run/round-1/weights.pt", "ft=run/weights.pt",
                                  "e=early:w.pt", "late"])
@@ -52,9 +59,7 @@ def test_opencood_from_asg_folds_the_value_projection_exactly():
     import torch
     from torch import nn
 
-    spec = importlib.util.spec_from_file_location("opencood_from_asg", SCRIPTS[0].parent / "opencood_from_asg.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = _script("opencood_from_asg")
     torch.manual_seed(0)
     c, c2, cu = 8, 12, 6
     v = nn.Linear(c, c)
@@ -90,9 +95,7 @@ def test_opencood_from_asg_gives_opencood_asgs_anchors(tmp_path):
     from asg.perception.opencood.folder import read_hypes
     from asg.perception.opencood.runtime import module
 
-    spec = importlib.util.spec_from_file_location("opencood_from_asg", SCRIPTS[0].parent / "opencood_from_asg.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = _script("opencood_from_asg")
     script.write_config(tmp_path, tmp_path, tmp_path, "pointpillars-wide.yaml", epochs=1, lr=5e-4)
     hypes = read_hypes(tmp_path)
     post = module("data_utils.post_processor").build_postprocessor(hypes["postprocess"], train=False)
@@ -114,9 +117,7 @@ def test_opencood_train_backbone_from_keeps_the_sources_grid(tmp_path):
     from asg.perception.opencood.folder import read_hypes
     from asg.perception.opencood.runtime import module
 
-    spec = importlib.util.spec_from_file_location("opencood_train", SCRIPTS[0].parent / "opencood_train.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = _script("opencood_train")
     source = make_model_dir(tmp_path / "att", "intermediate")
     raw = yaml.safe_load((source / "config.yaml").read_text())
     raw["preprocess"]["args"]["voxel_size"] = raw["model"]["args"]["voxel_size"] = [0.5, 0.5, 4]  # not F-Cooper's stock 0.4
@@ -148,9 +149,7 @@ def test_opencood_rounds_puts_the_attack_beside_its_control_with_a_paired_interv
     from asg.objective.ap import REPORTED_THRESHOLDS
     from asg.objective.paired import save_matches
 
-    spec = importlib.util.spec_from_file_location("opencood_rounds", SCRIPTS[0].parent / "opencood_rounds.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = _script("opencood_rounds")
     ap = {"ap": {"0.7": 0.5}, "ap_per_frame": {"0.7": 0.4}}
     gap = {"threshold": 0.7, "gap": 0.1, "low": 0.0, "high": 0.2, "frames": 20}
     for data, hit in (("adversarial", True), ("random", False)):
@@ -174,9 +173,7 @@ def test_opencood_rounds_puts_the_attack_beside_its_control_with_a_paired_interv
 def test_harden_curve_measures_the_bases_it_is_given_and_keeps_the_others(monkeypatch, tmp_path):
     """A base measured again replaces its own entry in OUT.json; one not given is kept as it was."""
     monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
-    spec = importlib.util.spec_from_file_location("harden_curve", SCRIPTS[0].parent / "harden_curve.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = _script("harden_curve")
     out = tmp_path / "curve.json"
     out.write_text('{"bases": [{"label": "weak", "old": true}, {"label": "shipped", "old": true}]}')
     monkeypatch.setattr(script, "parse_base", lambda spec: {"label": spec.partition("=")[0]})

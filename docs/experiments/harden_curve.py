@@ -101,6 +101,11 @@ def measured(fusion: str, weights: str, set_name: str, set_spec: str, work: Path
     return scored(fusion, Path(weights), set_spec, work, file_digest(Path(weights))[:16], key=cache_key(set_name, set_spec))
 
 
+def rival_of(name: str) -> str:
+    """The random control's model of the same kind as an adversarial one (trained or averaged)."""
+    return name.replace("adversarial", "random")
+
+
 def gaps(runs: dict[str, tuple[dict, list]], before: str) -> dict:
     """Per yardstick: AP@0.7 of ``before`` and of each other model with its gap over ``before``; and
     each round over its random control (the same kind of weights, trained or averaged)."""
@@ -112,7 +117,7 @@ def gaps(runs: dict[str, tuple[dict, list]], before: str) -> dict:
                 row[name] = {"after": round(PooledAP.from_json(ap).of(y)["0.7"], 4),
                              **paired_ap_gap(runs[before][1], matches, THRESHOLD, method=y).to_dict()}
         for name in [n for n in runs if n.startswith("adversarial")]:
-            rival = name.replace("adversarial", "random")
+            rival = rival_of(name)
             if rival in runs:
                 row[f"{name}_over_random"] = paired_ap_gap(runs[rival][1], runs[name][1], THRESHOLD, method=y).to_dict()
         out[y.value] = row
@@ -148,8 +153,8 @@ def pct(gap: dict) -> str:
 def table_rows(label: str, set_name: str, row: dict) -> list[str]:
     names = [n for n in row if n != "start" and not n.endswith("_over_random")]
     cells = [label, set_name, f"{100 * row['start']:.1f}"] + [f"{n}: {pct(row[n])}" for n in names]
-    cells += [f"{n.removesuffix('_over_random')} - {n.removesuffix('_over_random').replace('adversarial', 'random')}: "
-              f"{pct(row[n])}" for n in row if n.endswith("_over_random")]
+    pairs = [n.removesuffix("_over_random") for n in row if n.endswith("_over_random")]
+    cells += [f"{n} - {rival_of(n)}: {pct(row[f'{n}_over_random'])}" for n in pairs]
     return ["| " + " | ".join(cells) + " |"]
 
 
