@@ -15,6 +15,7 @@ from .perception.data import Sample
 from .perception.fusion import V2XDetector, build_detector
 from .scene import Scene
 from .sensors import LidarSpec, load_lidar_spec, simulate_frame
+from .sensors.lidar_spec import DEFAULT_LIDAR
 
 
 def scored(frames: list[tuple], keep_matches: bool = False) -> dict:
@@ -28,11 +29,11 @@ def scored(frames: list[tuple], keep_matches: bool = False) -> dict:
 
 
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None,
-                      keep_matches: bool = False) -> dict:
+                      keep_matches: bool = False, lidar: str = DEFAULT_LIDAR) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "ap_per_frame": the same without the global sort, "frames": N,
     "without_collaborators": M} with ground truth = every vehicle in range; M counts the scenes
-    that name no collaborator (scored single-agent)."""
-    spec = load_lidar_spec()
+    that name no collaborator (scored single-agent); every frame rendered with the ``lidar`` preset."""
+    spec = load_lidar_spec(lidar)
     frames = []
     alone = 0
     for i, scene in enumerate(scenes):

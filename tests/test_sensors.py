@@ -272,6 +272,9 @@ def test_bad_lidar_specs():
         load_lidar_spec("nope")
     assert load_lidar_spec("v2xp").rays_per_sweep == 32 * 390
     assert load_lidar_spec("dense64").channels == 64
+    vlp16 = load_lidar_spec("vlp16")
+    assert (vlp16.channels, vlp16.rays_per_sweep) == (16, 16 * 1875)
+    assert np.allclose(np.degrees(vlp16.elevations_rad()[[0, -1]]), [15.0, -15.0])
 
 
 def test_empty_scene_is_refused(cross_map):

@@ -447,3 +447,47 @@ def test_training_reads_and_writes_its_run_folder_and_installs_only_on_request(t
     assert weights_path("single") == tmp_path / "home" / "weights" / "single.pt"
     assert {p.name: p.stat().st_mtime_ns for p in WEIGHTS_DIR.iterdir()} == shipped
     capsys.readouterr()
+
+
+def test_a_chunk_for_another_sensor_renders_its_frames_with_it_and_its_card_says_so(sumo_log, tmp_path, monkeypatch):
+    """``lidar`` in a training block: every training frame is cast with that preset (the points
+    of another sensor), the chunk and the card record it, and a branch fit (which renders with the
+    shipped LiDAR) is refused for those weights."""
+    import asg.training.loop as loop
+    from sumo_scenarios.errors import InputError
+
+    from asg.perception.data import make_sample
+
+    data = tiny_dataset(sumo_log, tmp_path / "tiny")
+    cast = []
+    monkeypatch.setattr(loop, "make_sample", lambda scene, spec: cast.append(spec) or make_sample(scene, spec))
+    tcfg = TrainConfig(dataset=str(data), steps=2, batch_size=1, lr=0.01, seed=5, checkpoint_every=2, lidar="vlp16")
+    weights = run(tmp_path, "vlp16", tcfg)
+    assert cast and {(s.name, s.channels) for s in cast} == {("vlp16", 16)}
+    card = json.loads(weights.with_suffix(".json").read_text())
+    assert card["lidar"] == "vlp16" and card["chunks"][-1]["lidar"] == "vlp16"
+    with pytest.raises(InputError, match="trained for the vlp16 LiDAR"):
+        train("attfuse", out_dir=tmp_path / "run-vlp16", log=lambda *_: None, threads=1, detector_config=TINY,
+              weights_dir=tmp_path / "weights-vlp16", validate=False, iou_branch=True)
+    # a chunk of the shipped sensor after it: the card follows the last whole-network chunk
+    cast.clear()
+    weights = run(tmp_path, "vlp16", replace(tcfg, lidar="v2xp"))
+    card = json.loads(weights.with_suffix(".json").read_text())
+    assert {s.name for s in cast} == {"v2xp"} and card["lidar"] == "v2xp" and "lidar" not in card["chunks"][-1]
+
+
+def test_the_training_lidar_is_checked_and_fine_tuning_keeps_the_shipped_one(tmp_path):
+    from sumo_scenarios.errors import InputError
+
+    from asg.training.config import check_train_config, load_finetune_config
+    from asg.workflows.harden import load_harden_config
+
+    assert check_train_config(TrainConfig(lidar="dense64"), "t").lidar == "dense64"
+    with pytest.raises(InputError, match="unknown lidar preset 'hdl32'; presets: dense64, v2xp, vlp16"):
+        check_train_config(TrainConfig(lidar="hdl32"), "t")
+    with pytest.raises(InputError, match="t.lidar"):
+        check_train_config(TrainConfig(lidar="../v2xp"), "t")
+    with pytest.raises(InputError, match="fine-tuning renders with the LiDAR its scenes are attacked and evaluated with"):
+        check_train_config(replace(load_finetune_config(), lidar="vlp16"), "t")
+    with pytest.raises(InputError, match="train.yaml:harden.lidar"):
+        load_harden_config(lidar="vlp16")

@@ -31,9 +31,16 @@ def write_card(name: str, weights_dir: Path, cfg, chunks: list[dict], previous: 
             **({"init_from": previous["init_from"]} if previous.get("init_from") else {}),
             # the point stage fitted to earlier weights stays in use (asg train --point-stage refits it)
             **({"point_stage": previous["point_stage"]} if previous.get("point_stage") else {}),
-            "lidar": DEFAULT_LIDAR,
+            "lidar": trained_lidar(chunks),
             **card_settings_of(name, cfg)}
     write_text_atomic(weights_dir / f"{name}.json", json.dumps(card, indent=1))
+
+
+def trained_lidar(chunks: list[dict]) -> str:
+    """The LiDAR preset the last whole-network chunk of ``chunks`` rendered its frames with (a chunk
+    records it when it is not the shipped one)."""
+    whole = [c for c in chunks if c.get("part", "all") == "all"]
+    return whole[-1].get("lidar", DEFAULT_LIDAR) if whole else DEFAULT_LIDAR
 
 
 def card_validation(name: str, log: Callable[[str], None] = print, set_name: str = "normal-val",

@@ -12,6 +12,7 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 from .branch_fit import BranchFitConfig
 from ..perception.data import Augmentation
 from ..scene.views import Views
+from ..sensors.lidar_spec import DEFAULT_LIDAR
 
 def weights_for(fusion: str) -> str:
     """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError for a
@@ -47,6 +48,9 @@ class TrainConfig:
     #: (asg.scene.noisy: each collaborator's pose off, its message 100 ms late), one example a
     #: frame (the ego's view: a collaborator's own view of a noisy frame would mislabel it)
     noisy_links: bool = False
+    #: the LiDAR preset (configs/lidar/) the training frames are rendered with: a detector for
+    #: another sensor; evaluation, attacks and fine-tuning render with the shipped one (v2xp)
+    lidar: str = DEFAULT_LIDAR
 
 
 @dataclass(frozen=True)
@@ -87,9 +91,13 @@ def check_train_config(cfg: TrainConfig, where: str):
     """``cfg`` if every setting is in range (one InputError naming the first that is not): at
     least one step, example and checkpoint interval; a learning rate in (0, 1]; weight decay in
     [0, 1]; schedule fractions in (0, 1); a seed of 0 or more; a rotation of
-    at most 180 deg and a scale of at most 0.5 in the augmentation; a corner-loss weight in [0, 100]; for fine-tuning, a share in [0, 1]
-    and data set names (safe names) to mix with. Checked when loaded, before any work."""
+    at most 180 deg and a scale of at most 0.5 in the augmentation; a corner-loss weight in [0, 100]; a
+    LiDAR preset that exists (fine-tuning: only the shipped one, the sensor its scenes are attacked and
+    evaluated with); for fine-tuning, a share in [0, 1] and data set names (safe names) to mix with.
+    Checked when loaded, before any work."""
     from sumo_scenarios import checks
+
+    from ..sensors.lidar_spec import load_lidar_spec
 
     checks.number(cfg.steps, f"{where}.steps", 1, 10_000_000)
     checks.number(cfg.batch_size, f"{where}.batch_size", 1, 1024)
@@ -106,7 +114,12 @@ def check_train_config(cfg: TrainConfig, where: str):
     checks.number(cfg.corner_loss, f"{where}.corner_loss", 0.0, 100.0)
     if cfg.pct_start >= 1.0:
         raise InputError(f"{where}.pct_start: {cfg.pct_start:g} leaves no steps to anneal; give a fraction below 1")
+    checks.safe_id(cfg.lidar, f"{where}.lidar")
+    load_lidar_spec(cfg.lidar)
     if isinstance(cfg, FinetuneConfig):
+        if cfg.lidar != DEFAULT_LIDAR:
+            raise InputError(f"{where}.lidar: fine-tuning renders with the LiDAR its scenes are attacked and evaluated "
+                             f"with ({DEFAULT_LIDAR}); '{cfg.lidar}' applies to asg train's blocks only")
         checks.number(cfg.challenging_share, f"{where}.challenging_share", 0.0, 1.0)
         for key in ("mix_with", "eval_sets"):
             for name in getattr(cfg, key):

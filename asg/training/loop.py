@@ -27,16 +27,17 @@ from ..perception.model import PointPillars
 from ..scene.noisy import noise_rng, noisy_scene
 from ..scene.views import Views
 from ..sensors import load_lidar_spec
+from ..sensors.lidar_spec import DEFAULT_LIDAR
 from .checkpoint import save_checkpoint
 from .config import TrainConfig
 
 
 def render_samples(dataset: str, split: str | None = "train", progress: Callable[[int], None] | None = None,
-                   noise_seed: int | None = None) -> list[Sample]:
-    """Every frame of ``dataset``'s ``split`` rendered; with ``noise_seed``, each as its ego receives
-    it in the standard noisy V2X setting (asg.scene.noisy), the noise drawn from the seed and the
-    frame's id."""
-    spec = load_lidar_spec()
+                   noise_seed: int | None = None, lidar: str = DEFAULT_LIDAR) -> list[Sample]:
+    """Every frame of ``dataset``'s ``split`` rendered with the ``lidar`` preset; with ``noise_seed``,
+    each as its ego receives it in the standard noisy V2X setting (asg.scene.noisy), the noise drawn
+    from the seed and the frame's id."""
+    spec = load_lidar_spec(lidar)
     out = []
     for i, scene in enumerate(iter_frames(dataset, split)):
         if noise_seed is not None:

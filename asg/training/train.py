@@ -26,8 +26,9 @@ from sumo_scenarios.paths import runs_dir
 from ..perception.fusion import build_network, detector_config_of, feed_of
 from ..perception.weights_io import seed_run_folder
 from ..scene.views import Views
+from ..sensors.lidar_spec import DEFAULT_LIDAR
 from .branch_fit import CACHE_NAME, BranchFitConfig, collect_cached, fit_branches
-from .cards import card_validation, init_record, previous_training, write_card
+from .cards import card_validation, init_record, previous_training, trained_lidar, write_card
 from .checkpoint import load_checkpoint, started_from
 from .config import TrainConfig, load_branch_config, load_train_config, weights_for
 from .loop import (BRANCH_KEYS, Batches, Steps, augment_record, corner_record, init_from_weights,
@@ -107,12 +108,12 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
         torch.set_rng_state(state["torch_rng"])
         log(f"resumed {name} at step {step}")
     t0 = time.perf_counter()
-    log(f"rendering {tcfg.dataset} ...")
-    samples = render_samples(tcfg.dataset, "train")
+    log(f"rendering {tcfg.dataset} with the {tcfg.lidar} LiDAR ...")
+    samples = render_samples(tcfg.dataset, "train", lidar=tcfg.lidar)
     batches = Batches(feed_of(name), samples, tcfg.views, tcfg.augment)
     if tcfg.noisy_links:
         log(f"rendering {tcfg.dataset} over noisy links ...")
-        batches.add(render_samples(tcfg.dataset, "train", noise_seed=tcfg.seed), Views.EGO)
+        batches.add(render_samples(tcfg.dataset, "train", noise_seed=tcfg.seed, lidar=tcfg.lidar), Views.EGO)
     log(f"{len(batches.items)} training examples, {time.perf_counter() - t0:.0f} s to render")
     steps_at = Steps(step, total, tcfg.batch_size, tcfg.checkpoint_every, tcfg.corner_loss)
     wall = run_steps(model, opt, sched, batches, rng, steps_at, cfg, ckpt, wall, previous, log, progress)
@@ -122,6 +123,7 @@ def train(fusion: str, out_dir: Path | None = None, steps: int | None = None, lo
     chunks = previous.get("chunks", []) + [{"steps": total, "lr": tcfg.lr, "schedule": tcfg.schedule,
                                             "seed": [tcfg.seed, chunk], "views": tcfg.views,
                                             **({"noisy_links": True} if tcfg.noisy_links else {}),
+                                            **({"lidar": tcfg.lidar} if tcfg.lidar != DEFAULT_LIDAR else {}),
                                             **augment_record(tcfg.augment), **corner_record(tcfg),
                                             "wall_s": round(wall, 1), "part": "all"}]
     write_card(name, weights_dir, cfg, chunks, previous, threads, dataset=tcfg.dataset,
@@ -152,6 +154,9 @@ def fit_branch_weights(name: str, out_dir: Path | None = None, log: Callable[[st
     previous = previous_training(name, weights_dir)
     if not previous.get("chunks"):
         raise InputError(f"{weights_dir / f'{name}.pt'}: no trained {name} weights to fit the branches to; train them first")
+    if trained_lidar(previous["chunks"]) != DEFAULT_LIDAR:
+        raise InputError(f"{weights_dir / f'{name}.pt'}: trained for the {trained_lidar(previous['chunks'])} LiDAR; the branch "
+                         f"fit renders with {DEFAULT_LIDAR}, so it would fit them to another sensor")
     torch.set_num_threads(threads)
     run_dir = out_dir or runs_dir() / "train" / name
     model = build_network(name, cfg)
