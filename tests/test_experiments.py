@@ -183,3 +183,31 @@ def test_harden_curve_measures_the_bases_it_is_given_and_keeps_the_others(monkey
     bases = json.loads(out.read_text())["bases"]
     assert bases == [{"label": "weak", "old": True}, {"label": "shipped", "old": False},
                      {"label": "wide", "old": False}]
+
+
+def test_a_half_precision_checkpoint_resumes_the_chunk_close_to_the_uninterrupted_weights(sumo_log, tmp_path):
+    """half_checkpoint.py: the committed form of a run's checkpoint is under half its size' float32
+    bytes per tensor, and the same training resumes from it to the end of the chunk, within float16's
+    rounding of the uninterrupted run (not to its bits)."""
+    import torch
+
+    from asg.training.config import TrainConfig
+    from test_train import Crash, run, tiny_dataset
+
+    half = _script("half_checkpoint")
+    data = tiny_dataset(sumo_log, tmp_path / "tiny")
+    tcfg = TrainConfig(dataset=str(data), steps=4, batch_size=1, lr=1e-3, schedule="onecycle", seed=5, checkpoint_every=2)
+    whole = torch.load(run(tmp_path, "whole", tcfg), weights_only=True)
+    with pytest.raises(Crash):
+        run(tmp_path, "split", tcfg, crash_at=3)
+    ckpt = tmp_path / "run-split" / "last.pt"
+    half.half_checkpoint(ckpt, tmp_path / "half.pt")
+    state = torch.load(tmp_path / "half.pt", weights_only=True)
+    assert {v.dtype for v in state["model"].values() if v.is_floating_point()} == {torch.float16}
+    assert state["step"] == 2 and (tmp_path / "half.pt").stat().st_size < 0.6 * ckpt.stat().st_size
+    (tmp_path / "half.pt").replace(ckpt)
+    resumed = torch.load(run(tmp_path, "split", tcfg), weights_only=True)
+    assert resumed.keys() == whole.keys()
+    assert {v.dtype for v in resumed.values() if v.is_floating_point()} == {torch.float32}
+    worst = max(float((resumed[k] - whole[k]).abs().max()) for k in whole if whole[k].is_floating_point())
+    assert 0 < worst < 5e-2
