@@ -185,6 +185,7 @@ def test_harden_curve_measures_the_bases_it_is_given_and_keeps_the_others(monkey
                      {"label": "wide", "old": False}]
 
 
+@pytest.mark.numeric
 def test_a_half_precision_checkpoint_resumes_the_chunk_close_to_the_uninterrupted_weights(sumo_log, tmp_path):
     """half_checkpoint.py: the committed form of a run's checkpoint is under half its size' float32
     bytes per tensor, and the same training resumes from it to the end of the chunk, within float16's

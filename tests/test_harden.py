@@ -463,3 +463,31 @@ def test_paired_gap_and_matches_on_disk(tmp_path):
     (tmp_path / "m.npz").write_bytes(b"garbage")
     with pytest.raises(InputError, match="damaged matches"):
         load_matches(tmp_path / "m.npz")
+
+
+def test_a_folder_claimed_before_a_setting_existed_resumes_and_other_settings_are_refused(tmp_path, data_root, monkeypatch):
+    """A run record written before a setting was added (here the training LiDAR) lacks it: the
+    same command resumes the folder (the setting's default reproduces what it did); a record that
+    differs in a setting it has is still refused."""
+    import asg.workflows.harden as hardening
+
+    class Claimed(Exception):
+        pass
+
+    def stop(rounds):  # the first step after the claim
+        raise Claimed
+
+    monkeypatch.setattr(hardening, "upgraded_rounds", stop)
+    out = tmp_path / "h"
+    with pytest.raises(Claimed):
+        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    record = json.loads((out / "run.json").read_text())
+    assert record["config"]["lidar"] == "v2xp"
+    del record["config"]["lidar"]
+    (out / "run.json").write_text(json.dumps(record))
+    with pytest.raises(Claimed):
+        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    record["config"]["lr"] *= 2
+    (out / "run.json").write_text(json.dumps(record))
+    with pytest.raises(InputError, match="config.lr"):
+        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)

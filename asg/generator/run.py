@@ -21,7 +21,7 @@ from sumo_scenarios.errors import InputError
 
 from ..executors import Executor, Job
 from ..executors.local import LocalExecutor
-from ..io.run_record import RUN_RECORD, claim
+from ..io.run_record import RUN_RECORD, claim, with_defaults
 from .config import GenerateConfig
 from .pipeline import Generator
 from ..scene import Scene
@@ -336,13 +336,7 @@ def with_new_defaults(record: dict) -> dict:
     the generator after the record was written has a default that reproduces the earlier
     behaviour, so a folder written before it resumes instead of being refused. A record from before
     the shipped weights' digests were recorded is taken as made with today's."""
-    def fill(old, default):
-        if isinstance(old, dict) and isinstance(default, dict):
-            return {**{k: v for k, v in default.items() if k not in old},
-                    **{k: fill(v, default.get(k)) for k, v in old.items()}}
-        return old
-
-    filled = fill(record, {"config": json.loads(json.dumps(asdict(GenerateConfig())))})
+    filled = with_defaults(record, {"config": asdict(GenerateConfig())})
     cfg = filled.get("config")
     if "shipped_weights_sha256" not in filled and isinstance(cfg, dict):
         shipped = shipped_digests(str(cfg.get("fusion")), cfg.get("weights"), _reads_attention(cfg.get("acs")))

@@ -52,6 +52,19 @@ def claim(out: Path, settings: dict, force: bool = False, *, what: str = "a run"
     return settings
 
 
+def with_defaults(record: dict, defaults: dict) -> dict:
+    """``record`` with every setting it lacks (nested mappings walked) taken from ``defaults``: a
+    setting added after a record was written has a default that reproduces the earlier behaviour,
+    so a folder written before it resumes instead of being refused as made with other settings."""
+    def fill(old, default):
+        if isinstance(old, dict) and isinstance(default, dict):
+            return {**{k: v for k, v in default.items() if k not in old},
+                    **{k: fill(v, default.get(k)) for k, v in old.items()}}
+        return old
+
+    return fill(record, json.loads(json.dumps(defaults)))
+
+
 def first_difference(a, b, where: str = "") -> str | None:
     """The first setting that differs between two records, as 'key: old -> new' (None if equal)."""
     if isinstance(a, dict) and isinstance(b, dict):

@@ -34,7 +34,7 @@ from sumo_scenarios.paths import runs_dir
 from ..cli_args import COUNT, executor_from_args, fusion_arg, training_run_args
 from ..datasets import iter_frames
 from ..io.curves import LOSS_CURVE, LossCurve
-from ..io.run_record import claim
+from ..io.run_record import claim, with_defaults
 from ..objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..sensors import load_lidar_spec
 from ..training.checkpoint import load_checkpoint
@@ -98,7 +98,8 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
 
     settings = {"fusion": fusion, "on": on, "start_weights": str(start), "start_sha256": file_digest(start),
                 "steps": total, "config": asdict(fcfg)}
-    claim(out, settings, force, what="a fine-tuning run")
+    claim(out, settings, force, what="a fine-tuning run",  # a setting added since: the default that reproduces it
+          as_today=lambda record: with_defaults(record, {"config": asdict(FinetuneConfig())}))
     ft_weights = out / f"{finetuned_name(fusion)}.pt"
     card_path = out / f"{finetuned_name(fusion)}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {}

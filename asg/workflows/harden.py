@@ -42,7 +42,7 @@ from . import MAX_ROUNDS
 from ..cli_args import executor_from_args, fusion_arg, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
 from .random_control import ATTACK_SEED, random_draw  # noqa: F401  (ATTACK_SEED: this module's API too)
-from ..io.run_record import claim
+from ..io.run_record import claim, with_defaults
 from ..objective.pooled import REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
 from ..perception.weights_io import weights_path
@@ -138,7 +138,9 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
     settings = {"fusion": fusion, "start_weights": str(start), "start_sha256": file_digest(start),
                 "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory}
-    claim(out, settings, force, what="a hardening run")
+    # a setting added since a folder was claimed takes the default that reproduces what it did
+    claim(out, settings, force, what="a hardening run",
+          as_today=lambda record: with_defaults(record, {"config": asdict(HardenConfig())}))
     card_path = out / "card.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
