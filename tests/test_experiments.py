@@ -185,6 +185,34 @@ def test_harden_curve_measures_the_bases_it_is_given_and_keeps_the_others(monkey
                      {"label": "wide", "old": False}]
 
 
+
+
+def test_harden_curve_puts_the_attack_beside_each_control_it_was_given():
+    """A base's row names every model's gain, then the attack over each control of the same kind
+    (random, and plain normal data when its run was given), each with its interval."""
+    script = _script("harden_curve")
+    gap = {"gap": 0.01, "low": -0.02, "high": 0.03}
+    row = {"start": 0.5, "adversarial": gap, "random": gap, "normal": gap,
+           "adversarial_over_random": gap, "adversarial_over_normal": {"gap": 0.02, "low": 0.01, "high": 0.04}}
+    cells = script.table_rows("vlp16", "normal-val", row)[0].split(" | ")
+    assert cells[2:6] == ["50.0", "adversarial: +1.0 [-2.0, +3.0]", "random: +1.0 [-2.0, +3.0]", "normal: +1.0 [-2.0, +3.0]"]
+    assert cells[6:] == ["adversarial - random: +1.0 [-2.0, +3.0]", "adversarial - normal: +2.0 [+1.0, +4.0] |"]
+
+
+def test_sensor_base_scores_every_lidar_on_the_whole_set(monkeypatch, tmp_path):
+    """sensor_base.py: the base is scored on every frame of the set with each LiDAR, the second
+    pass too (the set is read once: a one-pass iterator once left the shipped LiDAR's pass empty)."""
+    monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
+    script = _script("sensor_base")
+    monkeypatch.setattr(script, "AttFuseDetector", lambda weights_file: weights_file)
+    monkeypatch.setattr(script, "scenes_of", lambda name: iter(["a", "b", "c"]))
+    ap = {"0.3": 0.5, "0.5": 0.4, "0.7": 0.3}
+    monkeypatch.setattr(script, "evaluate_detector",
+                        lambda detector, scenes, lidar: {"ap": ap, "ap_per_frame": ap, "frames": len(list(scenes))})
+    result = script.score(tmp_path, "vlp16")
+    assert result["vlp16"]["frames"] == result["v2xp"]["frames"] == 3
+
+
 @pytest.mark.numeric
 def test_a_half_precision_checkpoint_resumes_the_chunk_close_to_the_uninterrupted_weights(sumo_log, tmp_path):
     """half_checkpoint.py: the committed form of a run's checkpoint is under half its size' float32

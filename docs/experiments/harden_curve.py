@@ -1,16 +1,18 @@
 """Hardening gain against where the model starts: for each base (a start weights file and the
-`asg harden` runs made from it: the attack and its random control), AP@0.7 of the start on every
+`asg harden` runs made from it: the attack, its random control and, when given, the plain normal
+scenes), AP@0.7 of the start on every
 fixed set by both yardsticks, each round's gap over the start with its 95 % paired-bootstrap
 interval (1,000 resamples of the set's frames, seed 0: asg.objective.paired, the code `asg harden`'s
-guard keeps or drops a round by), and the adversarial round over the random control on the same
+guard keeps or drops a round by), and the adversarial round over each control on the same
 frames; then under a new attack: each round's weights on normal-val attacked against them (the run's
 `round-1/reattack`) against the start on normal-val attacked against it, paired by the normal-val
 scene each attacked frame came from. The paper's point (AttFuse 70.6 per frame on its normal val
 split before fine-tuning; +4.0 / +8.2 / +12.4 on normal / heuristic / challenging) is printed beside.
 
 usage: .venv/bin/python docs/experiments/harden_curve.py WORK_DIR OUT.json BASE [BASE ...]
-  BASE: LABEL=FUSION,START,ADVERSARIAL_RUN,RANDOM_RUN  (START a weights file; a run is an
-  `asg harden --rounds 1 --out` folder, '-' for one not at hand)
+  BASE: LABEL=FUSION,START,ADVERSARIAL_RUN,RANDOM_RUN[,NORMAL_RUN]  (START a weights file; a run
+  is an `asg harden --rounds 1 --out` folder (--data random / --data normal for the controls), '-'
+  for one not at hand)
   e.g. weak=attfuse,docs/experiments/size-sequence/shipped/attfuse.pt,docs/experiments/harden-weak,docs/experiments/harden-weak-random
 
 A round is measured by the weights it trained (`round-1/weights.pt`) and, when its guard averaged
@@ -37,7 +39,9 @@ from asg.objective.paired import paired_ap_gap
 from asg.objective.pooled import PooledAP
 
 THRESHOLD = 0.7
-ROUNDS = ("adversarial", "random")
+ROUNDS = ("adversarial", "random", "normal")
+#: the rounds the attack's round is paired with, on the same frames
+CONTROLS = ROUNDS[1:]
 #: the paper's AttFuse fine-tuned on its generated scenes (Table II, AP@0.7 by its per-frame yardstick)
 PAPER = {"start": {"normal-val": 70.6, "heuristic": 64.9, "own-attack": 43.9},
          "gain": {"normal-val": 4.0, "heuristic": 8.2, "own-attack": 12.4}}
@@ -48,12 +52,12 @@ def built(folder: Path) -> bool:
 
 
 def parse_base(spec: str) -> dict:
-    """``LABEL=FUSION,START,ADV_RUN,RANDOM_RUN`` -> {"label", "fusion", "start", "own_attack",
-    "models": {name: weights}, "reattacks": {name: folder}}, every file checked."""
+    """``LABEL=FUSION,START,ADV_RUN,RANDOM_RUN[,NORMAL_RUN]`` -> {"label", "fusion", "start",
+    "own_attack", "models": {name: weights}, "reattacks": {name: folder}}, every file checked."""
     label, _, rest = spec.partition("=")
     parts = rest.split(",")
-    if not label or len(parts) != 4:
-        raise SystemExit(f"a base is LABEL=FUSION,START,ADVERSARIAL_RUN,RANDOM_RUN, got {spec!r}")
+    if not label or len(parts) not in (4, 5):
+        raise SystemExit(f"a base is LABEL=FUSION,START,ADVERSARIAL_RUN,RANDOM_RUN[,NORMAL_RUN], got {spec!r}")
     fusion, start, *runs = parts
     if not Path(start).is_file():
         raise SystemExit(f"{label}: no weights file {start}")
@@ -101,14 +105,19 @@ def measured(fusion: str, weights: str, set_name: str, set_spec: str, work: Path
     return scored(fusion, Path(weights), set_spec, work, file_digest(Path(weights))[:16], key=cache_key(set_name, set_spec))
 
 
-def rival_of(name: str) -> str:
-    """The random control's model of the same kind as an adversarial one (trained or averaged)."""
-    return name.replace("adversarial", "random")
+def rival_of(name: str, control: str) -> str:
+    """A control's model of the same kind as an adversarial one (trained or averaged)."""
+    return name.replace("adversarial", control)
+
+
+def pair_name(name: str, control: str) -> str:
+    """The results' key of an adversarial model over a control's (``adversarial_over_random``)."""
+    return f"{name}_over_{control}"
 
 
 def gaps(runs: dict[str, tuple[dict, list]], before: str) -> dict:
     """Per yardstick: AP@0.7 of ``before`` and of each other model with its gap over ``before``; and
-    each round over its random control (the same kind of weights, trained or averaged)."""
+    each round over each control (the same kind of weights, trained or averaged)."""
     out = {}
     for y in Yardstick:
         row = {before: round(PooledAP.from_json(runs[before][0]).of(y)["0.7"], 4)}
@@ -117,9 +126,10 @@ def gaps(runs: dict[str, tuple[dict, list]], before: str) -> dict:
                 row[name] = {"after": round(PooledAP.from_json(ap).of(y)["0.7"], 4),
                              **paired_ap_gap(runs[before][1], matches, THRESHOLD, method=y).to_dict()}
         for name in [n for n in runs if n.startswith("adversarial")]:
-            rival = rival_of(name)
-            if rival in runs:
-                row[f"{name}_over_random"] = paired_ap_gap(runs[rival][1], runs[name][1], THRESHOLD, method=y).to_dict()
+            for control in CONTROLS:
+                rival = rival_of(name, control)
+                if rival in runs:
+                    row[pair_name(name, control)] = paired_ap_gap(runs[rival][1], runs[name][1], THRESHOLD, method=y).to_dict()
         out[y.value] = row
     return out
 
@@ -151,10 +161,10 @@ def pct(gap: dict) -> str:
 
 
 def table_rows(label: str, set_name: str, row: dict) -> list[str]:
-    names = [n for n in row if n != "start" and not n.endswith("_over_random")]
+    pairs = {pair_name(n, c): (n, c) for n in row for c in CONTROLS if pair_name(n, c) in row}
+    names = [n for n in row if n != "start" and n not in pairs]
     cells = [label, set_name, f"{100 * row['start']:.1f}"] + [f"{n}: {pct(row[n])}" for n in names]
-    pairs = [n.removesuffix("_over_random") for n in row if n.endswith("_over_random")]
-    cells += [f"{n} - {rival_of(n)}: {pct(row[f'{n}_over_random'])}" for n in pairs]
+    cells += [f"{n} - {rival_of(n, c)}: {pct(row[key])}" for key, (n, c) in pairs.items()]
     return ["| " + " | ".join(cells) + " |"]
 
 

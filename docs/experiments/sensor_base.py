@@ -6,7 +6,8 @@ PRESET (configs/lidar/; vlp16: 16 channels over +15 to -15 deg, against v2xp's 3
 by the first chunk of size_sequence.py's SEQUENCE; AttFuse then from it by the first chunk of its
 ATTFUSE_SEQUENCE, on the same frames (train.yaml's blocks otherwise, with ``lidar: PRESET``). Every
 chunk resumes from its checkpoint (runs/sensor-base/PRESET/...); the weights and cards go to
-DIR/ (single.pt, attfuse.pt), so a committed DIR continues on an empty machine. The base is
+DIR/ (single.pt, attfuse.pt), so a committed DIR continues on an empty machine; with attfuse.pt
+and its card there, nothing is trained again (single.pt need not be kept). The base is
 then scored on normal-val rendered both ways, the sensor it was trained for and v2xp, the sensor
 every round of ``asg harden`` attacks, trains and evaluates with (DIR/scores.json: AP@0.3/0.5/0.7
 under both yardsticks). Harden it as the other bases were:
@@ -55,7 +56,7 @@ def train_stage(out: Path, preset: str, fusion: str, weights: str, chunk: tuple[
 def score(out: Path, preset: str) -> dict:
     """AttFuse of OUT on SET rendered with ``preset`` and with the shipped LiDAR."""
     detector = AttFuseDetector(weights_file=str(out / "attfuse.pt"))
-    frames = scenes_of(SET)
+    frames = list(scenes_of(SET))  # scored twice: a one-pass iterator would leave the second pass no frames
     result = {"set": SET, "weights": str(out / "attfuse.pt"), "trained_lidar": preset}
     for lidar in (preset, DEFAULT_LIDAR):
         r = evaluate_detector(detector, frames, lidar=lidar)
@@ -71,10 +72,11 @@ def main(argv: list[str]) -> int:
         return 2
     out, preset = Path(argv[0]), argv[1]
     out.mkdir(parents=True, exist_ok=True)
-    for fusion, weights, chunk, init_from in STAGES:
-        if not trained(out, weights):
-            # a stage that starts from another's weights takes them from OUT (train's weights_dir)
-            train_stage(out, preset, fusion, weights, chunk, init_from)
+    # the base trained is the last stage: with it in OUT the earlier ones are not needed (nor kept)
+    pending = [] if trained(out, STAGES[-1][1]) else [s for s in STAGES if not trained(out, s[1])]
+    for fusion, weights, chunk, init_from in pending:
+        # a stage that starts from another's weights takes them from OUT (train's weights_dir)
+        train_stage(out, preset, fusion, weights, chunk, init_from)
     assert json.loads((out / "attfuse.json").read_text()).get("lidar") == preset, "the card does not record the training LiDAR"
     write_text_atomic(out / "scores.json", json.dumps(score(out, preset), indent=1))
     return 0
