@@ -491,3 +491,30 @@ def test_a_folder_claimed_before_a_setting_existed_resumes_and_other_settings_ar
     (out / "run.json").write_text(json.dumps(record))
     with pytest.raises(InputError, match="config.lr"):
         harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+
+
+def test_start_weights_trained_for_another_lidar_are_named_in_one_line(tmp_path, data_root, monkeypatch):
+    """Weights whose card records another LiDAR start a run with a line saying so (every round
+    casts with the shipped preset); the shipped weights start without it."""
+    import shutil
+
+    import asg.workflows.harden as hardening
+
+    class Evaluating(Exception):
+        pass
+
+    def stop(*args, **kwargs):  # round 0's evaluation: the first step after the start is named
+        raise Evaluating
+
+    monkeypatch.setattr(hardening, "evaluate_round", stop)
+    other = tmp_path / "w" / "attfuse.pt"
+    other.parent.mkdir()
+    shutil.copy(WEIGHTS_DIR / "attfuse.pt", other)
+    other.with_suffix(".json").write_text(json.dumps({"weights": "attfuse.pt", "lidar": "vlp16"}))
+    for weights, out in ((other, "other"), (None, "shipped")):
+        lines = []
+        with pytest.raises(Evaluating):
+            harden("attfuse", 1, tmp_path / out, weights=weights, config=TINY, detector_factory=ORACLE, log=lines.append)
+        named = [line for line in lines if "LiDAR" in line]
+        assert named == ([f"{other}: trained for the 'vlp16' LiDAR; every round casts its frames with 'v2xp', so round 0 "
+                          "scores them on another sensor and the rounds tune them to it"] if weights else [])

@@ -43,6 +43,17 @@ def trained_lidar(chunks: list[dict]) -> str:
     return whole[-1].get("lidar", DEFAULT_LIDAR) if whole else DEFAULT_LIDAR
 
 
+def lidar_of_weights(weights: Path) -> str | None:
+    """The LiDAR preset the model card beside ``weights`` (NAME.json next to NAME.pt, as asg train
+    writes it) records them trained for; None without a readable card."""
+    try:
+        card = json.loads(Path(weights).with_suffix(".json").read_text())
+    except (OSError, ValueError):
+        return None
+    lidar = card.get("lidar") if isinstance(card, dict) else None
+    return lidar if isinstance(lidar, str) else None
+
+
 def card_validation(name: str, log: Callable[[str], None] = print, set_name: str = "normal-val",
                     *, weights_dir: Path) -> dict:
     """Evaluate the ``name`` weights in ``weights_dir`` (a training run folder) on ``set_name``

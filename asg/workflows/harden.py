@@ -44,6 +44,8 @@ from .finetune import fit_chunk, mixed_sources
 from .random_control import ATTACK_SEED, random_draw  # noqa: F401  (ATTACK_SEED: this module's API too)
 from ..io.run_record import claim, with_defaults
 from ..objective.pooled import REATTACK_PAIR, PooledAP, pair_json, pooled_pair
+from ..sensors.lidar_spec import DEFAULT_LIDAR
+from ..training.cards import lidar_of_weights
 from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
 from ..perception.weights_io import weights_path
 from ..scene import Scene, load_scene
@@ -146,6 +148,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
         "rounds": []}
     card["rounds"] = upgraded_rounds(card["rounds"])
+    _log_start_lidar(start, log)
     current, current_round = start, 0  # the weights the next round starts from, and their round
     shipped_start = settings["start_sha256"] == file_digest(_start_weights(None, fusion, name))
     for k in range(rounds + 1):
@@ -263,6 +266,15 @@ def guard(before_cache: Path, after_cache: Path, guard_set: str) -> dict:
     gap = paired_ap_gap(load_matches(before_cache / f"{guard_set}.matches.npz"),
                         load_matches(after_cache / f"{guard_set}.matches.npz"), 0.7)
     return gap.guard_record(guard_set)
+
+
+def _log_start_lidar(start: Path, log: Callable[[str], None]) -> None:
+    """One line when the start weights' card says they were trained for another LiDAR than the one
+    every round attacks, trains and evaluates with (the shipped preset)."""
+    trained_for = lidar_of_weights(start)
+    if trained_for not in (None, DEFAULT_LIDAR):
+        log(f"{start}: trained for the {trained_for!r} LiDAR; every round casts its frames with {DEFAULT_LIDAR!r}, "
+            "so round 0 scores them on another sensor and the rounds tune them to it")
 
 
 def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
