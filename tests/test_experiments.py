@@ -185,8 +185,6 @@ def test_harden_curve_measures_the_bases_it_is_given_and_keeps_the_others(monkey
                      {"label": "wide", "old": False}]
 
 
-
-
 def test_harden_curve_puts_the_attack_beside_each_control_it_was_given():
     """A base's row names every model's gain, then the attack over each control of the same kind
     (random, and plain normal data when its run was given), each with its interval."""
