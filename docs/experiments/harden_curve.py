@@ -82,7 +82,8 @@ def parse_base(spec: str) -> dict:
         reattack = Path(run) / "round-1" / "reattack"
         if built(reattack):  # the run re-attacked the weights it evaluated last
             base["reattacks"][list(weights)[-1]] = str(reattack)
-        if built(Path(run) / "round-0" / "reattack"):
+        first = base["own_attack"] == f"challenging-{fusion}-val"  # the first run that attacked the start: the attack's
+        if first and built(Path(run) / "round-0" / "reattack"):
             base["own_attack"] = str(Path(run) / "round-0" / "reattack")
     return base
 
