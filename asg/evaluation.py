@@ -8,6 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, Iterable
 
+from sumo_scenarios.errors import InputError
+
 from .datasets import scenes_of
 from .objective.ap import Yardstick, ap_by_method_from_matches, frame_matches
 from .objective.pooled import PooledAP
@@ -32,7 +34,8 @@ def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: 
                       keep_matches: bool = False, lidar: str = DEFAULT_LIDAR) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "ap_per_frame": the same without the global sort, "frames": N,
     "without_collaborators": M} with ground truth = every vehicle in range; M counts the scenes
-    that name no collaborator (scored single-agent); every frame rendered with the ``lidar`` preset."""
+    that name no collaborator (scored single-agent); every frame rendered with the ``lidar`` preset.
+    No scenes is a ValueError, never an AP of 0 on 0 frames (a one-pass iterator read twice)."""
     spec = load_lidar_spec(lidar)
     frames = []
     alone = 0
@@ -41,6 +44,8 @@ def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: 
         frames.append(_detect(detector, spec, scene))
         if progress:
             progress(i + 1)
+    if not frames:
+        raise ValueError("evaluate_detector was given no scenes (an empty set, or an iterator already read)")
     return scored(frames, keep_matches) | {"without_collaborators": alone}
 
 
@@ -75,12 +80,15 @@ def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None
              keep_matches: bool = False) -> dict:
     """AP of detector ``fusion`` (its shipped weights, or ``weights_file``, or what
     ``detector_factory`` returns) on a set (see scenes_of), its scenes on ``executor`` (default:
-    this process); the frames are pooled in the set's order (``keep_matches``: see :func:`scored`)."""
+    this process); the frames are pooled in the set's order (``keep_matches``: see :func:`scored`).
+    A set with no scenes is one InputError."""
     import itertools
 
     from .executors import Job
 
     scenes = list(itertools.islice(scenes_of(set_name), limit))
+    if not scenes:
+        raise InputError(f"set {set_name!r} has no scenes to score; rebuild it ('asg dataset build') or pick another set")
     if executor is None:
         result = evaluate_detector(target_detector(fusion, weights_file, detector_factory), scenes, progress, keep_matches)
     else:

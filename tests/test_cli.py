@@ -327,3 +327,24 @@ def test_an_opencood_target_runs_with_spinning_threads(capsys, monkeypatch, tmp_
     monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
     cli._spin_for_opencood(["evaluate", "--fusion", f"opencood:{tmp_path}"])
     assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+
+
+def test_evaluate_refuses_a_set_with_no_scenes(capsys, tmp_path):
+    """A built set whose frames are all gone (or a split with none) is one line, never AP 0.0 on 0
+    frames; the library's evaluate_detector refuses an empty iterable (a one-pass iterator read twice)."""
+    import gzip
+    import json
+
+    from asg.evaluation import evaluate_detector
+    from fakes import OracleDetector
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "index.json").write_text(json.dumps({"splits": {"all": []}}))
+    with gzip.open(empty / "frames.jsonl.gz", "wb"):
+        pass
+    code, err = run(capsys, "evaluate", "--fusion", "attfuse", "--set", str(empty))
+    assert code == 2
+    assert_one_line_error(err, "has no scenes to score")
+    with pytest.raises(ValueError, match="no scenes"):
+        evaluate_detector(OracleDetector(), iter([]))
