@@ -197,6 +197,37 @@ def test_harden_curve_puts_the_attack_beside_each_control_it_was_given():
     assert cells[6:] == ["adversarial - random: +1.0 [-2.0, +3.0]", "adversarial - normal: +2.0 [+1.0, +4.0] |"]
 
 
+def test_harden_curve_pairs_a_guard_averaged_rounds_trained_weights_under_a_new_attack(monkeypatch, tmp_path):
+    """A round the guard averaged: the averaged weights' re-attack is the run's round-1/reattack, the
+    trained weights' the one reattack_trained.py built; the start's own attack is the attack run's
+    round 0, though a control's run holds a copy too."""
+    monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
+    script = _script("harden_curve")
+    start = tmp_path / "start.pt"
+    start.write_bytes(b"w")
+
+    def run_folder(name: str, averaged: bool, attacks: list[str]) -> Path:
+        run = tmp_path / name
+        (run / "round-1").mkdir(parents=True)
+        kept = "round-1/averaged.pt" if averaged else "round-1/weights.pt"
+        (run / "card.json").write_text(json.dumps({"rounds": [{"round": 0}, {"round": 1, "weights": kept}]}))
+        for f in {"round-1/weights.pt", kept}:
+            (run / f).write_bytes(b"w")
+        for folder in attacks:
+            (run / folder).mkdir(parents=True)
+            (run / folder / "index.json").write_text("{}")
+        return run
+
+    adv = run_folder("adv", True, ["round-0/reattack", "round-1/reattack", "round-1/reattack-trained"])
+    rand = run_folder("rand", False, ["round-0/reattack", "round-1/reattack"])
+    base = script.parse_base(f"shipped=attfuse,{start},{adv},{rand}")
+    assert base["reattacks"] == {"adversarial-averaged": str(adv / "round-1" / "reattack"),
+                                 "adversarial": str(adv / "round-1" / "reattack-trained"),
+                                 "random": str(rand / "round-1" / "reattack")}
+    assert base["own_attack"] == str(adv / "round-0" / "reattack")
+    assert set(base["models"]) == {"start", "adversarial", "adversarial-averaged", "random"}
+
+
 def test_sensor_base_scores_every_lidar_on_the_whole_set(monkeypatch, tmp_path):
     """sensor_base.py: the base is scored on every frame of the set with each LiDAR, the second
     pass too (the set is read once: a one-pass iterator once left the shipped LiDAR's pass empty)."""
