@@ -228,6 +228,31 @@ def test_harden_curve_pairs_a_guard_averaged_rounds_trained_weights_under_a_new_
     assert set(base["models"]) == {"start", "adversarial", "adversarial-averaged", "random"}
 
 
+def test_reattack_trained_refuses_a_round_that_kept_its_weights_or_has_not_trained(monkeypatch, tmp_path):
+    """reattack_trained.py attacks nothing unless round 1 has trained, from the start the run names,
+    and its guard did not keep the trained weights (whose re-attack the run made already)."""
+    monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
+    script = _script("reattack_trained")
+    monkeypatch.setattr(script, "build_challenging", lambda *a, **k: pytest.fail("attacked"))
+    run = tmp_path / "run"
+    (run / "round-1").mkdir(parents=True)
+    start = tmp_path / "start.pt"
+    start.write_bytes(b"w")
+    settings = {"fusion": "attfuse", "start_weights": str(start), "start_sha256": script.file_digest(start),
+                "config": {"data": "adversarial"}}
+    (run / "run.json").write_text(json.dumps(settings))
+    (run / "card.json").write_text(json.dumps({"rounds": [{"round": 0}, {"round": 1, "weights": "round-1/weights.pt"}]}))
+    with pytest.raises(SystemExit, match="has not trained"):
+        script.main(str(run), str(tmp_path / "work"))
+    (run / "round-1" / "weights.pt").write_bytes(b"t")
+    (run / "round-1" / "trained.json").write_text("{}")
+    with pytest.raises(SystemExit, match="kept its trained weights"):
+        script.main(str(run), str(tmp_path / "work"))
+    start.write_bytes(b"other")
+    with pytest.raises(SystemExit, match="not the weights"):
+        script.main(str(run), str(tmp_path / "work"))
+
+
 def test_sensor_base_scores_every_lidar_on_the_whole_set(monkeypatch, tmp_path):
     """sensor_base.py: the base is scored on every frame of the set with each LiDAR, the second
     pass too (the set is read once: a one-pass iterator once left the shipped LiDAR's pass empty)."""

@@ -31,7 +31,6 @@ import json
 import sys
 from pathlib import Path
 
-from reattack_trained import FOLDER as TRAINED_REATTACK  # a guard-averaged round's trained weights, re-attacked
 from weight_average import scored  # the same cached evaluation (AP and matches in WORK_DIR)
 
 from asg.datasets import scenes_of
@@ -41,6 +40,8 @@ from asg.objective.paired import paired_ap_gap
 from asg.objective.pooled import PooledAP
 
 THRESHOLD = 0.7
+#: a guard-averaged round's trained weights re-attacked, in its round-1 folder (reattack_trained.py)
+TRAINED_REATTACK = "reattack-trained"
 ROUNDS = ("adversarial", "random", "normal")
 #: the rounds the attack's round is paired with, on the same frames
 CONTROLS = ROUNDS[1:]
