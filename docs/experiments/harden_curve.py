@@ -7,8 +7,9 @@ guard keeps or drops a round by), and the adversarial round over each control on
 frames; then under a new attack: each round's weights on normal-val attacked against them (the run's
 `round-1/reattack`; for a round the guard averaged, its trained weights too when
 reattack_trained.py attacked them) against the start on normal-val attacked against it, paired by
-the normal-val scene each attacked frame came from. The paper's point (AttFuse 70.6 per frame on its normal val
-split before fine-tuning; +4.0 / +8.2 / +12.4 on normal / heuristic / challenging) is printed beside.
+the normal-val scene each attacked frame came from. The paper's point (AttFuse 70.6 per frame on its
+normal val split before fine-tuning; +4.0 / +8.2 / +12.4 on normal / heuristic / challenging) is
+printed beside.
 
 usage: .venv/bin/python docs/experiments/harden_curve.py WORK_DIR OUT.json BASE [BASE ...]
   BASE: LABEL=FUSION,START,ADVERSARIAL_RUN,RANDOM_RUN[,NORMAL_RUN]  (START a weights file; a run
