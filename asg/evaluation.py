@@ -23,7 +23,10 @@ from .sensors.lidar_spec import DEFAULT_LIDAR
 def scored(frames: list[tuple], keep_matches: bool = False) -> dict:
     """{"ap": AP by threshold with the global sort (ours), "ap_per_frame": the paper's yardstick
     (no sort across frames, the frames in the given order), "frames": N} of detected frames; with
-    ``keep_matches`` also "matches": each frame's FrameMatches (for a paired interval)."""
+    ``keep_matches`` also "matches": each frame's FrameMatches (for a paired interval). No frames is
+    a ValueError, never an AP of 0 on 0 frames (a one-pass iterator read twice)."""
+    if not frames:
+        raise ValueError("given no scenes to score (an empty set, or an iterator already read)")
     matches = [frame_matches(f) for f in frames]
     both = ap_by_method_from_matches(matches)
     result = PooledAP(both[Yardstick.GLOBAL], both[Yardstick.PER_FRAME]).to_json() | {"frames": len(frames)}
@@ -35,7 +38,7 @@ def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: 
     """{"ap": {"0.3", "0.5", "0.7"}, "ap_per_frame": the same without the global sort, "frames": N,
     "without_collaborators": M} with ground truth = every vehicle in range; M counts the scenes
     that name no collaborator (scored single-agent); every frame rendered with the ``lidar`` preset.
-    No scenes is a ValueError, never an AP of 0 on 0 frames (a one-pass iterator read twice)."""
+    No scenes is a ValueError (see :func:`scored`)."""
     spec = load_lidar_spec(lidar)
     frames = []
     alone = 0
@@ -44,8 +47,6 @@ def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: 
         frames.append(_detect(detector, spec, scene))
         if progress:
             progress(i + 1)
-    if not frames:
-        raise ValueError("evaluate_detector was given no scenes (an empty set, or an iterator already read)")
     return scored(frames, keep_matches) | {"without_collaborators": alone}
 
 

@@ -61,8 +61,7 @@ def parse_base(spec: str) -> dict:
     fusion, start, *runs = parts
     if not Path(start).is_file():
         raise SystemExit(f"{label}: no weights file {start}")
-    base = {"label": label, "fusion": fusion, "start": start, "own_attack": f"challenging-{fusion}-val",
-            "models": {"start": start}, "reattacks": {}}
+    base = {"label": label, "fusion": fusion, "start": start, "models": {"start": start}, "reattacks": {}}
     for kind, run in zip(ROUNDS, runs):
         if run == "-":
             continue
@@ -82,9 +81,9 @@ def parse_base(spec: str) -> dict:
         reattack = Path(run) / "round-1" / "reattack"
         if built(reattack):  # the run re-attacked the weights it evaluated last
             base["reattacks"][list(weights)[-1]] = str(reattack)
-        first = base["own_attack"] == f"challenging-{fusion}-val"  # the first run that attacked the start: the attack's
-        if first and built(Path(run) / "round-0" / "reattack"):
-            base["own_attack"] = str(Path(run) / "round-0" / "reattack")
+        if built(Path(run) / "round-0" / "reattack"):  # the first run given that attacked the start: the attack's
+            base.setdefault("own_attack", str(Path(run) / "round-0" / "reattack"))
+    base.setdefault("own_attack", f"challenging-{fusion}-val")  # the shipped weights' own attack
     return base
 
 
