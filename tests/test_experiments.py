@@ -199,7 +199,8 @@ def test_harden_curve_puts_the_attack_beside_each_control_it_was_given():
 
 def test_harden_curve_takes_the_starts_own_attack_from_the_attack_run(monkeypatch, tmp_path):
     """The start's own attack is the attack run's round 0, though a control's run holds a copy too;
-    a round the guard averaged is measured by both its weights, its re-attack by the averaged ones."""
+    a round the guard averaged is measured by both its weights; its re-attacks are the run's
+    round-1/reattack (the averaged weights) and the one reattack_trained.py built (the trained)."""
     monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
     script = _script("harden_curve")
     start = tmp_path / "start.pt"
@@ -217,13 +218,39 @@ def test_harden_curve_takes_the_starts_own_attack_from_the_attack_run(monkeypatc
             (run / folder / "index.json").write_text("{}")
         return run
 
-    adv = run_folder("adv", True, ["round-0/reattack", "round-1/reattack"])
+    adv = run_folder("adv", True, ["round-0/reattack", "round-1/reattack", "round-1/reattack-trained"])
     rand = run_folder("rand", False, ["round-0/reattack", "round-1/reattack"])
     base = script.parse_base(f"shipped=attfuse,{start},{adv},{rand}")
     assert base["reattacks"] == {"adversarial-averaged": str(adv / "round-1" / "reattack"),
+                                 "adversarial": str(adv / "round-1" / "reattack-trained"),
                                  "random": str(rand / "round-1" / "reattack")}
     assert base["own_attack"] == str(adv / "round-0" / "reattack")
     assert set(base["models"]) == {"start", "adversarial", "adversarial-averaged", "random"}
+
+
+def test_reattack_trained_refuses_a_round_that_kept_its_weights_or_has_not_trained(monkeypatch, tmp_path):
+    """reattack_trained.py attacks nothing unless round 1 has trained, from the start the run names,
+    and its guard did not keep the trained weights (whose re-attack the run made already)."""
+    monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
+    script = _script("reattack_trained")
+    monkeypatch.setattr(script, "build_challenging", lambda *a, **k: pytest.fail("attacked"))
+    run = tmp_path / "run"
+    (run / "round-1").mkdir(parents=True)
+    start = tmp_path / "start.pt"
+    start.write_bytes(b"w")
+    settings = {"fusion": "attfuse", "start_weights": str(start), "start_sha256": script.file_digest(start),
+                "config": {"data": "adversarial"}}
+    (run / "run.json").write_text(json.dumps(settings))
+    (run / "card.json").write_text(json.dumps({"rounds": [{"round": 0}, {"round": 1, "weights": "round-1/weights.pt"}]}))
+    with pytest.raises(SystemExit, match="has not trained"):
+        script.main(str(run), str(tmp_path / "work"))
+    (run / "round-1" / "weights.pt").write_bytes(b"t")
+    (run / "round-1" / "trained.json").write_text("{}")
+    with pytest.raises(SystemExit, match="kept its trained weights"):
+        script.main(str(run), str(tmp_path / "work"))
+    start.write_bytes(b"other")
+    with pytest.raises(SystemExit, match="not the weights"):
+        script.main(str(run), str(tmp_path / "work"))
 
 
 def test_sensor_base_scores_every_lidar_on_the_whole_set(monkeypatch, tmp_path):

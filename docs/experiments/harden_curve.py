@@ -5,9 +5,11 @@ fixed set by both yardsticks, each round's gap over the start with its 95 % pair
 interval (1,000 resamples of the set's frames, seed 0: asg.objective.paired, the code `asg harden`'s
 guard keeps or drops a round by), and the adversarial round over each control on the same
 frames; then under a new attack: each round's weights on normal-val attacked against them (the run's
-`round-1/reattack`) against the start on normal-val attacked against it, paired by the normal-val
-scene each attacked frame came from. The paper's point (AttFuse 70.6 per frame on its normal val
-split before fine-tuning; +4.0 / +8.2 / +12.4 on normal / heuristic / challenging) is printed beside.
+`round-1/reattack`; for a round the guard averaged, its trained weights too when
+reattack_trained.py attacked them) against the start on normal-val attacked against it, paired by
+the normal-val scene each attacked frame came from. The paper's point (AttFuse 70.6 per frame on its
+normal val split before fine-tuning; +4.0 / +8.2 / +12.4 on normal / heuristic / challenging) is
+printed beside.
 
 usage: .venv/bin/python docs/experiments/harden_curve.py WORK_DIR OUT.json BASE [BASE ...]
   BASE: LABEL=FUSION,START,ADVERSARIAL_RUN,RANDOM_RUN[,NORMAL_RUN]  (START a weights file; a run
@@ -39,6 +41,8 @@ from asg.objective.paired import paired_ap_gap
 from asg.objective.pooled import PooledAP
 
 THRESHOLD = 0.7
+#: a guard-averaged round's trained weights re-attacked, in its round-1 folder (reattack_trained.py)
+TRAINED_REATTACK = "reattack-trained"
 ROUNDS = ("adversarial", "random", "normal")
 #: the rounds the attack's round is paired with, on the same frames
 CONTROLS = ROUNDS[1:]
@@ -81,6 +85,8 @@ def parse_base(spec: str) -> dict:
         reattack = Path(run) / "round-1" / "reattack"
         if built(reattack):  # the run re-attacked the weights it evaluated last
             base["reattacks"][list(weights)[-1]] = str(reattack)
+        if len(weights) > 1 and built(Path(run) / "round-1" / TRAINED_REATTACK):  # reattack_trained.py's
+            base["reattacks"][kind] = str(Path(run) / "round-1" / TRAINED_REATTACK)
         if built(Path(run) / "round-0" / "reattack"):  # the first run given that attacked the start: the attack's
             base.setdefault("own_attack", str(Path(run) / "round-0" / "reattack"))
     base.setdefault("own_attack", f"challenging-{fusion}-val")  # the shipped weights' own attack
