@@ -53,7 +53,7 @@ def main(run_dir: str, work_dir: str) -> None:
         raise SystemExit(f"{own} and {out} were not attacked from the same normal-val scenes in order")
     pair = {"start": measured(fusion, str(start), "own-attack", own, work),
             kind: measured(fusion, str(weights), "reattack", str(out), work)}
-    result = {"sets": {"start": own, kind: str(out)}, "weights": {"start": file_digest(start), kind: file_digest(weights)},
+    result = {"sets": {"start": own, kind: str(out.relative_to(run))}, "weights": {"start": file_digest(start), kind: file_digest(weights)},
               "frames": pair["start"][0]["frames"], **gaps(pair, "start")}
     (round_dir / f"{TRAINED_REATTACK}.json").write_text(json.dumps(result, indent=1))
     for y in Yardstick:
