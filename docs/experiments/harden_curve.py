@@ -55,6 +55,13 @@ def built(folder: Path) -> bool:
     return (folder / "index.json").is_file()
 
 
+def own_attack(fusion: str, runs: list[Path]) -> str:
+    """The start's own attack: the round-0 re-attack of the first run given that made one (the
+    attack's, though a control's run may hold a copy), else the shipped weights' challenging set."""
+    return next((str(r / "round-0" / "reattack") for r in runs if built(r / "round-0" / "reattack")),
+                f"challenging-{fusion}-val")
+
+
 def parse_base(spec: str) -> dict:
     """``LABEL=FUSION,START,ADV_RUN,RANDOM_RUN[,NORMAL_RUN]`` -> {"label", "fusion", "start",
     "own_attack", "models": {name: weights}, "reattacks": {name: folder}}, every file checked."""
@@ -87,9 +94,7 @@ def parse_base(spec: str) -> dict:
             base["reattacks"][list(weights)[-1]] = str(reattack)
         if len(weights) > 1 and built(Path(run) / "round-1" / TRAINED_REATTACK):  # reattack_trained.py's
             base["reattacks"][kind] = str(Path(run) / "round-1" / TRAINED_REATTACK)
-        if built(Path(run) / "round-0" / "reattack"):  # the first run given that attacked the start: the attack's
-            base.setdefault("own_attack", str(Path(run) / "round-0" / "reattack"))
-    base.setdefault("own_attack", f"challenging-{fusion}-val")  # the shipped weights' own attack
+    base["own_attack"] = own_attack(fusion, [Path(r) for r in runs if r != "-"])
     return base
 
 

@@ -17,19 +17,13 @@ import json
 import sys
 from pathlib import Path
 
-from harden_curve import TRAINED_REATTACK, built, gaps, measured, pct
+from harden_curve import TRAINED_REATTACK, gaps, measured, own_attack, pct
 
 from asg.datasets import scenes_of
 from asg.executors import build_executor
 from asg.generator.run import file_digest
 from asg.objective.ap import Yardstick
 from asg.workflows.challenging import build_challenging
-
-
-def own_attack_of(run: Path, fusion: str) -> str:
-    """The start's own attack: the run's round-0 re-attack, or the shipped weights' challenging set."""
-    folder = run / "round-0" / "reattack"
-    return str(folder) if built(folder) else f"challenging-{fusion}-val"
 
 
 def main(run_dir: str, work_dir: str) -> None:
@@ -48,12 +42,13 @@ def main(run_dir: str, work_dir: str) -> None:
     out = round_dir / TRAINED_REATTACK
     with build_executor("local", 2) as executor:
         build_challenging(fusion, "val", executor, weights_file=str(weights), out=out)
-    own = own_attack_of(run, fusion)
+    own = own_attack(fusion, [run])
     if [s.scene_id for s in scenes_of(own)] != [s.scene_id for s in scenes_of(str(out))]:
         raise SystemExit(f"{own} and {out} were not attacked from the same normal-val scenes in order")
     pair = {"start": measured(fusion, str(start), "own-attack", own, work),
             kind: measured(fusion, str(weights), "reattack", str(out), work)}
-    result = {"sets": {"start": own, kind: str(out.relative_to(run))}, "weights": {"start": file_digest(start), kind: file_digest(weights)},
+    result = {"sets": {"start": own, kind: str(out.relative_to(run))},
+              "weights": {"start": settings["start_sha256"], kind: file_digest(weights)},
               "frames": pair["start"][0]["frames"], **gaps(pair, "start")}
     (round_dir / f"{TRAINED_REATTACK}.json").write_text(json.dumps(result, indent=1))
     for y in Yardstick:
