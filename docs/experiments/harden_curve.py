@@ -195,18 +195,24 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main(work_dir: str, out: str, *bases: str) -> None:
+def measure_bases(work_dir: str, out: str, parsed: list[dict], measure_one, head: dict) -> dict:
+    """``head`` with "bases": each parsed base measured by ``measure_one(base, work)`` in turn, OUT
+    rewritten after each; a base already in OUT under a label not given is kept."""
     work = Path(work_dir)
     work.mkdir(parents=True, exist_ok=True)
-    parsed = [parse_base(b) for b in bases]  # every base checked before the first evaluation
     kept = json.loads(Path(out).read_text())["bases"] if Path(out).is_file() else []
     labels = {b["label"] for b in parsed}
-    result = {"threshold": THRESHOLD, "paper": PAPER, "bases": [b for b in kept if b["label"] not in labels]}
+    result = head | {"bases": [b for b in kept if b["label"] not in labels]}
     for base in parsed:
-        result["bases"].append(measure(base, work))
+        result["bases"].append(measure_one(base, work))
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(json.dumps(result, indent=1))
-    print(markdown(result))
+    return result
+
+
+def main(work_dir: str, out: str, *bases: str) -> None:
+    parsed = [parse_base(b) for b in bases]  # every base checked before the first evaluation
+    print(markdown(measure_bases(work_dir, out, parsed, measure, {"threshold": THRESHOLD, "paper": PAPER})))
 
 
 if __name__ == "__main__":
