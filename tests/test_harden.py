@@ -18,7 +18,7 @@ from test_tables import write_set
 #: two steps a round, one scene a round from the normal train split, mixed with normal
 TINY = replace(load_harden_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
                eval_sets=("normal-val",), scenes_per_round=1, pool=("normal",), noisy=False, reattack=False,
-               guard_set=None)
+               guard_set=None, fit_stage=False)
 ORACLE = "fakes:oracle_factory"
 
 
@@ -288,6 +288,16 @@ def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_roo
                    log=_quiet)
     assert not (tmp_path / "first" / "round-0" / "reattack").exists()
     assert first["rounds"][0]["reattack"]["challenging"]["ap"] == first["rounds"][0]["evaluation"]["challenging-attfuse-val"]["ap"]
+    # round 1's re-attack scenes scored by the weights it started from too, and the round's gap over them there
+    from asg.evaluation import evaluate
+
+    scenes = str(tmp_path / "first" / "round-1" / "reattack")
+    start = evaluate("attfuse", scenes, weights_file=str(WEIGHTS_DIR / "attfuse.pt"))
+    attacked = evaluate("attfuse", scenes, weights_file=str(tmp_path / "first" / first["rounds"][1]["weights"]))
+    started = first["rounds"][1]["reattack"]["started_from"]
+    assert started["frames"] == 1 and started["ap"] == pytest.approx(start["ap"])
+    for y, key in (("global", "ap"), ("per-frame", "ap_per_frame")):
+        assert started["gap"][y]["gap"] == pytest.approx(attacked[key]["0.7"] - start[key]["0.7"])
     card = harden("attfuse", 1, tmp_path / "next", weights=tmp_path / "first" / "card.json",
                   config=replace(TINY, reattack=True, pool=("normal",)), detector_factory=ORACLE, log=_quiet)
     assert (tmp_path / "next" / "round-0" / "reattack" / "index.json").is_file()
@@ -425,6 +435,48 @@ def test_a_round_the_guard_drops_is_averaged_with_its_start_and_kept_if_that_pas
     assert card["weights"] == "round-2/averaged.pt"
 
 
+@pytest.mark.slow
+def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path, data_root, monkeypatch):
+    """With ``fit_stage`` a round fits a point stage to its trained weights, and to their average when
+    the guard averages them, beside each file before it is evaluated (so every detector built from it,
+    the guard's and the next round's attack included, refines with it); the card records each fit; a
+    resumed round fits nothing again; a start given with a stage beside it is cached apart from the
+    same weights without it."""
+    import asg.workflows.harden as harden_mod
+    from asg.perception.weights_io import stage_path_of
+    from asg.training.point_stage_fit import PointStageFitConfig
+
+    write_set(data_root, "holdout", {"test": ["g0", "g1"]})
+    monkeypatch.setattr(harden_mod, "load_point_stage_config",
+                        lambda: PointStageFitConfig(dataset="normal", jitters=0, epochs=1, batch_size=16))
+    monkeypatch.setattr(harden_mod, "guard", lambda before, after, guard_set: {
+        "set": guard_set, "threshold": 0.7, "gap": -0.1, "low": -0.2, "high": -0.05, "frames": 2,
+        "kept": after.name == "eval-averaged"})
+    staged_when_scored = []
+    real_evaluate = harden_mod.evaluate_round
+    monkeypatch.setattr(harden_mod, "evaluate_round", lambda fusion, weights, *a: (
+        staged_when_scored.append((weights.name, stage_path_of(weights).is_file())), real_evaluate(fusion, weights, *a))[1])
+    out = tmp_path / "h"
+    cfg = replace(TINY, guard_set="holdout", fit_stage=True)
+    card = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    assert staged_when_scored == [("attfuse.pt", False), ("weights.pt", True), ("averaged.pt", True)]
+    r1 = card["rounds"][1]
+    assert r1["stage"]["weights"] == "averaged.stage.pt" and r1["unaveraged"]["stage"]["weights"] == "weights.stage.pt"
+    assert r1["stage"]["dataset"] == "normal" and r1["stage"]["frames"] == 2
+    assert not list(out.glob("round-1/stage-fit-*"))  # the fit's cache and checkpoint gone
+    fitted = {p: p.stat().st_mtime_ns for p in out.glob("round-1/*.stage.pt")}
+    assert len(fitted) == 2
+    del card["rounds"][1]  # the round resumed from its files: nothing fitted again, the same records
+    (out / "card.json").write_text(json.dumps(card))
+    again = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    assert {p: p.stat().st_mtime_ns for p in fitted} == fitted and again["rounds"][1]["stage"] == r1["stage"]
+    # the round's weights with their stage, and the same file without it, are two starts
+    alone = tmp_path / "alone" / "weights.pt"
+    alone.parent.mkdir()
+    alone.write_bytes((out / "round-1" / "weights.pt").read_bytes())
+    assert harden_mod._eval_cache(out, 0, out / "round-1" / "weights.pt") != harden_mod._eval_cache(out, 0, alone)
+
+
 @pytest.mark.parametrize("share", [0.0, 1.0, 1.5, True, "half"])
 def test_a_guard_average_outside_zero_to_one_is_refused(share):
     with pytest.raises(InputError, match="guard_average"):
@@ -487,6 +539,13 @@ def test_a_folder_claimed_before_a_setting_existed_resumes_and_other_settings_ar
     (out / "run.json").write_text(json.dumps(record))
     with pytest.raises(Claimed):
         harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    # a folder from before rounds fitted their own point stage did not: it resumes without, not with
+    del record["config"]["fit_stage"], record["point_stage"]
+    (out / "run.json").write_text(json.dumps(record))
+    with pytest.raises(Claimed):
+        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    with pytest.raises(InputError, match="fit_stage"):
+        harden("attfuse", 1, out, config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
     record["config"]["lr"] *= 2
     (out / "run.json").write_text(json.dumps(record))
     with pytest.raises(InputError, match="config.lr"):

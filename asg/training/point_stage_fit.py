@@ -18,7 +18,7 @@ import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 import torch
@@ -32,6 +32,7 @@ from sumo_scenarios.strict import from_mapping
 from ..datasets import iter_frames
 from ..perception import build_detector
 from ..perception.data import Sample
+from ..scene import Scene
 from ..perception.branch_boxes import best_match
 from ..perception.point_stage import (MIN_IOU, PointStage, box_features, box_points, refine, residual_targets,
                                       stage_loss)
@@ -83,11 +84,11 @@ def _check_same_run(found: str, settings: str, path: Path) -> None:
                          f"{path.parent} to start this one over")
 
 
-def collect(fusion: str, dataset: str, run_dir: Path, log: Callable[[str], None],
+def collect(fusion: str, scenes: Callable[[], Iterable[Scene]], what: str, run_dir: Path, log: Callable[[str], None],
             weights_file: Path | None = None, settings: str = "") -> list[Frame]:
     """The detector's final boxes (its point stage off), the vehicles in range and the cloud it saw,
-    per frame of ``dataset``'s train split, ego frame; cached in ``run_dir`` with ``settings`` (a
-    rerun with other settings is refused)."""
+    per frame of ``scenes()`` (``what`` names them in messages), ego frame; cached in ``run_dir``
+    with ``settings`` (a rerun with other settings is refused)."""
     cache = run_dir / BOXES_CACHE
     if cache.is_file():
         z = np.load(cache)
@@ -98,12 +99,12 @@ def collect(fusion: str, dataset: str, run_dir: Path, log: Callable[[str], None]
     det.point_stage = None
     spec = load_lidar_spec()
     frames = []
-    for scene in iter_frames(dataset, "train"):
+    for scene in scenes():
         sample = Sample(scene.scene_id, simulate_frame(scene, spec))
         boxes, scores = det.detect(sample.frame)
         frames.append((boxes.reshape(-1, 7), scores, sample.gt_eval().reshape(-1, 7),
                        det.seen_cloud(sample.frame).astype(np.float32)))
-    log(f"collected {sum(len(f[0]) for f in frames)} boxes in {len(frames)} frames of {dataset}")
+    log(f"collected {sum(len(f[0]) for f in frames)} boxes in {len(frames)} frames of {what}")
     arrays = {key: np.concatenate([f[i] for f in frames]) for i, key in enumerate(("boxes", "scores", "gt", "cloud"))}
     offsets = {"n" + key: np.cumsum([0] + [len(f[i]) for f in frames]) for i, key in enumerate(("boxes", "scores", "gt", "cloud"))}
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -122,7 +123,7 @@ def jittered(boxes: np.ndarray, fcfg: PointStageFitConfig, rng: np.random.Genera
     return out
 
 
-def examples(frames: list[Frame], fcfg: PointStageFitConfig) -> dict[str, torch.Tensor]:
+def examples(frames: list[Frame], fcfg: PointStageFitConfig, what: str) -> dict[str, torch.Tensor]:
     """The stage's inputs and targets over every box and its jittered copies (seeded)."""
     rng = np.random.default_rng(fcfg.seed)
     parts = []
@@ -134,7 +135,7 @@ def examples(frames: list[Frame], fcfg: PointStageFitConfig) -> dict[str, torch.
                 iou, res = residual_targets(b, gt)
                 parts.append((feats, mask, box_features(b, scores, mask), iou.astype(np.float32), res.astype(np.float32)))
     if not parts:
-        raise InputError(f"the detector found no boxes in {fcfg.dataset}'s train split: nothing to fit the point stage on")
+        raise InputError(f"the detector found no boxes in {what}: nothing to fit the point stage on")
     keys = ("feats", "mask", "box", "iou", "res")
     return {k: torch.from_numpy(np.concatenate([p[i] for p in parts])) for i, k in enumerate(keys)}
 
@@ -197,12 +198,53 @@ def mean_iou(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> float:
     return round(float(ious.mean()), 4) if len(ious) else 0.0
 
 
+def fit_stage_beside(fusion: str, weights: Path, run_dir: Path, log: Callable[[str], None], *,
+                     fit_config: PointStageFitConfig | None = None,
+                     extra: tuple[Callable[[], Iterable[Scene]], str] | None = None) -> tuple[Path, dict]:
+    """Fit a point stage to the frozen detector ``weights`` (a .pt of ``fusion``) and write it
+    beside them (``stage_path_of(weights)``, which every detector built from that file then uses):
+    its path and the fit's record. The examples: the block's data set's train split and, with
+    ``extra`` ((a function giving scenes, what they are)), those scenes too. ``run_dir`` holds the
+    resumable cache and checkpoint (kept only until the stage is written)."""
+    fcfg = fit_config or load_point_stage_config()
+    started = time.perf_counter()
+    # what a cache or checkpoint must have been made with to be reused: these settings, these weights
+    settings = json.dumps({"fusion": fusion, "fit": asdict(fcfg), "weights": str(weights.resolve()),
+                           "weights_bytes": weights.stat().st_size, "extra": extra[1] if extra else None},
+                          sort_keys=True)
+
+    def scenes() -> Iterator[Scene]:
+        yield from iter_frames(fcfg.dataset, "train")
+        if extra:
+            yield from extra[0]()
+
+    what = f"{fcfg.dataset}'s train split" + (f" and {extra[1]}" if extra else "")
+    frames = collect(fusion, scenes, what, run_dir, log, weights, settings)
+    data = examples(frames, fcfg, what)
+    log(f"{len(data['iou'])} examples, {int((data['iou'] >= MIN_IOU).sum())} on a vehicle")
+    stage = fit(data, fcfg, run_dir, log, settings)
+    path = stage_path_of(weights)
+    with atomic_path(path) as tmp:
+        torch.save(stage.state_dict(), tmp)
+    before = [(b, s, g) for b, s, g, _ in frames]
+    after = [(*refine(stage, b, s, c, 0.0), g) for b, s, g, c in frames]
+    record = {**asdict(fcfg), "weights": path.name, **({"extra": extra[1]} if extra else {}), "frames": len(frames),
+              "boxes": int(sum(len(f[0]) for f in frames)), "examples": len(data["iou"]),
+              "wall_s": round(time.perf_counter() - started, 1),
+              "mean_iou_train_before": mean_iou(before), "mean_iou_train_after": mean_iou(after)}
+    for leftover in (BOXES_CACHE, CHECKPOINT):
+        (run_dir / leftover).unlink(missing_ok=True)
+    log(f"wrote {path}: mean IoU of the training boxes on a vehicle {record['mean_iou_train_before']} -> "
+        f"{record['mean_iou_train_after']} ({record['wall_s'] / 60:.1f} min)")
+    return path, record
+
+
 def fit_point_stage(fusion: str, log: Callable[[str], None] = print, threads: int = 2, *,
                     fit_config: PointStageFitConfig | None = None, weights_dir: Path | None = None,
                     out_dir: Path | None = None) -> Path:
     """Fit and write the point stage of ``fusion``'s weights (in ``weights_dir``, by default the
-    training run folder runs/train/NAME/, filled with the installed or shipped weights); its path."""
-    fcfg = fit_config or load_point_stage_config()
+    training run folder runs/train/NAME/, filled with the installed or shipped weights), with a
+    ``point_stage`` record in their card; its path."""
     name = weights_for(fusion)
     if weights_dir is None:
         weights_dir = runs_dir() / "train" / name
@@ -211,30 +253,10 @@ def fit_point_stage(fusion: str, log: Callable[[str], None] = print, threads: in
     if not weights.is_file():
         raise InputError(f"{weights}: no trained {name} weights to fit a point stage to; train them first")
     torch.set_num_threads(threads)
-    run_dir = out_dir or runs_dir() / "train" / f"{name}-stage"
-    started = time.perf_counter()
-    # what a cache or checkpoint must have been made with to be reused: these settings, these weights
-    settings = json.dumps({"fusion": fusion, "fit": asdict(fcfg), "weights": str(weights.resolve()),
-                           "weights_bytes": weights.stat().st_size}, sort_keys=True)
-    frames = collect(fusion, fcfg.dataset, run_dir, log, weights, settings)
-    data = examples(frames, fcfg)
-    log(f"{len(data['iou'])} examples, {int((data['iou'] >= MIN_IOU).sum())} on a vehicle")
-    stage = fit(data, fcfg, run_dir, log, settings)
-    path = stage_path_of(weights)
-    with atomic_path(path) as tmp:
-        torch.save(stage.state_dict(), tmp)
-    before = [(b, s, g) for b, s, g, _ in frames]
-    after = [(*refine(stage, b, s, c, 0.0), g) for b, s, g, c in frames]
-    record = {**asdict(fcfg), "weights": path.name, "frames": len(frames), "boxes": int(sum(len(f[0]) for f in frames)),
-              "examples": len(data["iou"]), "wall_s": round(time.perf_counter() - started, 1),
-              "mean_iou_train_before": mean_iou(before), "mean_iou_train_after": mean_iou(after)}
+    path, record = fit_stage_beside(fusion, weights, out_dir or runs_dir() / "train" / f"{name}-stage", log,
+                                    fit_config=fit_config)
     card_path = weights_dir / f"{name}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {"weights": weights.name}
     card["point_stage"] = record
     write_text_atomic(card_path, json.dumps(card, indent=1))
-    for leftover in (BOXES_CACHE, CHECKPOINT):
-        (run_dir / leftover).unlink(missing_ok=True)
-    log(f"wrote {path}: mean IoU of the training boxes on a vehicle {record['mean_iou_train_before']} -> "
-        f"{record['mean_iou_train_after']} ({record['wall_s'] / 60:.1f} min)")
     return path
-

@@ -17,7 +17,8 @@ of ``OUT/card.json`` and is never run again):
 4. **evaluate** on fixed sets: ``eval_sets``, ``challenging-F-val`` (the val split attacked against
    the original model) and, with ``noisy``, normal-val under the standard noisy V2X setting
    (asg.scene.noisy); with ``reattack``, the paper's protocol run on normal-val against the
-   round's weights (the original's own attack is challenging-F-val).
+   round's weights (the original's own attack is challenging-F-val), and the weights the round
+   started from scored on those scenes too (the card's ``reattack.started_from``).
 
 Round 0 of the card is the start weights on the same evaluation. ``OUT/run.json`` records the
 settings: a rerun with other settings is refused (``force`` starts over).
@@ -47,6 +48,7 @@ from ..objective.pooled import REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..sensors.lidar_spec import DEFAULT_LIDAR
 from ..training.cards import lidar_of_weights
 from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
+from ..training.point_stage_fit import PointStageFitConfig, load_point_stage_config
 from ..perception.weights_io import weights_path
 from ..scene import Scene, load_scene
 
@@ -59,6 +61,10 @@ DATA_KINDS: tuple[str, ...] = get_args(DataKind)
 AVERAGED_WEIGHTS = "averaged.pt"
 #: the name of the noisy evaluation set in a card
 NOISY_SET = "normal-val-noisy"
+#: a round's re-attack record of the weights the round started from on the scenes attacked against
+#: the round, and the cache of those two evaluations in the round's folder
+STARTED_FROM = "started_from"
+REATTACK_EVAL = "reattack-eval"
 
 
 @dataclass(frozen=True)
@@ -84,6 +90,11 @@ class HardenConfig(FinetuneConfig):
     #: the round's weights (docs/harden.md, the guard), and kept if the guard keeps the average;
     #: None: dropped as it is
     guard_average: float | None = 0.5
+    #: fit a point stage to each round's weights (and to their average when the guard averages them),
+    #: beside them (``round-k/weights.stage.pt``; train.yaml's ``point_stage`` block), so that the
+    #: round refines its own boxes rather than with the stage of the model it started from
+    #: (docs/harden.md, the point stage); False: every round uses its start's stage
+    fit_stage: bool = True
     #: an OpenCOOD model (--fusion opencood:DIR): the epochs OpenCOOD's trainer fine-tunes it a round
     #: (one gained on its challenging set and holdout where three lost per frame on normal-val:
     #: docs/results/README.md, OpenCOOD)
@@ -135,14 +146,18 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     from ..generator.run import file_digest
 
     pool = _pool(cfg)
+    stage_cfg = load_point_stage_config() if cfg.fit_stage else None  # train.yaml's point_stage block
     if rounds * cfg.scenes_per_round > len(pool):
         raise InputError(f"{rounds} rounds of {cfg.scenes_per_round} fresh scenes need {rounds * cfg.scenes_per_round}; "
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
     settings = {"fusion": fusion, "start_weights": str(start), "start_sha256": file_digest(start),
-                "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory}
+                "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory,
+                "point_stage": asdict(stage_cfg) if stage_cfg else None}
     # a setting added since a folder was claimed takes the default that reproduces what it did
+    # (a run from before rounds fitted their own point stage did not)
     claim(out, settings, force, what="a hardening run",
-          as_today=lambda record: with_defaults(record, {"config": asdict(HardenConfig())}))
+          as_today=lambda record: with_defaults(record, {"config": asdict(HardenConfig()) | {"fit_stage": False},
+                                                         "point_stage": None}))
     card_path = out / "card.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
@@ -159,7 +174,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
                 current, current_round = out / done[k]["weights"], k
             continue
         row: dict = {"round": k}
-        weights = current
+        weights = started_from = current
         if k:
             scenes = pool[(k - 1) * cfg.scenes_per_round: k * cfg.scenes_per_round]
             row["data"] = _round_scenes(fusion, current, scenes, cfg, space, round_dir, executor, detector_factory, log)
@@ -171,6 +186,8 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
                                     log, progress, lambda: mixed_sources(name, first, cfg, log))
                 write_text_atomic(record, json.dumps(trained, indent=1))  # kept for a round resumed after training
             row["trained"] = json.loads(record.read_text())
+            if stage_cfg:
+                row["stage"] = stage_of_round(fusion, weights, round_dir, stage_cfg, log)
             row["weights"] = str(weights.relative_to(out))
         log(f"round {k}: evaluating {weights} ...")
         row["evaluation"] = evaluate_round(fusion, weights, cfg, _eval_cache(out, k, weights), executor, log)
@@ -180,7 +197,8 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
             row["guard"] = guard(before, _eval_cache(out, k, weights), cfg.guard_set)
             if not row["guard"]["kept"] and cfg.guard_average:
                 _log_guard(log, k, row["guard"], "its weights are averaged with the ones it started from")
-                weights = _averaged_round(fusion, row, current, current_round, weights, cfg, out, k, executor, log)
+                weights = _averaged_round(fusion, row, current, current_round, weights, cfg, stage_cfg, out, k,
+                                          executor, log)
             if not row["guard"]["kept"]:
                 _log_guard(log, k, row["guard"], "its weights are not kept; the next round starts from "
                            f"{f'round {current_round}' if current_round else 'the start weights'}")
@@ -190,6 +208,9 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
             own_set = None if k == 0 and shipped_start else weights  # the shipped weights' attack exists
             row["reattack"] = reattack_round(fusion, own_set, round_dir / "reattack", executor,
                                              detector_factory, log, row["evaluation"])
+            if k:
+                row["reattack"][STARTED_FROM] = started_from_on_reattack(fusion, started_from, weights, round_dir,
+                                                                         executor, log)
         card["rounds"].append(row)
         card["weights"] = str(current.relative_to(out)) if current_round else str(start)
         write_text_atomic(card_path, json.dumps(card, indent=1))
@@ -220,17 +241,22 @@ def _log_guard(log: Callable[[str], None], k: int, gap: dict, outcome: str) -> N
 
 
 def _averaged_round(fusion: str, row: dict, current: Path, current_round: int, weights: Path, cfg: HardenConfig,
-                    out: Path, k: int, executor, log: Callable[[str], None]) -> Path:
+                    stage_cfg: PointStageFitConfig | None, out: Path, k: int, executor,
+                    log: Callable[[str], None]) -> Path:
     """The guard's cure for a round it would not keep: ``round-k/averaged.pt``, the round's weights
-    averaged with the ones it started from (``cfg.guard_average`` of the round's), evaluated and
-    guarded in their turn. ``row`` is updated to the averaged weights; what the round trained stays
-    under its "unaveraged" key. Returns the averaged weights' file."""
+    averaged with the ones it started from (``cfg.guard_average`` of the round's), with a point
+    stage fitted to them (``stage_cfg``; None: none), evaluated and guarded in their turn. ``row``
+    is updated to the averaged weights; what the round trained stays under its "unaveraged" key.
+    Returns the averaged weights' file."""
     from ..perception.weights_io import average_weights
 
     averaged = out / f"round-{k}" / AVERAGED_WEIGHTS
     if not averaged.is_file():
         average_weights(current, weights, cfg.guard_average, averaged)
-    row["unaveraged"] = {"weights": row["weights"], "evaluation": row["evaluation"], "guard": row["guard"]}
+    row["unaveraged"] = {"weights": row["weights"], "evaluation": row["evaluation"], "guard": row["guard"],
+                         **({"stage": row["stage"]} if "stage" in row else {})}
+    if stage_cfg:
+        row["stage"] = stage_of_round(fusion, averaged, out / f"round-{k}", stage_cfg, log)
     log(f"round {k}: evaluating {averaged} ({cfg.guard_average:g} of the round's weights) ...")
     row["weights"] = str(averaged.relative_to(out))
     row["evaluation"] = evaluate_round(fusion, averaged, cfg, _eval_cache(out, k, averaged), executor, log)
@@ -239,17 +265,40 @@ def _averaged_round(fusion: str, row: dict, current: Path, current_round: int, w
     return averaged
 
 
+def stage_of_round(fusion: str, weights: Path, round_dir: Path, stage_cfg: PointStageFitConfig,
+                   log: Callable[[str], None]) -> dict:
+    """The point stage fitted to a round's ``weights`` (asg.training.point_stage_fit.fit_stage_beside
+    with ``stage_cfg``, train.yaml's ``point_stage`` block, on the frozen weights), written beside them, where every
+    detector built from the file finds it; the fit's record, kept in the round's folder
+    (``STEM.stage.json``) so that a resumed round neither fits it again nor loses the record. The
+    fit resumes from its checkpoint in ``round_dir/stage-fit-STEM``."""
+    from ..perception.weights_io import stage_path_of
+    from ..training.point_stage_fit import fit_stage_beside
+
+    record = round_dir / f"{weights.stem}.stage.json"
+    if stage_path_of(weights).is_file() and record.is_file():
+        return json.loads(record.read_text())
+    log(f"fitting a point stage to {weights} ...")
+    _, fitted = fit_stage_beside(fusion, weights, round_dir / f"stage-fit-{weights.stem}", log, fit_config=stage_cfg)
+    write_text_atomic(record, json.dumps(fitted, indent=1))
+    shutil.rmtree(round_dir / f"stage-fit-{weights.stem}", ignore_errors=True)
+    return fitted
+
+
 def _eval_cache(out: Path, k: int, weights: Path) -> Path:
     """Where round ``k``'s evaluations are cached: the round's folder (``eval``, or ``eval-averaged``
     for its averaged weights), but for round 0 (the start weights) a folder of the data root named by
-    the weights' digest (asg.evaluation.start_evaluations_dir), shared by every run (and control)
-    that starts from the same weights with the same code."""
+    the weights' digest, and their own point stage's when one is beside them (a round's weights
+    given as the start: asg.evaluation.start_evaluations_dir), shared by every run (and control)
+    that starts from the same model with the same code."""
     from ..evaluation import start_evaluations_dir
     from ..generator.run import file_digest
+    from ..perception.weights_io import stage_path_of
 
     if k:
         return out / f"round-{k}" / ("eval" if weights.name != AVERAGED_WEIGHTS else f"eval-{Path(AVERAGED_WEIGHTS).stem}")
-    return start_evaluations_dir(file_digest(weights)[:16])
+    stage = stage_path_of(weights)
+    return start_evaluations_dir(file_digest(weights)[:16] + (f"-{file_digest(stage)[:8]}" if stage.is_file() else ""))
 
 
 def is_kept(row: dict) -> bool:
@@ -412,8 +461,9 @@ def upgraded_rounds(rounds: list[dict]) -> list[dict]:
         row["evaluation"] = {s: PooledAP.from_json(ev).to_json() | {"frames": ev["frames"]}
                              for s, ev in row.get("evaluation", {}).items()}
         if row.get("reattack"):
+            kept = {k: v for k, v in row["reattack"].items() if k == STARTED_FROM}  # written in today's form
             row["reattack"] = {"frames": row["reattack"]["frames"],
-                               **pair_json(pooled_pair(row["reattack"], REATTACK_PAIR))}
+                               **pair_json(pooled_pair(row["reattack"], REATTACK_PAIR)), **kept}
         out.append(row)
     return out
 
@@ -451,6 +501,25 @@ def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detec
                               detector_factory=detector_factory)
     index = json.loads((built / "index.json").read_text())
     return {"frames": index["frames"], **pair_json(pooled_pair(index, REATTACK_PAIR))}
+
+
+def started_from_on_reattack(fusion: str, started_from: Path, attacked: Path, round_dir: Path, executor,
+                             log: Callable[[str], None]) -> dict:
+    """The weights a round started from, scored on the scenes its re-attack found against the
+    round's weights (``round_dir/reattack``): their pooled AP and frames, and "gap", the round's
+    weights over them on those same scenes ({yardstick: AP@0.7 gap with its 95 % paired interval}).
+    The re-attack's gain over the start's own attack is this gap plus how much easier these scenes
+    are for the start than its own attack: a gap below zero means the new attack found scenes the
+    round is worse on than its start (the round moved its start's weak spots rather than removed
+    them). Both evaluations cached in ``round_dir/reattack-eval``."""
+    from ..objective.ap import Yardstick
+    from ..objective.paired import load_matches, paired_ap_gap
+
+    scenes, cache = str(round_dir / "reattack"), round_dir / REATTACK_EVAL
+    row = evaluated_set(fusion, started_from, "started-from", scenes, cache, True, executor, log)
+    evaluated_set(fusion, attacked, "attacked", scenes, cache, True, executor, log)
+    before, after = (load_matches(cache / f"{label}.matches.npz") for label in ("started-from", "attacked"))
+    return row | {"gap": {y.value: paired_ap_gap(before, after, 0.7, method=y).to_dict() for y in Yardstick}}
 
 
 def _save_scenes(scenes: list[Scene], folder: Path) -> None:
@@ -541,12 +610,15 @@ def run(args: argparse.Namespace) -> int:
     sets = list(rows[0]["evaluation"]) if rows else []
     table = Table(title=f"asg harden --fusion {args.fusion} ({card['data']}): AP@0.7 by round, "
                         "ours / ranked per frame (the paper's yardstick)")
-    for col in ("round", *sets, *(["re-attacked"] if rows and "reattack" in rows[0] else [])):
+    reattacked = bool(rows) and "reattack" in rows[0]
+    for col in ("round", *sets, *(["re-attacked", "its start on those scenes"] if reattacked else [])):
         table.add_column(col, justify="right")
     for row in rows:
         cells = [PooledAP.from_json(row["evaluation"][s]).text() for s in sets]
         if "reattack" in row:
-            cells.append(pooled_pair(row["reattack"], REATTACK_PAIR)["challenging"].text())
+            started_from = row["reattack"].get(STARTED_FROM)
+            cells += [pooled_pair(row["reattack"], REATTACK_PAIR)["challenging"].text(),
+                      PooledAP.from_json(started_from).text() if started_from else ""]
         table.add_row(str(row["round"]) + ("" if not row["round"] or is_kept(row) else " (not kept)"), *cells)
     stdout.print(table)
     kept = card.get("weights")
