@@ -337,3 +337,41 @@ def test_a_half_precision_checkpoint_resumes_the_chunk_close_to_the_uninterrupte
     assert {v.dtype for v in resumed.values() if v.is_floating_point()} == {torch.float32}
     worst = max(float((resumed[k] - whole[k]).abs().max()) for k in whole if whole[k].is_floating_point())
     assert 0 < worst < 5e-2
+
+
+def test_stage_refit_fits_a_stage_to_each_weights_once_and_never_keeps_another_weights_stage(monkeypatch, tmp_path):
+    """stage_refit.py: the weights copied beside a stage fitted to them; the same weights again fit
+    nothing; other weights under the same label drop the old stage and fit their own."""
+    monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
+    script = _script("stage_refit")
+    fits = []
+
+    def fake_fit(fusion, weights, run_dir, log):
+        fits.append(weights.read_bytes())
+        stage = weights.with_name("weights.stage.pt")
+        stage.write_bytes(b"stage of " + weights.read_bytes())
+        return stage, {"weights": stage.name}
+
+    monkeypatch.setattr(script, "fit_stage_beside", fake_fit)
+    first, second = tmp_path / "a.pt", tmp_path / "b.pt"
+    first.write_bytes(b"A")
+    second.write_bytes(b"B")
+    copy, record = script.refit("attfuse", "h", first, tmp_path / "work")
+    assert copy.read_bytes() == b"A" and record == {"weights": "weights.stage.pt"}
+    script.refit("attfuse", "h", first, tmp_path / "work")
+    assert fits == [b"A"]
+    copy, _ = script.refit("attfuse", "h", second, tmp_path / "work")
+    assert fits == [b"A", b"B"] and copy.with_name("weights.stage.pt").read_bytes() == b"stage of B"
+
+
+def test_ship_staged_refuses_weights_that_are_not_the_hardened_ones_the_card_averaged(monkeypatch, tmp_path):
+    monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
+    script = _script("ship_staged")
+    weights_dir = tmp_path / "shipped"
+    weights_dir.mkdir()
+    (weights_dir / "attfuse-ft.json").write_text(json.dumps({"averaged": {"hardened_sha256": "0" * 64}}))
+    monkeypatch.setattr(script, "WEIGHTS_DIR", weights_dir)
+    (tmp_path / "work" / "h2").mkdir(parents=True)
+    (tmp_path / "work" / "h2" / "weights.pt").write_bytes(b"other")
+    with pytest.raises(SystemExit, match="not the hardened weights"):
+        script.main(str(tmp_path / "work"), "h2", "holdout")

@@ -18,7 +18,7 @@ import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Callable, Iterable
 
 import numpy as np
 import torch
@@ -199,27 +199,18 @@ def mean_iou(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> float:
 
 
 def fit_stage_beside(fusion: str, weights: Path, run_dir: Path, log: Callable[[str], None], *,
-                     fit_config: PointStageFitConfig | None = None,
-                     extra: tuple[Callable[[], Iterable[Scene]], str] | None = None) -> tuple[Path, dict]:
+                     fit_config: PointStageFitConfig | None = None) -> tuple[Path, dict]:
     """Fit a point stage to the frozen detector ``weights`` (a .pt of ``fusion``) and write it
     beside them (``stage_path_of(weights)``, which every detector built from that file then uses):
-    its path and the fit's record. The examples: the block's data set's train split and, with
-    ``extra`` ((a function giving scenes, what they are)), those scenes too. ``run_dir`` holds the
-    resumable cache and checkpoint (kept only until the stage is written)."""
+    its path and the fit's record. The examples: the block's data set's train split. ``run_dir``
+    holds the resumable cache and checkpoint (kept only until the stage is written)."""
     fcfg = fit_config or load_point_stage_config()
     started = time.perf_counter()
     # what a cache or checkpoint must have been made with to be reused: these settings, these weights
     settings = json.dumps({"fusion": fusion, "fit": asdict(fcfg), "weights": str(weights.resolve()),
-                           "weights_bytes": weights.stat().st_size, "extra": extra[1] if extra else None},
-                          sort_keys=True)
-
-    def scenes() -> Iterator[Scene]:
-        yield from iter_frames(fcfg.dataset, "train")
-        if extra:
-            yield from extra[0]()
-
-    what = f"{fcfg.dataset}'s train split" + (f" and {extra[1]}" if extra else "")
-    frames = collect(fusion, scenes, what, run_dir, log, weights, settings)
+                           "weights_bytes": weights.stat().st_size}, sort_keys=True)
+    what = f"{fcfg.dataset}'s train split"
+    frames = collect(fusion, lambda: iter_frames(fcfg.dataset, "train"), what, run_dir, log, weights, settings)
     data = examples(frames, fcfg, what)
     log(f"{len(data['iou'])} examples, {int((data['iou'] >= MIN_IOU).sum())} on a vehicle")
     stage = fit(data, fcfg, run_dir, log, settings)
@@ -228,7 +219,7 @@ def fit_stage_beside(fusion: str, weights: Path, run_dir: Path, log: Callable[[s
         torch.save(stage.state_dict(), tmp)
     before = [(b, s, g) for b, s, g, _ in frames]
     after = [(*refine(stage, b, s, c, 0.0), g) for b, s, g, c in frames]
-    record = {**asdict(fcfg), "weights": path.name, **({"extra": extra[1]} if extra else {}), "frames": len(frames),
+    record = {**asdict(fcfg), "weights": path.name, "frames": len(frames),
               "boxes": int(sum(len(f[0]) for f in frames)), "examples": len(data["iou"]),
               "wall_s": round(time.perf_counter() - started, 1),
               "mean_iou_train_before": mean_iou(before), "mean_iou_train_after": mean_iou(after)}

@@ -5,7 +5,7 @@ Every shipped model refines its boxes with the single-agent detector's point sta
 (``single.stage.pt``), and `asg harden` fine-tunes the detector but not the stage. For each
 ``LABEL=WEIGHTS`` this copies the weights to ``WORK_DIR/LABEL/weights.pt``, fits a stage to them
 there (asg.training.point_stage_fit.fit_stage_beside: train.yaml's ``point_stage`` block, on its
-data set's train split, and with ``--extra DIR`` those scenes too), and scores on each SET the
+data set's train split), and scores on each SET the
 start (its shipped stage), the weights with the shipped stage ("LABEL") and with their own
 ("LABEL+stage"): AP@0.7 by both yardsticks and each gap over the start with its 95 % paired
 interval (asg.objective.paired, the code of `asg harden`'s guard). With ``--reattack``, each
@@ -16,7 +16,7 @@ own attack (challenging-FUSION-val) by harden_curve.py's code, by source scene.
 Resumable: the fit checkpoints, the evaluations are cached in WORK_DIR (weight_average.py's cache).
 
 usage: ASG_DATA=... .venv/bin/python docs/experiments/stage_refit.py FUSION START WORK_DIR OUT.json
-           SET[,SET] LABEL=WEIGHTS [LABEL=WEIGHTS ...] [--extra DIR] [--reattack]
+           SET[,SET] LABEL=WEIGHTS [LABEL=WEIGHTS ...] [--reattack]
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ from asg.training.point_stage_fit import fit_stage_beside
 from asg.workflows.challenging import build_challenging
 
 
-def refit(fusion: str, label: str, weights: Path, work: Path, extra: str | None) -> tuple[Path, dict]:
+def refit(fusion: str, label: str, weights: Path, work: Path) -> tuple[Path, dict]:
     """``weights`` copied to WORK/LABEL/weights.pt with a stage of their own beside them."""
     folder = work / label
     folder.mkdir(parents=True, exist_ok=True)
@@ -46,21 +46,19 @@ def refit(fusion: str, label: str, weights: Path, work: Path, extra: str | None)
     record_path = folder / "stage.json"
     if (folder / "weights.stage.pt").is_file() and record_path.is_file():
         return copy, json.loads(record_path.read_text())
-    extra_scenes = (lambda: scenes_of(extra), extra) if extra else None
-    _, record = fit_stage_beside(fusion, copy, folder / "fit", print, extra=extra_scenes)
+    _, record = fit_stage_beside(fusion, copy, folder / "fit", print)
     record_path.write_text(json.dumps(record, indent=1))
     return copy, record
 
 
 def main(fusion: str, start: str, work_dir: str, out: str, sets: str, *rest: str) -> None:
-    extra = rest[rest.index("--extra") + 1] if "--extra" in rest else None
     models = dict(m.split("=", 1) for m in rest if "=" in m)
     work = Path(work_dir)
-    result = {"fusion": fusion, "start": {"path": start, "sha256": file_digest(Path(start))}, "extra": extra,
+    result = {"fusion": fusion, "start": {"path": start, "sha256": file_digest(Path(start))},
               "models": {}, "sets": {}}
     refitted = {}
     for label, path in models.items():
-        refitted[label], stage = refit(fusion, label, Path(path), work, extra)
+        refitted[label], stage = refit(fusion, label, Path(path), work)
         result["models"][label] = {"path": path, "sha256": file_digest(Path(path)), "stage": stage}
     for set_name in sets.split(","):
         runs = {"start": measured(fusion, start, set_name, set_name, work / "cache" / "start")}
