@@ -477,6 +477,18 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
     assert harden_mod._eval_cache(out, 0, out / "round-1" / "weights.pt") != harden_mod._eval_cache(out, 0, alone)
 
 
+def test_a_point_stage_data_set_that_cannot_be_had_is_refused_before_the_run_starts(tmp_path, data_root, monkeypatch):
+    """The stage's data set is checked (and a known set built) before the folder is claimed, not
+    found missing after a round's training."""
+    import asg.workflows.harden as harden_mod
+    from asg.training.point_stage_fit import PointStageFitConfig
+
+    monkeypatch.setattr(harden_mod, "load_point_stage_config", lambda: PointStageFitConfig(dataset="nosuchset"))
+    with pytest.raises(InputError, match="nosuchset"):
+        harden("attfuse", 1, tmp_path / "h", config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
+    assert not (tmp_path / "h").exists()
+
+
 @pytest.mark.parametrize("share", [0.0, 1.0, 1.5, True, "half"])
 def test_a_guard_average_outside_zero_to_one_is_refused(share):
     with pytest.raises(InputError, match="guard_average"):

@@ -572,6 +572,7 @@ _HARDEN_TINY = """harden:
   noisy: false
   reattack: false
   guard_set: null
+  fit_stage: false
 """
 
 

@@ -146,7 +146,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     from ..generator.run import file_digest
 
     pool = _pool(cfg)
-    stage_cfg = load_point_stage_config() if cfg.fit_stage else None  # train.yaml's point_stage block
+    stage_cfg = _stage_config(cfg)
     if rounds * cfg.scenes_per_round > len(pool):
         raise InputError(f"{rounds} rounds of {cfg.scenes_per_round} fresh scenes need {rounds * cfg.scenes_per_round}; "
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
@@ -346,6 +346,21 @@ def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
         raise InputError(f"--weights {path}: no such file; give a .pt written by asg train, finetune or harden")
     check_weights_file(fusion, path)  # one clear line for a corrupt or foreign file
     return path
+
+
+def _stage_config(cfg: HardenConfig) -> PointStageFitConfig | None:
+    """train.yaml's ``point_stage`` block when rounds fit their own stage (else None), its data set
+    built now if it is a known set not built yet, as the pool's are: a round would otherwise find it
+    missing only after its training (a set that is neither built nor known is one InputError)."""
+    from ..datasets import build_dataset, dataset_path
+
+    if not cfg.fit_stage:
+        return None
+    stage_cfg = load_point_stage_config()
+    name = stage_cfg.dataset
+    if not ((Path(name) / "index.json").is_file() or (dataset_path(name) / "index.json").is_file()):
+        build_dataset(name)
+    return stage_cfg
 
 
 def _pool(cfg: HardenConfig) -> list[Scene]:
