@@ -268,10 +268,10 @@ def _averaged_round(fusion: str, row: dict, current: Path, current_round: int, w
 def stage_of_round(fusion: str, weights: Path, round_dir: Path, stage_cfg: PointStageFitConfig,
                    log: Callable[[str], None]) -> dict:
     """The point stage fitted to a round's ``weights`` (asg.training.point_stage_fit.fit_stage_beside
-    with ``stage_cfg``, train.yaml's ``point_stage`` block, on the frozen weights), written beside them, where every
-    detector built from the file finds it; the fit's record, kept in the round's folder
-    (``STEM.stage.json``) so that a resumed round neither fits it again nor loses the record. The
-    fit resumes from its checkpoint in ``round_dir/stage-fit-STEM``."""
+    with ``stage_cfg``, train.yaml's ``point_stage`` block, on the frozen weights), written beside
+    them, where every detector built from the file finds it; the fit's record, kept in the round's
+    folder (``STEM.stage.json``) so that a resumed round neither fits it again nor loses the record.
+    The fit resumes from its checkpoint in ``round_dir/stage-fit-STEM``."""
     from ..perception.weights_io import stage_path_of
     from ..training.point_stage_fit import fit_stage_beside
 
