@@ -342,17 +342,19 @@ def test_a_half_precision_checkpoint_resumes_the_chunk_close_to_the_uninterrupte
 def test_stage_refit_fits_a_stage_to_each_weights_once_and_never_keeps_another_weights_stage(monkeypatch, tmp_path):
     """stage_refit.py: the weights copied beside a stage fitted to them; the same weights again fit
     nothing; other weights under the same label drop the old stage and fit their own."""
+    import asg.training.point_stage_fit as point_stage_fit
+
     monkeypatch.syspath_prepend(str(SCRIPTS[0].parent))
     script = _script("stage_refit")
     fits = []
 
-    def fake_fit(fusion, weights, run_dir, log):
+    def fake_fit(fusion, weights, run_dir, log, fit_config=None):
         fits.append(weights.read_bytes())
         stage = weights.with_name("weights.stage.pt")
         stage.write_bytes(b"stage of " + weights.read_bytes())
         return stage, {"weights": stage.name}
 
-    monkeypatch.setattr(script, "fit_stage_beside", fake_fit)
+    monkeypatch.setattr(point_stage_fit, "fit_stage_beside", fake_fit)
     first, second = tmp_path / "a.pt", tmp_path / "b.pt"
     first.write_bytes(b"A")
     second.write_bytes(b"B")

@@ -51,7 +51,7 @@ def main(work_dir: str, label: str, sets: str) -> None:
                         "why": "with a point stage fitted to them, the hardened weights are level on holdout within "
                                "their interval without averaging, and gain more on every other set and under a new "
                                "attack than their average with attfuse did (docs/results/hardening.md)"}
-    card["point_stage"] = json.loads((work / label / "stage.json").read_text()) | {"weights": "attfuse-ft.stage.pt"}
+    card["point_stage"] = json.loads((work / label / "weights.stage.json").read_text()) | {"weights": "attfuse-ft.stage.pt"}
     card["evaluation"] = evaluation
     if "normal-val" in evaluation:
         card["validation"] = {"attfuse-ft": {"set": "normal-val", "frames": evaluation["normal-val"]["frames"],

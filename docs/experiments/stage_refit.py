@@ -4,8 +4,8 @@ and give the round an edge under a new attack?
 Every shipped model refines its boxes with the single-agent detector's point stage
 (``single.stage.pt``), and `asg harden` fine-tunes the detector but not the stage. For each
 ``LABEL=WEIGHTS`` this copies the weights to ``WORK_DIR/LABEL/weights.pt``, fits a stage to them
-there (asg.training.point_stage_fit.fit_stage_beside: train.yaml's ``point_stage`` block, on its
-data set's train split), and scores on each SET the
+there (asg.workflows.harden.stage_of_round, as `asg harden` fits a round's: train.yaml's
+``point_stage`` block, on its data set's train split), and scores on each SET the
 start (its shipped stage), the weights with the shipped stage ("LABEL") and with their own
 ("LABEL+stage"): AP@0.7 by both yardsticks and each gap over the start with its 95 % paired
 interval (asg.objective.paired, the code of `asg harden`'s guard). With ``--reattack``, each
@@ -31,24 +31,22 @@ from asg.datasets import scenes_of
 from asg.executors import build_executor
 from asg.generator.run import file_digest
 from asg.objective.ap import Yardstick
-from asg.training.point_stage_fit import fit_stage_beside
+from asg.perception.weights_io import stage_path_of
+from asg.training.point_stage_fit import load_point_stage_config
 from asg.workflows.challenging import build_challenging
+from asg.workflows.harden import stage_of_round
 
 
 def refit(fusion: str, label: str, weights: Path, work: Path) -> tuple[Path, dict]:
-    """``weights`` copied to WORK/LABEL/weights.pt with a stage of their own beside them."""
+    """``weights`` copied to WORK/LABEL/weights.pt with a stage of their own beside them, fitted
+    (once) as `asg harden` fits a round's (its record in WORK/LABEL/weights.stage.json)."""
     folder = work / label
     folder.mkdir(parents=True, exist_ok=True)
     copy = folder / "weights.pt"
     if not copy.is_file() or file_digest(copy) != file_digest(weights):
         shutil.copyfile(weights, copy)
-        (folder / "weights.stage.pt").unlink(missing_ok=True)
-    record_path = folder / "stage.json"
-    if (folder / "weights.stage.pt").is_file() and record_path.is_file():
-        return copy, json.loads(record_path.read_text())
-    _, record = fit_stage_beside(fusion, copy, folder / "fit", print)
-    record_path.write_text(json.dumps(record, indent=1))
-    return copy, record
+        stage_path_of(copy).unlink(missing_ok=True)
+    return copy, stage_of_round(fusion, copy, folder, load_point_stage_config(), print)
 
 
 def main(fusion: str, start: str, work_dir: str, out: str, sets: str, *rest: str) -> None:
