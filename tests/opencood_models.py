@@ -44,3 +44,18 @@ def make_model_dir(folder: Path, kind: str, seed: int = 0, score_threshold: floa
     model = module("tools.train_utils").create_model(parsed)
     torch.save(model.state_dict(), folder / "net_epoch1.pth")
     return folder
+
+
+def make_trainer_written_dir(folder: Path, kind: str, seed: int = 0, score_threshold: float | None = None) -> Path:
+    """``folder`` as OpenCOOD's ``tools/train.py`` leaves it: the hypes read by OpenCOOD's own
+    ``load_yaml`` (its parser adds numpy arrays and scalars) and saved by ``yaml.dump`` as its
+    ``train_utils.setup_train`` does (numpy values under Python tags), beside a checkpoint."""
+    from asg.perception.opencood.runtime import module
+
+    source = make_model_dir(folder.with_name(folder.name + "-source"), kind, seed=seed, score_threshold=score_threshold)
+    folder.mkdir(parents=True, exist_ok=True)
+    hypes = module("hypes_yaml.yaml_utils").load_yaml(str(source / "config.yaml"))  # OpenCOOD's full loader, our file
+    with open(folder / "config.yaml", "w") as outfile:
+        yaml.dump(hypes, outfile)  # train_utils.setup_train's own call
+    (folder / "net_epoch1.pth").write_bytes((source / "net_epoch1.pth").read_bytes())
+    return folder

@@ -14,7 +14,7 @@ import yaml
 
 pytest.importorskip("opencood")
 
-from opencood_models import make_model_dir  # noqa: E402
+from opencood_models import make_model_dir, make_trainer_written_dir  # noqa: E402
 
 from asg.cli import main  # noqa: E402
 from asg.perception import build_detector  # noqa: E402
@@ -273,6 +273,51 @@ def test_under_late_fusion_every_agent_frame_carries_its_boxes(scenes, tmp_path)
     assert len(checked) == 6 and checked.count("0") == 2 and "-1" in checked  # both egos, the RSU collaborator
 
 
+def test_a_folder_written_by_opencoods_trainer_is_read_and_detects_as_its_source(scenes, tmp_path):
+    """OpenCOOD's trainer saves config.yaml with numpy arrays and scalars under Python tags: the
+    folder reads to the settings it was made from and detects the same boxes; the same file with one
+    more Python tag (a call other than numpy's) is refused in one line, nothing run."""
+    from asg.perception.opencood.folder import read_hypes
+    from asg.sensors import load_lidar_spec, simulate_frame
+
+    written = make_trainer_written_dir(tmp_path / "trained", "intermediate")
+    text = (written / "config.yaml").read_text()
+    assert "!!python/object/apply:numpy" in text  # as OpenCOOD's dump writes it, not as asg would
+    source = tmp_path / "trained-source"
+    def plain(hypes):
+        return json.dumps(hypes, sort_keys=True, default=lambda v: np.asarray(v).tolist())
+
+    assert plain(read_hypes(written)) == plain(read_hypes(source))
+    frame = simulate_frame(scenes["rsu", 2][0], load_lidar_spec())
+    ours, theirs = (build_detector(f"opencood:{d}").detect(frame) for d in (written, source))
+    assert len(ours[0]) and np.array_equal(ours[0], theirs[0]) and np.array_equal(ours[1], theirs[1])
+    evil = tmp_path / "evil"
+    evil.mkdir()
+    (evil / "net_epoch1.pth").write_bytes((written / "net_epoch1.pth").read_bytes())
+    (evil / "config.yaml").write_text(text + f"hook: !!python/object/apply:os.system ['touch {tmp_path / 'pwned'}']\n")
+    with pytest.raises(InputError, match="not a readable OpenCOOD config .*numpy") as err:
+        read_hypes(evil)
+    assert "\n" not in str(err.value) and not (tmp_path / "pwned").exists()
+
+
+def test_an_oversized_config_is_refused_before_it_is_parsed(tmp_path):
+    """A config.yaml of one 200 MB list is refused by its size at once (its parse alone took minutes)."""
+    import time
+
+    from asg.perception.opencood.folder import MAX_CONFIG_BYTES, read_hypes
+
+    folder = tmp_path / "big"
+    folder.mkdir()
+    with open(folder / "config.yaml", "w") as fh:
+        fh.write("x: [")
+        fh.write("1, " * (MAX_CONFIG_BYTES // 3 + 10))
+        fh.write("1]\n")
+    start = time.perf_counter()
+    with pytest.raises(InputError, match="bytes, more than"):
+        read_hypes(folder)
+    assert time.perf_counter() - start < 1.0
+
+
 @pytest.mark.slow
 def test_bench_detect_times_opencoods_own_model_beside_the_adapter(scenes, tmp_path, monkeypatch):
     """``asg bench detect --fusion opencood:DIR``'s reference is OpenCOOD's pipeline with its model as
@@ -301,11 +346,12 @@ def test_bench_detect_times_opencoods_own_model_beside_the_adapter(scenes, tmp_p
 
 @pytest.mark.slow
 def test_generate_attacks_an_opencood_model_and_records_its_files(capsys, tmp_path):
-    """``asg generate --fusion opencood:DIR`` runs end to end (ACS-A from its own attention), its
-    run folder records the model folder's digests, and a rerun after its checkpoint changed is refused."""
+    """``asg generate --fusion opencood:DIR`` runs end to end (ACS-A from its own attention) on a
+    folder as OpenCOOD's trainer writes it, its run folder records the model folder's digests, and a
+    rerun after its checkpoint changed is refused."""
     import torch
 
-    model = make_model_dir(tmp_path / "m", "intermediate", score_threshold=0.9)
+    model = make_trainer_written_dir(tmp_path / "m", "intermediate", score_threshold=0.9)
     out = tmp_path / "gen"
     argv = ["generate", "--fusion", f"opencood:{model}", "--town", "fiveleg", "--count", "1", "--budget", "2",
             "--out", str(out)]

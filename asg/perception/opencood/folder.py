@@ -11,6 +11,7 @@ from pathlib import Path
 import yaml
 
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.numpy_yaml import add_numpy_data
 
 from .runtime import module
 
@@ -25,11 +26,16 @@ MODELS = {"point_pillar": False, "point_pillar_intermediate": True, "point_pilla
 PARSERS = ("load_voxel_params", "load_point_pillar_params", "load_second_params", "load_bev_params")
 #: a config expanding (aliases included) to more values than this is refused
 MAX_CONFIG_VALUES = 100_000
+#: a config.yaml larger than this is refused before it is parsed (OpenCOOD's stock configs, and the
+#: ones its trainer writes with numpy's tags, are a few kB)
+MAX_CONFIG_BYTES = 1 << 20
 _EPOCH = re.compile(r"net_epoch([0-9]{1,6})\.pth")
 
 
 class HypesLoader(yaml.SafeLoader):
-    """PyYAML's safe loader with OpenCOOD's float resolver (``1e-10`` is a number)."""
+    """PyYAML's safe loader with OpenCOOD's float resolver (``1e-10`` is a number) and numpy's data
+    tags (the arrays and scalars OpenCOOD's trainer dumps into the config.yaml it saves) read as
+    plain lists and numbers (:mod:`sumo_scenarios.numpy_yaml`); every other Python tag refused."""
 
 
 HypesLoader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
@@ -42,6 +48,7 @@ HypesLoader.add_implicit_resolver(
     |[-+]?\.(?:inf|Inf|INF)
     |\.(?:nan|NaN|NAN))$""", re.X),
     list("-+0123456789."))
+add_numpy_data(HypesLoader)
 
 
 if getattr(yaml, "__with_libyaml__", False):
@@ -49,6 +56,7 @@ if getattr(yaml, "__with_libyaml__", False):
         """:class:`HypesLoader`'s rules on libyaml's parser (the same dicts, several times faster)."""
 
     LibyamlHypesLoader.yaml_implicit_resolvers = HypesLoader.yaml_implicit_resolvers
+    add_numpy_data(LibyamlHypesLoader)
 else:  # PyYAML built without libyaml
     LibyamlHypesLoader = HypesLoader
 
@@ -71,10 +79,15 @@ def read_hypes(folder: Path) -> dict:
     path = folder / "config.yaml"
     if not path.is_file():
         raise InputError(f"{folder}: no config.yaml; an OpenCOOD model folder holds the config.yaml its trainer saved")
+    if path.stat().st_size > MAX_CONFIG_BYTES:
+        raise InputError(f"{path}: {path.stat().st_size} bytes, more than the {MAX_CONFIG_BYTES} an OpenCOOD "
+                         "config can need; not an OpenCOOD config")
     try:
-        hypes = yaml.load(path.read_text(encoding="utf-8"), Loader=HypesLoader)
+        hypes = yaml.load(path.read_text(encoding="utf-8"), Loader=LibyamlHypesLoader)
     except (yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise InputError(f"{path}: not a readable OpenCOOD config ({type(exc).__name__}); fix or re-save it") from None
+        why = getattr(exc, "problem", None) if isinstance(exc, yaml.constructor.ConstructorError) else None
+        raise InputError(f"{path}: not a readable OpenCOOD config ({type(exc).__name__}"
+                         f"{': ' + why if why else ''}); fix or re-save it") from None
     if not isinstance(hypes, dict):
         raise InputError(f"{path}: expected a mapping of OpenCOOD's settings")
     _check_size(hypes, path)
