@@ -15,7 +15,7 @@ from typing import NamedTuple, Sequence
 
 from sumo_scenarios.errors import InputError
 
-from . import __version__, interrupts
+from . import __version__, interrupts, registry
 from .interrupts import Terminated
 from .executors.base import WorkerLost
 
@@ -155,15 +155,14 @@ def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset(
 
 
 def _spin_for_opencood(argv: Sequence[str]) -> None:
-    """An OpenCOOD model as a target (``opencood:DIR`` in the command) runs with OpenMP's waiting
-    threads spinning (``OMP_WAIT_POLICY=ACTIVE``) unless the user set the policy: under asg's
-    ``PASSIVE`` its forward took 7.8 s a frame against 1.1 s (``asg bench detect --fusion
-    opencood:DIR``, two threads, a 2-core AVX2 machine; docs/results/speed.md). Set before torch loads
-    (OpenMP reads it then); the prefix is ``asg.perception.opencood.PREFIX``, written out here because
-    importing ``asg.perception`` loads torch."""
+    """A target whose runtime wants it (an OpenCOOD model, ``opencood:DIR``, anywhere in the command)
+    runs with OpenMP's waiting threads spinning (``OMP_WAIT_POLICY=ACTIVE``) unless the user set the
+    policy: under asg's ``PASSIVE`` its forward took 7.8 s a frame against 1.1 s (``asg bench detect
+    --fusion opencood:DIR``, two threads, a 2-core AVX2 machine; docs/results/speed.md). Set before
+    torch loads (OpenMP reads it then): the prefixes come from ``asg.registry``, which is torch-free."""
     import asg
 
-    if any("opencood:" in a for a in argv):
+    if registry.wants_spinning_omp(argv):
         os.environ["OMP_WAIT_POLICY"] = asg.spinning_omp_policy()
 
 

@@ -60,7 +60,7 @@ def fusion_arg(p: argparse.ArgumentParser, what: str, required: bool = False) ->
     registry and the installed plugins), validated where the command runs, by
     asg.perception.check_fusion, before any run folder or worker starts. Only the parser of a
     command that runs the detectors calls this (it imports torch)."""
-    from .perception.fusion import detector_names
+    from .perception.targets import detector_names
 
     p.add_argument("--fusion", required=required, default=None, metavar="NAME",
                    help=f"{what}: one of {', '.join(detector_names())}")

@@ -14,7 +14,7 @@ from .datasets import scenes_of
 from .objective.ap import Yardstick, ap_by_method_from_matches, frame_matches
 from .objective.pooled import PooledAP
 from .perception.data import Sample
-from .perception.fusion import V2XDetector, build_detector
+from .perception import V2XDetector, build_detector
 from .scene import Scene
 from .sensors import LidarSpec, load_lidar_spec, simulate_frame
 from .sensors.lidar_spec import DEFAULT_LIDAR

@@ -18,6 +18,7 @@ Detector plugins of other packages come in through the ``asg.detectors`` entry p
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from importlib import metadata
 from typing import Callable, Generic, Iterator, TypeVar
 
@@ -25,6 +26,32 @@ from sumo_scenarios.errors import InputError
 
 #: the entry-point group of detector plugins (installed packages; the shipped models are in FUSIONS)
 DETECTOR_ENTRY_POINTS = "asg.detectors"
+
+
+@dataclass(frozen=True)
+class TargetPrefix:
+    """The prefix of a ``--fusion`` that names a target kind of its own (a folder of another
+    framework's model), and whether that framework's runtime wants OpenMP's threads spinning."""
+    prefix: str
+    spins_omp: bool = False
+
+
+#: target kind -> its prefix: the one place a prefix is written. The kinds themselves live in
+#: asg.perception.targets (which reads them here); this table is torch-free, so that the command
+#: line can act on a prefix before torch loads.
+TARGET_PREFIXES = {"opencood": TargetPrefix("opencood:", spins_omp=True)}
+
+
+def prefixed_kind(name: object) -> str | None:
+    """The target kind whose prefix starts ``name`` (None: a shipped model's or a plugin's name)."""
+    return next((kind for kind, p in TARGET_PREFIXES.items() if isinstance(name, str) and name.startswith(p.prefix)),
+                None)
+
+
+def wants_spinning_omp(argv) -> bool:
+    """Does a command line name a target whose runtime wants OpenMP's threads spinning (anywhere in
+    an argument: ``--fusion=opencood:DIR``, ``--models attfuse,opencood:DIR``)?"""
+    return any(p.spins_omp and p.prefix in str(arg) for arg in argv for p in TARGET_PREFIXES.values())
 
 T = TypeVar("T")
 

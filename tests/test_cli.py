@@ -293,7 +293,7 @@ def test_an_unknown_fusion_is_refused_before_anything_runs(capsys, tmp_path, mon
 
 @pytest.mark.parametrize("command", ["generate", "evaluate", "train", "finetune", "harden", "dataset build", "bench paper"])
 def test_every_fusion_option_lists_every_installed_detector(command, capsys, monkeypatch):
-    from asg.perception.fusion import detector_names
+    from asg.perception.targets import detector_names
 
     monkeypatch.setenv("COLUMNS", "1000")  # argparse breaks lines at hyphens (attfuse-\nwide) at a terminal's width
     with pytest.raises(SystemExit) as done:
@@ -311,9 +311,9 @@ def test_an_opencood_target_runs_with_spinning_threads(capsys, monkeypatch, tmp_
 
     import asg
     from asg import cli
-    from asg.perception.opencood import PREFIX
+    from asg.registry import TARGET_PREFIXES
 
-    assert PREFIX == "opencood:"  # the prefix cli.py writes out (it runs before torch may load)
+    assert TARGET_PREFIXES["opencood"].spins_omp  # read by cli.py before torch may load
     monkeypatch.setattr(asg, "USER_OMP_WAIT_POLICY", None)
     monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
     cli._spin_for_opencood(["evaluate", "--fusion", "attfuse", "--set", "normal-val"])

@@ -416,7 +416,7 @@ def test_a_challenging_set_is_built_against_an_opencood_model_and_evaluated(caps
     """``asg dataset build challenging --fusion opencood:DIR``: the set is named by the model folder
     and its files' digest (a safe name; another checkpoint, another set), and is read back by
     ``asg evaluate --set``."""
-    from asg.perception.opencood import target_label
+    from asg.perception.targets import resolve_target
     from test_tables import write_set
 
     import asg.generator.config as generator_config
@@ -429,7 +429,7 @@ def test_a_challenging_set_is_built_against_an_opencood_model_and_evaluated(caps
     model = make_model_dir(tmp_path / "my model", "intermediate", score_threshold=THRESHOLD)
     fusion = f"opencood:{model}"
     assert main(["dataset", "build", "challenging", "--fusion", fusion, "--split", "val", "--count", "1"]) == 0
-    label = target_label(fusion)
+    label = resolve_target(fusion).label
     assert label.startswith("opencood-my_model-") and len(label) == len("opencood-my_model-") + 8
     built = root / f"challenging-{label}-val"
     assert json.loads((built / "index.json").read_text())["frames"] == 1
@@ -458,7 +458,7 @@ def test_the_paper_tables_take_opencood_models(capsys, tmp_path, monkeypatch):
     """``asg bench paper --table main,transfer --models opencood:A,opencood:B``: Table I has a row per
     OpenCOOD model, and Table III scores each on the scenes found against the other (sets named by
     the folders' labels)."""
-    from asg.perception.opencood import target_label
+    from asg.perception.targets import resolve_target
     from test_tables import write_set
 
     import asg.generator.config as generator_config
@@ -477,7 +477,7 @@ def test_the_paper_tables_take_opencood_models(capsys, tmp_path, monkeypatch):
     assert [r["model"] for r in main_rows] == [a, b] and all(r["paper"] is None for r in main_rows)
     transfer = json.loads((out / "transfer.json").read_text())["rows"]
     assert {(r["source"], r["target"]) for r in transfer} == {(s, t) for s in ("normal", a, b) for t in (a, b)}
-    assert all((root / f"challenging-{target_label(m)}-train").is_dir() for m in (a, b))
+    assert all((root / f"challenging-{resolve_target(m).label}-train").is_dir() for m in (a, b))
 
 
 def test_bench_paper_refuses_an_opencood_folder_that_cannot_run(capsys, tmp_path):

@@ -25,7 +25,7 @@ def bench_detect(frames: int = 10, repeats: int = 3, fusion: str | None = None) 
     is timed beside OpenCOOD's own pipeline on the same frames (:func:`opencood_own_ms`)."""
     import torch
 
-    from ..perception.opencood import is_opencood
+    from ..perception.targets import resolve_target
 
     torch.set_num_threads(2)
     spec = load_lidar_spec()
@@ -35,7 +35,7 @@ def bench_detect(frames: int = 10, repeats: int = 3, fusion: str | None = None) 
            "threads": torch.get_num_threads()}
     for name in [fusion] if fusion else models():
         out[f"{name}_ms_median"] = round(_median_s(build_detector(name).detect, coop, repeats) * 1e3, 1)
-    if fusion and is_opencood(fusion):
+    if fusion and resolve_target(fusion).has_reference_pipeline:
         own = opencood_own_ms(fusion, scenes, repeats)
         out["opencood_own_ms_median"] = own
         out["adapter_overhead"] = round(out[f"{fusion}_ms_median"] / own - 1.0, 3)

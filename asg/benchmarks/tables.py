@@ -81,14 +81,12 @@ def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None]
 def _detectors(run: TableRun) -> str:
     """What detected, for a table's header: the factory standing in for every model, or the shipped
     weights and any OpenCOOD model folders among the models (named in the rows)."""
-    from ..perception.opencood import is_opencood
+    from ..perception.targets import resolve_target
 
     if run.detector_factory:
         return run.detector_factory
-    folders = [m for m in run.models or () if is_opencood(m)]
-    if not folders:
-        return "shipped"
-    return "OpenCOOD model folders" if len(folders) == len(run.models) else "shipped, and OpenCOOD model folders"
+    headers = list(dict.fromkeys(resolve_target(m).header for m in run.models or ()))
+    return ", and ".join(headers) or "shipped"
 
 
 def table_stem(name: str, ap_method: str) -> str:
@@ -339,9 +337,9 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
                            plausibility, kinds)
     source = SceneSource(scenes=scenes or Path("normal"))
-    from ..perception.opencood import is_opencood, target_label
+    from ..perception.targets import resolve_target
 
-    name = f"{target_label(model) if is_opencood(model) else model}-acs_{acs}-{search if aps else 'no_aps'}"
+    name = f"{resolve_target(model).label}-acs_{acs}-{search if aps else 'no_aps'}"
     if kinds is not None:
         name = f"{scenes.name if scenes else 'normal'}-{name}-space_{kinds.replace(',', '+')}"
     if plausibility is not None:

@@ -115,12 +115,17 @@ def _models(text: str | None) -> tuple[str, ...] | None:
     """``--models``: shipped model names or OpenCOOD model folders (``opencood:DIR``), comma-separated
     (None: each table's own); one line for an unknown or repeated name or a folder that cannot run."""
     from ..perception.fusion import FUSIONS
-    from ..perception.opencood import check_opencood, is_opencood
+    from ..perception.targets import resolve_target
 
-    chosen = _distinct_names(text, "--models", FUSIONS, "shipped models or opencood:DIR", extra=is_opencood)
+    def model_folder(name: str) -> bool:  # another framework's model folder (checked below)
+        try:
+            return resolve_target(name).prefixed
+        except InputError:
+            return False
+
+    chosen = _distinct_names(text, "--models", FUSIONS, "shipped models or opencood:DIR", extra=model_folder)
     for name in chosen or ():
-        if is_opencood(name):
-            check_opencood(name)
+        resolve_target(name).check()
     return chosen
 
 

@@ -85,9 +85,10 @@ def run(args: argparse.Namespace) -> int:
     scenes = run_folder.scenes
     if args.count is not None and len(scenes) < count:
         console.print(f"the source holds {len(scenes)} usable scenes (asked for {count}); generating {len(scenes)}")
-    from ..perception.fusion import ATTENTION_LENDER, target_lacks_attention
+    from ..perception.fusion import ATTENTION_LENDER
+    from ..perception.targets import resolve_target
 
-    if cfg.acs_needs_attention and not args.detector and target_lacks_attention(cfg.fusion):
+    if cfg.acs_needs_attention and not args.detector and resolve_target(cfg.fusion).borrows_attention:
         console.print(f"note: {cfg.fusion} has no attention of its own; ACS-{cfg.acs} reads the shipped "
                       f"{ATTENTION_LENDER}'s (--acs random or off for a search without it)")
     if demo:

@@ -53,7 +53,7 @@ class GenerateConfig:
 
     def validate(self) -> "GenerateConfig":
         from ..collaborators import ACS_STRATEGIES
-        from ..perception.fusion import check_fusion
+        from ..perception.targets import check_fusion
         from ..search import SEARCHES
 
         check_fusion(self.fusion)

@@ -17,6 +17,7 @@ from typing import Callable, Iterator, Sequence
 
 from sumo_scenarios.atomic import remove_stale_partials
 from sumo_scenarios.checks import inside
+from sumo_scenarios.digest import file_digest  # noqa: F401  (asg.generator.run.file_digest: the workflows import it from here)
 from sumo_scenarios.errors import InputError
 
 from ..executors import Executor, Job
@@ -281,30 +282,19 @@ def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> di
     shipped = shipped_digests(cfg.fusion, cfg.weights, cfg.acs_needs_attention)
     if shipped:
         settings["shipped_weights_sha256"] = shipped
-    from ..perception.opencood import is_opencood, model_dir_of, model_files
+    from ..perception.targets import resolve_target
 
-    if is_opencood(cfg.fusion):  # the model folder's files: a rerun after they changed is refused
-        settings["opencood_sha256"] = {k: file_digest(p) for k, p in model_files(model_dir_of(cfg.fusion)).items()}
+    settings.update(resolve_target(cfg.fusion).run_record())  # e.g. a model folder's files' digests
     return settings
 
 
 def shipped_digests(fusion: str, weights: str | None, acs_attention: bool) -> dict[str, str]:
     """{weights name: sha256} of the shipped weights files a run of these settings loads (the
     target's when no ``weights`` file is given; the shipped AttFuse's for attention-based ACS)."""
-    from ..perception.fusion import shipped_weights_of
+    from ..perception.targets import shipped_weights_of
 
     files = shipped_weights_of(fusion, target=not weights, acs_attention=acs_attention)
     return {name: file_digest(path) for name, path in sorted(files.items())}
-
-
-def file_digest(path: Path) -> str:
-    """sha256 of a file the user gave; InputError if it cannot be read."""
-    import hashlib
-
-    try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror}); check its permissions") from None
 
 
 def folder_digest(folder: Path) -> str:

@@ -33,7 +33,7 @@ def training_kind(folder: Path) -> str | None:
     card = _json(folder / HARDEN_CARD)
     if isinstance(card, dict) and "rounds" in card:
         return "harden"
-    if isinstance(card, dict) and str(card.get("fusion", "")).startswith("opencood:") and "evaluation" in card:
+    if isinstance(card, dict) and {"model", "epochs", "evaluation"} <= set(card):  # harden_opencood's card
         return "harden-opencood"
     return "finetune" if _finetune_card(folder) is not None else None
 

@@ -17,7 +17,7 @@ from ..sensors.lidar_spec import DEFAULT_LIDAR
 def weights_for(fusion: str) -> str:
     """The shipped weights name behind ``fusion`` (none and late share 'single'); InputError for a
     plugin or an unknown name (asg.perception.fusion.shipped_model)."""
-    from ..perception.fusion import shipped_model
+    from ..perception.targets import shipped_model
 
     return shipped_model(fusion).weights
 

@@ -31,10 +31,11 @@ SEED = 1
 
 
 def set_name(fusion: str, split: str) -> str:
-    """``challenging-FUSION-SPLIT``; an OpenCOOD model folder by its label (asg.perception.opencood.target_label)."""
-    from ..perception.opencood import is_opencood, target_label
+    """``challenging-LABEL-SPLIT``, LABEL the target's (a shipped model's name; an OpenCOOD model
+    folder's name and digest)."""
+    from ..perception.targets import resolve_target
 
-    return f"challenging-{target_label(fusion) if is_opencood(fusion) else fusion}-{split}"
+    return f"challenging-{resolve_target(fusion).label}-{split}"
 
 
 def build_challenging(fusion: str, split: str, executor=None, count: int | None = None,

@@ -25,8 +25,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..executors import build_executor
     from ..perception import check_fusion, check_weights_file
-    from ..perception.opencood import is_opencood
-    from ..perception.opencood.limits import post_processor_note
+    from ..perception.targets import resolve_target
     from ..progress import console, print_result, progress_bar
 
     check_fusion(args.fusion)
@@ -40,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
         result = evaluate(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n),
                           weights_file=weights, executor=executor)
-    if is_opencood(args.fusion) and (note := post_processor_note()):
+    if note := resolve_target(args.fusion).evaluation_note():
         console.print(f"[yellow]note: {note}")
     if result["without_collaborators"]:
         console.print(f"[yellow]note: {result['without_collaborators']} of {result['frames']} scenes name no "

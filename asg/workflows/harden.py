@@ -563,7 +563,7 @@ def _run_opencood(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from ..objective.pooled import FINETUNE_PAIR, pooled_pair
-    from ..perception.opencood import target_label
+    from ..perception.targets import resolve_target
     from ..progress import console, stdout
     from .harden_opencood import check_opencood_run, check_opencood_settings, harden_opencood
 
@@ -571,7 +571,7 @@ def _run_opencood(args: argparse.Namespace) -> int:
     config = load_harden_config(args.config, data=args.data)
     if args.config is not None:
         check_opencood_settings(args.config, train_block(HARDEN_BLOCK, args.config), train_block(HARDEN_BLOCK, None))
-    out = args.out or default_out(target_label(args.fusion), config.data)
+    out = args.out or default_out(resolve_target(args.fusion).label, config.data)
     with executor_from_args(args, 10**6) as executor:
         card = harden_opencood(args.fusion, out, config, executor, force=args.force, log=console.print)
     table = Table(title=f"asg harden --fusion {args.fusion} ({card['data']}, {card['epochs']} epochs): AP@0.7 ours / "
@@ -608,12 +608,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
-    from ..perception.opencood import is_opencood
+    from ..perception.targets import Training, resolve_target
     from ..progress import console, loss_progress, progress_bar, stdout
 
-    if is_opencood(args.fusion):
+    training = resolve_target(args.fusion).training  # one line for an unknown fusion
+    if training is Training.OPENCOOD:
         return _run_opencood(args)
-    weights_for(args.fusion)  # one line for an unknown fusion
+    weights_for(args.fusion)  # one line for a target asg's trainer cannot train
     space = tuple(k.strip() for k in args.space.split(",") if k.strip()) if args.space else None
     config = load_harden_config(args.config, data=args.data)
     out = args.out or default_out(args.fusion, config.data)

@@ -31,7 +31,7 @@ from sumo_scenarios.errors import InputError
 from ..objective.ap import Yardstick
 from ..objective.paired import ApGap, load_matches, paired_ap_gap, save_matches
 from ..objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pair_json, pooled_pair
-from ..perception.opencood import PREFIX, model_dir_of
+from ..perception.targets import resolve_target
 
 #: the normal sets a round trains beside and validates on
 TRAIN_SPLIT, VAL_SET = "normal", "normal-val"
@@ -46,11 +46,9 @@ def harden_opencood(fusion: str, out: Path, cfg, executor=None, force: bool = Fa
     ``reattack``); returns the card."""
     from ..generator.run import file_digest
     from ..io.run_record import claim
-    from ..perception.opencood import check_opencood, model_files
-
-    check_opencood(fusion)
-    start = model_dir_of(fusion)
-    files = model_files(start)
+    target = resolve_target(fusion).check()
+    start = target.model_dir
+    files = target.model_files()
     settings = {"fusion": fusion, "start": {k: file_digest(p) for k, p in files.items()}, "data": cfg.data,
                 "epochs": cfg.opencood_epochs, "eval_sets": list(cfg.eval_sets), "guard_set": cfg.guard_set,
                 "reattack": cfg.reattack, "detector": detector_factory}
@@ -64,7 +62,7 @@ def harden_opencood(fusion: str, out: Path, cfg, executor=None, force: bool = Fa
     seed_from(model, start, out / "train", out / "val", cfg.opencood_epochs)
     log(f"training {model} with OpenCOOD's trainer ({cfg.opencood_epochs} epochs; its log: {model / 'train.log'}) ...")
     run_trainer(model)
-    after = f"{PREFIX}{model}"
+    after = target.name_of(model)
     card = {"fusion": fusion, "data": cfg.data, "scenes": len(scenes), "model": str(model),
             "epochs": cfg.opencood_epochs, "config": asdict(cfg),
             "evaluation": evaluate_pair(fusion, after, cfg, out / "eval", executor, detector_factory, log)}
@@ -170,12 +168,11 @@ def start_cache(fusion: str) -> Path:
 
     from ..evaluation import start_evaluations_dir
     from ..generator.run import file_digest
-    from ..perception.opencood import model_files
-
+    target = resolve_target(fusion)
     h = hashlib.sha256()
-    for name, path in sorted(model_files(model_dir_of(fusion)).items()):
+    for name, path in sorted(target.model_files().items()):
         h.update(name.encode() + b"\0" + file_digest(path).encode())
-    return start_evaluations_dir(f"{PREFIX.rstrip(':')}-{h.hexdigest()[:16]}")
+    return start_evaluations_dir(f"{target.kind}-{h.hexdigest()[:16]}")
 
 
 def reattack_pair(before: str, after: str, executor, detector_factory: str | None, log: Callable[[str], None]) -> dict:

@@ -21,7 +21,7 @@ import numpy as np
 from asg.objective.ap import ap_from_matches, match_frame
 from asg.perception.data import Sample
 from asg.datasets import scenes_of
-from asg.perception.fusion import build_detector
+from asg.perception import build_detector
 from asg.perception.fusion import FUSIONS
 from asg.sensors import load_lidar_spec, simulate_frame
 

@@ -14,11 +14,11 @@ from asg.evaluation import evaluate
 from asg.objective.ap import Yardstick
 from asg.objective.paired import paired_ap_gap
 from asg.objective.pooled import PooledAP
-from asg.perception.opencood import is_opencood
+from asg.registry import prefixed_kind
 
 
 def scored(spec: str, set_name: str) -> dict:
-    if is_opencood(spec):  # an OpenCOOD model folder is a target by itself
+    if prefixed_kind(spec):  # a model folder (opencood:DIR) is a target by itself
         return evaluate(spec, set_name, keep_matches=True)
     fusion, _, weights = spec.partition(":")
     return evaluate(fusion, set_name, weights_file=weights or None, keep_matches=True)

@@ -31,7 +31,7 @@ from asg.perception.config import load_detector_config
 from asg.perception.data import Augmentation, make_sample
 from asg.perception.fusion import build_network
 from asg.perception.weights_io import WEIGHTS_DIR, load_state
-from asg.perception.fusion import build_detector
+from asg.perception import build_detector
 from asg.scene import load_scene
 from asg.sensors import load_lidar_spec
 from asg.training.config import FinetuneConfig

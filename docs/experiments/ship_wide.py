@@ -16,7 +16,8 @@ import sys
 from pathlib import Path
 
 from asg.generator.run import file_digest
-from asg.perception.fusion import card_settings_of, check_weights_file, detector_config_of
+from asg.perception import check_weights_file
+from asg.perception.fusion import card_settings_of, detector_config_of
 from asg.perception.weights_io import WEIGHTS_DIR
 from asg.training.cards import card_validation
 

@@ -13,12 +13,11 @@ from pathlib import Path
 
 from sumo_scenarios.errors import InputError
 
-#: the prefix of a ``--fusion`` that names an OpenCOOD model folder
-PREFIX = "opencood:"
+from ...registry import TARGET_PREFIXES
 
-
-def is_opencood(name: str) -> bool:
-    return isinstance(name, str) and name.startswith(PREFIX)
+#: the prefix of a ``--fusion`` that names an OpenCOOD model folder (its target kind:
+#: asg.perception.targets.opencood)
+PREFIX = TARGET_PREFIXES["opencood"].prefix
 
 
 def model_dir_of(name: str) -> Path:
@@ -31,23 +30,6 @@ def model_dir_of(name: str) -> Path:
         raise InputError(f"--fusion {name!r}: {text!r} is not a folder; give OpenCOOD's model folder "
                          "(its config.yaml and latest.pth or net_epochN.pth)")
     return folder
-
-
-def target_label(name: str) -> str:
-    """A file-name-safe label of ``opencood:DIR`` for what is made against it (a challenging set's
-    name): the folder's name and the first 8 hex digits of the sha256 of its config and checkpoint,
-    so that another model, or the same folder retrained, gets its own."""
-    import hashlib
-    import re
-
-    folder = model_dir_of(name)
-    h = hashlib.sha256()
-    for path in model_files(folder).values():
-        with open(path, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
-    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", folder.resolve().name)[:40].strip("_-") or "model"
-    return f"opencood-{stem}-{h.hexdigest()[:8]}"
 
 
 _BUILT: dict = {}
@@ -83,10 +65,3 @@ def model_files_stamp(folder: Path) -> tuple:
         except OSError:
             out.append((path.name, None, None))
     return tuple(out)
-
-
-def check_opencood(name: str) -> str:
-    """Refuse (one InputError) an ``opencood:DIR`` that cannot be run, before any work starts:
-    the extra missing, the folder, its config or its checkpoint. Builds the model once."""
-    build_opencood_detector(name)
-    return name

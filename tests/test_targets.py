@@ -1,0 +1,63 @@
+"""Targets: a ``--fusion`` name resolved once into an object of its kind, which callers ask; no
+module outside the target registry tells the kinds apart by their names."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from asg.perception.fusion import FUSIONS
+from asg.perception.targets import TARGET_KINDS, Training, detector_names, resolve_target
+from sumo_scenarios.errors import InputError
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_each_name_goes_to_its_kind_and_is_resolved_once(tmp_path):
+    assert resolve_target("attfuse").kind == "shipped" and resolve_target("attfuse").training is Training.ASG
+    folder = resolve_target(f"opencood:{tmp_path}")  # its form alone: nothing loaded yet
+    assert folder.kind == "opencood" and folder.training is Training.OPENCOOD and folder.prefixed
+    assert resolve_target("attfuse") is resolve_target("attfuse")
+    assert set(TARGET_KINDS.names()) == {"shipped", "plugin", "opencood"}
+    with pytest.raises(InputError, match="unknown fusion 'nope'; known: .*attfuse.*opencood:DIR"):
+        resolve_target("nope")
+
+
+def test_a_shipped_name_wins_over_a_plugin_of_the_same_name(monkeypatch):
+    import asg.perception.targets.base as base
+    import asg.perception.targets.plugin as plugin
+
+    monkeypatch.setattr(base, "_RESOLVED", {})
+    monkeypatch.setattr(plugin, "plugin_names", lambda: ["attfuse", "toy-x"])
+    assert resolve_target("attfuse").kind == "shipped"
+    assert resolve_target("toy-x").kind == "plugin"
+    assert "toy-x" in detector_names() and detector_names()[-1] == "opencood:DIR"
+
+
+def test_what_each_kind_answers():
+    """A shipped model without attention borrows AttFuse's; a plugin's wrapper answers for itself;
+    only a shipped model has a shipped entry (the others: the one line naming who trains them)."""
+    none = resolve_target("none")
+    assert not none.own_attention and none.borrows_attention and none.shipped_weights == FUSIONS.entry("none").weights
+    assert resolve_target("attfuse").own_attention and resolve_target("attfuse").label == "attfuse"
+    assert resolve_target("attfuse").shipped_entry() is FUSIONS.entry("attfuse")
+    assert resolve_target("attfuse").run_record() == {} and resolve_target("attfuse").evaluation_note() == ""
+    with pytest.raises(InputError, match="OpenCOOD's own trainer trains it"):
+        resolve_target("opencood:x").shipped_entry()
+
+
+def test_a_weights_file_given_to_a_target_that_loads_its_own_is_refused(tmp_path):
+    with pytest.raises(InputError, match="--weights applies to the shipped models"):
+        resolve_target(f"opencood:{tmp_path}").check(weights_file=str(tmp_path / "w.pt"))
+
+
+#: the spellings that tell target kinds apart by name; only the target registry may hold them
+KIND_BRANCHES = re.compile(r"is_opencood|[\"']opencood:[\"']|\bin FUSIONS\b(?!\.)|startswith\([\"']opencood:")
+
+
+def test_no_module_outside_the_target_registry_branches_on_a_targets_kind():
+    allowed = {ROOT / "asg" / "registry.py"} | set((ROOT / "asg" / "perception" / "targets").glob("*.py"))
+    found = [f"{p.relative_to(ROOT)}:{n}" for p in sorted((ROOT / "asg").rglob("*.py")) if p not in allowed
+             for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if KIND_BRANCHES.search(line)]
+    assert not found, found
