@@ -22,7 +22,7 @@ from ..scene.feasibility import Plausibility, in_eval_range
 from ..scene.recheck import recheck
 from ..scene.neighbours import vehicles_within
 from ..search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, best_of, build_optimizer, check_settings, run_search
-from ..sensors import LidarSpec, World, load_lidar_spec, occlusion_scores
+from ..sensors import LidarSpec, load_lidar_spec, occlusion_scores, world_for
 from ..sensors.frame import CooperativeFrame, apply_link, delayed_view, render_frame
 
 Detections = tuple[np.ndarray, np.ndarray, np.ndarray]  # boxes (K, 7), scores (K,), ground truth (M, 7)
@@ -92,7 +92,7 @@ class Generator:
         return adversarial_loss(ap, self.cfg.objective), ap
 
     def evaluate_scene(self, scene: Scene) -> "Scored":
-        frame = render_frame(World(scene, self.spec))
+        frame = render_frame(world_for(scene, self.spec))
         loss, ap = self._score(frame)
         return Scored(scene, loss, ap, frame)
 
@@ -133,7 +133,7 @@ class Generator:
 
     def _attention_of(self, scene: Scene) -> dict[str, float]:
         """The ACS model's attention weight of each sensing agent of ``scene``; InputError if it gives none."""
-        weights = self.acs_model.attention_weights(render_frame(World(scene, self.spec)), self.cfg.attention_cells)
+        weights = self.acs_model.attention_weights(render_frame(world_for(scene, self.spec)), self.cfg.attention_cells)
         if weights is None:
             raise InputError(f"ACS-{self.cfg.acs}: the ACS model gave no attention weights (its attention_weights "
                              "returned None); return a model with attention from the factory, or pass --acs random or off")
@@ -203,7 +203,7 @@ class Generator:
         if space.dim == 0:
             raise EmptyFeasibleSet("nothing to perturb (no vehicle to move, no collaborator)")
         feasible = FeasibleSet(space, rng)
-        world = World(space.world_scene, self.spec, movable_ids=space.movable_ids)
+        world = world_for(space.world_scene, self.spec, movable_ids=space.movable_ids)
         world.prepare(scene.sensing_ids)
         delayed: dict[tuple[str, float], tuple] = {}  # a delayed message renders once per (collaborator, delay)
 

@@ -4,7 +4,7 @@ Schema (every key required unless marked optional)::
 
     scene_id: str
     town: str            # town or net name
-    source: sumo | highway-env
+    source: sumo | highway-env | recording
     time_s: float        # simulation time of the frame
     ego: str             # agent id of the ego (an RSU or a vehicle)
     collaborators: [str] # optional: sensing agents besides the ego
@@ -13,6 +13,7 @@ Schema (every key required unless marked optional)::
     agents: [Agent]      # see agent.py; vehicles and RSUs
     buildings: [{id, height_m, footprint: [[x, y], ...]}]
     lanes: {lanes: [...], junctions: [...]}   # sumo_scenarios.lanes.LaneMap.to_dict()
+    recording: Recording # source recording only: the recorded frame behind it (recording.py)
 """
 from __future__ import annotations
 
@@ -33,10 +34,13 @@ from sumo_scenarios.strict import load_strict_yaml
 
 from .agent import Agent
 from .link import LinkState
+from .recording import RECORDING_SOURCE, Recording
 
 REQUIRED_KEYS = ("scene_id", "town", "source", "time_s", "ego", "agents", "buildings", "lanes")
 #: the keys a scene file may hold besides those (Scene.to_dict writes no other)
-OPTIONAL_KEYS = ("collaborators", "log", "link")
+OPTIONAL_KEYS = ("collaborators", "log", "link", "recording")
+#: where a scene's frame comes from: a traffic log's source, or a recording
+SCENE_SOURCES = (*SOURCES, RECORDING_SOURCE)
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,6 +57,8 @@ class Scene:
     log: str | None = None
     #: per collaborator, what the V2X link did to its message (none listed: a perfect link)
     link: Mapping[str, LinkState] = field(default_factory=dict)
+    #: the recorded frame behind a scene of source ``recording`` (None for a simulated one)
+    recording: Recording | None = None
 
     # ---- lookups ---------------------------------------------------------------------------
     def agent(self, agent_id: str) -> Agent:
@@ -68,6 +74,16 @@ class Scene:
     @property
     def vehicles(self) -> tuple[Agent, ...]:
         return tuple(a for a in self.agents if a.is_vehicle)
+
+    @property
+    def is_empty(self) -> bool:
+        """Nothing to see: no vehicle, no building and no recorded scan."""
+        return not self.vehicles and not self.buildings and self.recording is None
+
+    def can_sense(self, agent_id: str) -> bool:
+        """Can ``agent_id`` share a LiDAR scan (be a collaborator)? Every agent of a simulated
+        scene; in a recording, the agents whose scan was recorded."""
+        return self.recording is None or agent_id in self.recording.views
 
     @property
     def sensing_ids(self) -> tuple[str, ...]:
@@ -98,7 +114,8 @@ class Scene:
             "agents": [a.to_dict() for a in self.agents],
             "buildings": [b.to_dict() for b in self.buildings],
             "lanes": self.lane_map.to_dict(),
-        } | ({"link": {k: v.to_dict() for k, v in self.link.items()}} if self.link else {})
+        } | ({"link": {k: v.to_dict() for k, v in self.link.items()}} if self.link else {}) | (
+            {"recording": self.recording.to_dict()} if self.recording is not None else {})
 
     @staticmethod
     def from_dict(d: dict, where: str = "scene") -> "Scene":
@@ -125,13 +142,22 @@ class Scene:
                 collaborators=tuple(str(c) for c in _items(d.get("collaborators"), "collaborators")),
                 log=None if d.get("log") is None else str(d["log"]),
                 link=_link(d.get("link")),
+                recording=None if d.get("recording") is None else Recording.from_dict(d["recording"]),
             )
         except InputError as exc:  # each part names itself; the file is named once, here
             raise InputError(f"{where}: {exc}") from None
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed scene ({type(exc).__name__}: {exc}); re-extract it") from None
-        if scene.source not in SOURCES:
-            raise InputError(f"{where}: source {scene.source!r} is not one of {', '.join(SOURCES)}")
+        if scene.source not in SCENE_SOURCES:
+            raise InputError(f"{where}: source {scene.source!r} is not one of {', '.join(SCENE_SOURCES)}")
+        if (scene.source == RECORDING_SOURCE) != (scene.recording is not None):
+            raise InputError(f"{where}: a scene of source {RECORDING_SOURCE!r} holds a 'recording' block, and only "
+                             "such a scene does; re-import it with 'asg scenes import'")
+        if scene.recording is not None:
+            unrecorded = next((a for a in scene.sensing_ids if a not in scene.recording.views), None)
+            if unrecorded is not None:
+                raise InputError(f"{where}: sensing agent '{unrecorded}' has no recorded scan; a recording's "
+                                 "sensing agents are the agents of its views")
         ids = Counter(a.agent_id for a in agents)
         if not agents:
             raise InputError(f"{where}: the scene has no agents; pick a frame with traffic")

@@ -203,7 +203,9 @@ def apply_link(frame: CooperativeFrame, link: Mapping[str, LinkState], delayed: 
 
 
 def simulate_frame(scene: Scene, spec: LidarSpec, seed: int = 0) -> CooperativeFrame:
-    """Build the world of ``scene`` and render its sensing agents once."""
-    if not scene.vehicles and not scene.buildings:
+    """Build the world of ``scene`` (the renderer its source picks) and render its sensing agents once."""
+    from .renderers import world_for
+
+    if scene.is_empty:
         raise InputError(f"scene {scene.scene_id}: empty scene (no vehicles, no buildings); pick another frame")
-    return render_frame(World(scene, spec), seed=seed)
+    return render_frame(world_for(scene, spec), seed=seed)

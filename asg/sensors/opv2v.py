@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from ..scene import Scene
+from ..scene.recording import opencood_ego  # noqa: F401  (the layout's ego rule, read by the import too)
 from .ego_frame import ego_frame_drop_m
 from .frame import CooperativeFrame
 
@@ -54,16 +55,6 @@ def _numbered(ego_id: str, vehicles, sensing_rsus) -> dict[str, int]:
     ids.update({a: VEHICLE_ID_BASE + i for i, a in enumerate(vehicles)})
     ids.update({a: (-1 if i == 0 else EXTRA_RSU_ID_BASE + i) for i, a in enumerate(sensing_rsus)})
     return ids
-
-
-def opencood_ego(folders: list[str]) -> str:
-    """The agent folder OpenCOOD's OPV2V / V2XSet loaders take as the ego: the folder names sorted
-    as strings, a leading negative (RSU) one moved to the end, then the first. :func:`opv2v_ids`
-    numbers the folders so that this is always our ego."""
-    order = sorted(folders)
-    if order and int(order[0]) < 0:
-        order = order[1:] + order[:1]
-    return order[0]
 
 
 def mirrored_pose(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> list[float]:

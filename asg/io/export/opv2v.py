@@ -4,7 +4,9 @@ One scenario folder per scene, one timestamp (``000000``), one agent folder per 
 ego and its collaborators). Agent ids are integers, numbered so that OpenCOOD's ego rule takes our
 ego (:func:`opv2v_ids`): the ego 0, other vehicles ``1000 + i``, a collaborating RSU -1 (further
 ones ``9001, ...``). ``DIR/SCENE/ids.yaml`` maps our ids to these and names our ego and the one
-OpenCOOD will take (the same).
+OpenCOOD will take (the same). ``DIR/SCENE/data_protocol.yaml`` describes the LiDAR the clouds were
+cast with, in CARLA's attribute names (``lidar: channels, upper_fov, lower_fov, range,
+points_per_second, rotation_frequency``), as OpenCDA's recordings do; ``asg scenes import`` reads it.
 
 Every view is written in a frame at a car's sensor height (asg.sensors.ego_frame): an RSU's or a
 truck's cloud is raised and its ``lidar_pose`` lowered by the same (ids.yaml: the ego's
@@ -28,8 +30,10 @@ import yaml
 
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.checks import inside
+from sumo_scenarios.errors import InputError
 
 from ...scene import Scene
+from ...scene.from_opv2v import PROTOCOL_NAME
 from .base import EXPORT_FORMATS
 
 TIMESTAMP = "000000"
@@ -44,11 +48,14 @@ class ScenarioWriter:
         self.spec = load_lidar_spec()
 
     def write(self, scene: Scene) -> None:
-        from ...sensors import simulate_frame
+        from ...sensors import render_frame, world_for
         from ...sensors.opv2v import agent_views, opencood_ego, opv2v_ids
         from ..pcd import write_pcd_rgb_intensity
 
-        frame = simulate_frame(scene, self.spec)
+        if scene.is_empty:
+            raise InputError(f"scene {scene.scene_id}: empty scene (no vehicles, no buildings); pick another frame")
+        world = world_for(scene, self.spec)
+        frame = render_frame(world)
         ids = opv2v_ids(scene, frame.sensing_ids)
         folder = inside(self.out, self.out / scene.scene_id)
         views, drops = agent_views(frame, ids, scene)
@@ -57,6 +64,7 @@ class ScenarioWriter:
             agent_dir.mkdir(parents=True, exist_ok=True)
             write_pcd_rgb_intensity(agent_dir / f"{TIMESTAMP}.pcd", cloud)
             write_text_atomic(agent_dir / f"{TIMESTAMP}.yaml", yaml.safe_dump(meta, sort_keys=False))
+        write_text_atomic(folder / PROTOCOL_NAME, yaml.safe_dump({"lidar": world.lidar_protocol()}, sort_keys=False))
         picked = int(opencood_ego([str(ids[a]) for a in frame.sensing_ids]))
         write_text_atomic(folder / "ids.yaml", yaml.safe_dump(
             {"scene_id": scene.scene_id, "ego": ids[scene.ego_id], "opencood_ego": picked,

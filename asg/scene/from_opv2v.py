@@ -1,0 +1,305 @@
+"""Scenes from recordings in OPV2V's layout (OPV2V, V2XSet, V2V4Real): ``SCENARIO/AGENT/TIMESTAMP.{pcd,yaml}``.
+
+One scene per scenario and timestamp, with OpenCOOD's ego (asg.sensors.opv2v's rule: the agent
+folders sorted as text, a leading negative one moved to the end); every agent folder a sensing
+agent with its recorded scan and LiDAR pose; every labelled vehicle (the agents' ``vehicles`` merged
+by id, as OpenCOOD merges them) an agent of the scene. The scene's ``recording`` block
+(asg.scene.recording) references each scan by path and sha256.
+
+Frames: OPV2V's and V2XSet's worlds are CARLA's, left-handed (x forward, y right): y and every yaw
+are mirrored, as ``asg export --format opv2v`` mirrors them on the way out (a ``lidar_pose`` is
+[x, y, z, roll, yaw, pitch] in degrees; a vehicle's box centre is ``location + center``, ``extent``
+half its size, ``angle`` [roll, yaw, pitch] in degrees). V2V4Real's ``lidar_pose`` is a 4 x 4 matrix
+to its map, right-handed, and is read as it is. Each file is read as hostile input: yaml through a
+safe loader that reads numpy's data tags (V2V4Real's) and constructs nothing else, every number
+checked, every path kept inside the source folder.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import yaml
+
+from sumo_scenarios import checks
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.lanes import LaneMap
+from sumo_scenarios.numpy_yaml import add_numpy_data
+
+from .agent import SIZE_LIMITS_M, Agent
+from .recorded_pcd import file_sha256, in_scene_frame, read_recorded_pcd
+from .recording import (RECORDING_SOURCE, Handedness, RecordedLidar, RecordedView, Recording, RecordingFormat,
+                        opencood_ego)
+from .scan_area import scan_area
+from .scene import Scene
+
+#: an agent folder's name: OPV2V's vehicle ids, V2XSet's negative RSU ids
+_AGENT = re.compile(r"-?[0-9]{1,9}")
+#: a timestamp's stem
+_STAMP = re.compile(r"[0-9]{1,9}")
+#: a frame yaml larger than this is not one (OPV2V's: a few kB; with camera data up to ~100 kB)
+MAX_FRAME_YAML_BYTES = 2 << 20
+#: a scenario folder's LiDAR description (OpenCDA's), read where present
+PROTOCOL_NAME = "data_protocol.yaml"
+KMH_PER_MPS = 3.6
+#: the size of a sensing vehicle no agent labels (OPV2V's ego cars are about this): l, w, h (m)
+UNLABELLED_CAR_M = (4.9, 2.1, 1.5)
+#: the pole of an RSU whose ground the scan does not show (m)
+RSU_POLE_M = 4.5
+
+
+class FrameLoader(yaml.SafeLoader):
+    """Safe YAML with numpy's data tags read as lists and numbers (V2V4Real's poses)."""
+
+
+add_numpy_data(FrameLoader)
+if getattr(yaml, "__with_libyaml__", False):
+    class _CFrameLoader(yaml.CSafeLoader):
+        pass
+
+    add_numpy_data(_CFrameLoader)
+    FrameLoader = _CFrameLoader  # noqa: F811  (the same rules on libyaml's parser)
+
+
+@dataclass(frozen=True)
+class ImportParams:
+    """Which timestamps become scenes: every ``every``-th of each scenario, at most ``limit`` in all."""
+    every: int = 1
+    limit: int | None = None
+
+    def validate(self) -> "ImportParams":
+        checks.number(self.every, "--every", 1, 1_000_000)
+        if self.limit is not None:
+            checks.number(self.limit, "--limit", 1, 10_000_000)
+        return self
+
+
+def scenario_folders(source: Path) -> list[Path]:
+    """``source`` itself if it is a scenario folder (agent folders inside), else its sub-folders that
+    are (a split); InputError if none is, or a folder leaves ``source`` through a link."""
+    source = Path(source)
+    if not source.is_dir():
+        raise InputError(f"{source}: not a folder; give an OPV2V scenario folder or a split of them")
+    if _agent_dirs(source, source):
+        return [source]
+    found = [p for p in sorted(source.iterdir()) if p.is_dir() and _agent_dirs(p, source)]
+    if not found:
+        raise InputError(f"{source}: holds no OPV2V scenario (a folder of agent folders named by integer ids, "
+                         "each with TIMESTAMP.yaml and TIMESTAMP.pcd)")
+    return found
+
+
+def _agent_dirs(folder: Path, root: Path) -> list[Path]:
+    dirs = [p for p in sorted(folder.iterdir()) if p.is_dir() and _AGENT.fullmatch(p.name)]
+    for p in dirs:
+        checks.inside(root, p)
+    return dirs
+
+
+def import_scenes(source: Path, params: ImportParams = ImportParams()) -> Iterator[Scene]:
+    """The scenes of every scenario of ``source`` (see the module docstring), in scenario and
+    timestamp order."""
+    params.validate()
+    source = Path(source).resolve()
+    made = 0
+    for scenario in scenario_folders(source):
+        for stamp in _timestamps(scenario, source)[::params.every]:
+            if params.limit is not None and made >= params.limit:
+                return
+            yield _scene(scenario, stamp, source)
+            made += 1
+
+
+def _timestamps(scenario: Path, root: Path) -> list[str]:
+    """The timestamps every agent folder of ``scenario`` holds (yaml and pcd); InputError where the
+    folders disagree (OpenCOOD reads the same timestamps from each) or a file is missing."""
+    stamps = {}
+    for agent in _agent_dirs(scenario, root):
+        yamls = {p.stem for p in agent.glob("*.yaml") if _STAMP.fullmatch(p.stem)}
+        pcds = {p.stem for p in agent.glob("*.pcd") if _STAMP.fullmatch(p.stem)}
+        if yamls != pcds:
+            odd = sorted(yamls ^ pcds)[0]
+            raise InputError(f"{agent}: timestamp {odd} has a yaml without a pcd or a pcd without a yaml")
+        stamps[agent.name] = yamls
+    first = next(iter(stamps.values()))
+    differ = next((a for a, s in stamps.items() if s != first), None)
+    if differ is not None:
+        raise InputError(f"{scenario}: agent folder {differ} holds other timestamps than the others; every agent "
+                         "folder of a scenario holds the same ones")
+    if not first:
+        raise InputError(f"{scenario}: its agent folders hold no TIMESTAMP.yaml and TIMESTAMP.pcd")
+    return sorted(first, key=lambda s: (int(s), s))
+
+
+def read_frame_yaml(path: Path) -> dict:
+    """One agent's frame yaml as data; InputError (one line) for a missing, oversized, malformed
+    file, a Python tag other than numpy's data, or no mapping."""
+    try:
+        if path.stat().st_size > MAX_FRAME_YAML_BYTES:
+            raise InputError(f"{path}: over {MAX_FRAME_YAML_BYTES} bytes; not a frame's yaml")
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=FrameLoader)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror})") from None
+    except yaml.constructor.ConstructorError as exc:
+        raise InputError(f"{path}: {exc.problem}") from None
+    except (yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise InputError(f"{path}: not a readable frame yaml ({type(exc).__name__})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a mapping (lidar_pose, vehicles, ...)")
+    return data
+
+
+def _scene(scenario: Path, stamp: str, root: Path) -> Scene:
+    agents = [p.name for p in _agent_dirs(scenario, root)]
+    metas = {a: read_frame_yaml(checks.inside(root, scenario / a / f"{stamp}.yaml")) for a in agents}
+    handed = _handedness(metas, scenario / agents[0] / f"{stamp}.yaml")
+    views, clouds = {}, {}
+    for a in agents:
+        pcd = checks.inside(root, scenario / a / f"{stamp}.pcd").resolve()
+        where = scenario / a / f"{stamp}.yaml"
+        pose, roll, pitch = _lidar_pose(metas[a].get("lidar_pose"), handed, where)
+        raw = read_recorded_pcd(pcd)
+        views[a] = RecordedView(str(pcd), file_sha256(pcd), len(raw), pose, roll, pitch)
+        clouds[a] = in_scene_frame(raw, handed)
+    vehicles = _labelled(metas, handed, scenario, stamp)
+    sensing = _sensing_agents(agents, metas, vehicles, views, clouds)
+    all_agents = tuple(vehicles.values()) + tuple(a for a in sensing if a.agent_id not in vehicles)
+    ego = opencood_ego(agents)
+    scene_id = checks.safe_id(f"{_safe_stem(scenario.name)}-{stamp}", "scene id")
+    recording = Recording(RecordingFormat.OPV2V, handed, str(scenario), stamp, _lidar_of(scenario, root), views,
+                          tuple(vehicles.values()))
+    scene = Scene(scene_id=scene_id, town=_safe_stem(scenario.name), source=RECORDING_SOURCE,
+                  time_s=int(stamp) * 0.05, ego_id=ego, agents=all_agents, buildings=(), lane_map=LaneMap([]),
+                  collaborators=tuple(a for a in agents if a != ego), log=str(scenario), recording=recording)
+    return replace(scene, lane_map=scan_area(scene, clouds))
+
+
+def _safe_stem(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)[:80].strip("._-") or "scenario"
+
+
+def _handedness(metas: dict, where: Path) -> Handedness:
+    """Left (CARLA: a 6-value lidar_pose) or right (V2V4Real: a 4 x 4 matrix), one for the frame."""
+    kinds = {len(m.get("lidar_pose") or ()) for m in metas.values()}
+    if kinds == {6}:
+        return Handedness.LEFT
+    if kinds == {4}:
+        return Handedness.RIGHT
+    raise InputError(f"{where}: lidar_pose must be [x, y, z, roll, yaw, pitch] (OPV2V) or a 4 x 4 matrix "
+                     "(V2V4Real), the same in every agent's file")
+
+
+def _finite_list(value, n: int, where: str) -> list[float]:
+    if not isinstance(value, list) or len(value) != n:
+        raise InputError(f"{where}: expected a list of {n} numbers")
+    return [checks.number(v, where, -1.0e6, 1.0e6) for v in value]
+
+
+def _lidar_pose(value, handed: Handedness, where: Path) -> tuple[tuple[float, float, float, float], float, float]:
+    """((x_m, y_m, z_m, yaw_rad) in the scene's frame, roll_deg, pitch_deg) of a lidar_pose."""
+    if handed is Handedness.LEFT:
+        x, y, z, roll, yaw, pitch = _finite_list(value, 6, f"{where}: lidar_pose")
+        return (x, -y, z, -math.radians(yaw)), -roll, pitch  # mirrored in y: roll and yaw turn, pitch stays
+    rows = [_finite_list(r, 4, f"{where}: lidar_pose") for r in (value if isinstance(value, list) else [None])]
+    m = np.asarray(rows, dtype=float)
+    if m.shape != (4, 4) or not np.allclose(m[3], [0, 0, 0, 1]) or not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-3):
+        raise InputError(f"{where}: lidar_pose is not a rigid 4 x 4 transform")
+    yaw = math.atan2(m[1, 0], m[0, 0])
+    pitch = math.degrees(math.asin(max(-1.0, min(1.0, -m[2, 0]))))
+    roll = math.degrees(math.atan2(m[2, 1], m[2, 2]))
+    return (float(m[0, 3]), float(m[1, 3]), float(m[2, 3]), yaw), roll, pitch
+
+
+def _labelled(metas: dict, handed: Handedness, scenario: Path, stamp: str) -> dict[str, Agent]:
+    """Every labelled vehicle by id (the agents' lists merged in folder order, a later one winning,
+    as OpenCOOD merges them)."""
+    out: dict[str, Agent] = {}
+    for a, meta in metas.items():
+        listed = meta.get("vehicles") or {}
+        where = scenario / a / f"{stamp}.yaml"
+        if not isinstance(listed, dict):
+            raise InputError(f"{where}: vehicles must map ids to boxes")
+        for vid, box in listed.items():
+            vid = checks.safe_id(str(vid), f"{where}: vehicle id")
+            out[vid] = _vehicle(vid, box, handed, f"{where}: vehicle {vid}")
+    return out
+
+
+def _vehicle(vid: str, box, handed: Handedness, where: str) -> Agent:
+    if not isinstance(box, dict):
+        raise InputError(f"{where}: expected location, center, extent and angle")
+    try:
+        loc, center, extent, angle = (box[k] for k in ("location", "center", "extent", "angle"))
+    except KeyError as exc:
+        raise InputError(f"{where}: lacks {exc.args[0]}") from None
+    lx, ly, lz = _finite_list(loc, 3, f"{where} location")
+    cx, cy, cz = _finite_list(center, 3, f"{where} center")
+    ex, ey, ez = _finite_list(extent, 3, f"{where} extent")
+    _, yaw_deg, _ = _finite_list(angle, 3, f"{where} angle")
+    sign = -1.0 if handed is Handedness.LEFT else 1.0
+    size = {"length_m": 2 * ex, "width_m": 2 * ey, "height_m": 2 * ez}
+    for key, v in size.items():
+        checks.number(v, f"{where} {key}", 0.0, SIZE_LIMITS_M[key], lo_open=True)
+    speed = checks.number(box.get("speed", 0.0), f"{where} speed", -1000.0, 1000.0)
+    kind = str(box.get("obj_type", "car")).lower()
+    return Agent(agent_id=vid, kind="vehicle", type_id=kind if kind in ("car", "truck", "bus") else "car",
+                 x_m=lx + cx, y_m=sign * (ly + cy), z_m=lz + cz - ez, yaw_rad=sign * math.radians(yaw_deg),
+                 speed_mps=min(abs(speed) / KMH_PER_MPS, 150.0), **size)
+
+
+def _sensing_agents(agents: list[str], metas: dict, vehicles: dict[str, Agent], views: dict,
+                    clouds: dict) -> list[Agent]:
+    """Each agent folder as an agent: the labelled vehicle of its id, else an RSU (a negative id or
+    ``RSU: true``) or a vehicle of UNLABELLED_CAR_M below its LiDAR, on the ground its scan shows."""
+    from .scan_ground import fit_ground
+
+    out = []
+    for a in agents:
+        if a in vehicles:
+            out.append(vehicles[a])
+            continue
+        x, y, z, yaw = views[a].sensor
+        try:
+            ground_z = z + fit_ground(clouds[a]).c
+        except InputError:
+            ground_z = None
+        if int(a) < 0 or metas[a].get("RSU") is True:
+            ground = z - RSU_POLE_M if ground_z is None else ground_z
+            out.append(Agent(a, "rsu", "rsu", x, y, ground, yaw, 0.4, 0.4, max(z - ground, 0.5)))
+        else:
+            length, width, height = UNLABELLED_CAR_M
+            ground = z - 1.9 if ground_z is None else ground_z
+            out.append(Agent(a, "vehicle", "car", x, y, ground, yaw, length, width, height))
+    return out
+
+
+def _lidar_of(scenario: Path, root: Path) -> RecordedLidar:
+    """The scenario's LiDAR from its data_protocol.yaml (the first mapping holding CARLA's lidar
+    attributes), else OPV2V's (RecordedLidar's defaults)."""
+    path = scenario / PROTOCOL_NAME
+    if not path.is_file():
+        return RecordedLidar()
+    found = _lidar_block(read_frame_yaml(checks.inside(root, path)))
+    if found is None:
+        return RecordedLidar()
+    d = RecordedLidar().to_dict()
+    names = {"channels": "channels", "upper_fov": "upper_deg", "lower_fov": "lower_deg", "range": "range_m",
+             "points_per_second": "points_per_s", "rotation_frequency": "rotation_hz"}
+    d.update({ours: found[theirs] for theirs, ours in names.items() if theirs in found})
+    return RecordedLidar.from_dict(d, str(path))
+
+
+def _lidar_block(value, depth: int = 0):
+    if depth > 12:
+        return None
+    if isinstance(value, dict):
+        if "channels" in value and ("upper_fov" in value or "points_per_second" in value):
+            return value
+        for v in value.values():
+            if (found := _lidar_block(v, depth + 1)) is not None:
+                return found
+    return None

@@ -1,0 +1,363 @@
+"""A recorded scene's renderer: the recorded clouds, edited where the scene's vehicles differ from the
+recording, with each scan's own rays (as AdvCP edits OPV2V's shared scans).
+
+:class:`RecordedWorld` stands behind the same interface as :class:`asg.sensors.world.World`
+(``render_many``, ``render``, ``sensor_pose``, ``prepare``, ``scene``, ``spec``, ``movable_ids``);
+the scene's source picks it (asg.sensors.renderers). With no vehicle changed, each sensing agent gets
+its recorded points exactly (the file's float32 values, y mirrored from a left-handed recording).
+A vehicle whose pose differs from the recording (moved, inserted, removed) is, in each sensing
+agent's scan (its sensor frame: x forward, y left, z up, metres):
+
+1. taken out: the points inside its recorded box (grown by REMOVE_MARGIN_M, and above the scan's
+   fitted ground by more than the ground's tolerance) are its; their rays are cast again against
+   what lies behind it (the ground plane fitted to the scan, the meshes of the other labelled
+   vehicles at their current poses); a ray that hits nothing in range is dropped;
+2. put in at its new pose: the rays of the scan within its azimuth window (the directions of the
+   points, and where the scan recorded no return, the recorded LiDAR's beam directions) cast
+   against its mesh (asg's template of its type and size); a return is replaced where the mesh is
+   nearer, which also takes out the points in its new shadow.
+
+Only rays within the azimuth window of a changed vehicle are cast again. Intensities of the new
+returns follow the simulator's model (surface reflectivity x |cos incidence|). Where an edit is not
+exact: an unlabelled object behind a removed vehicle (a wall, a pedestrian) is not known, so its
+rays fall to the ground or are dropped; the inserted vehicle is asg's mesh, not the recorded car's
+shape; sensor frames keep the recorded yaw only (roll and pitch are recorded but not applied).
+"""
+from __future__ import annotations
+
+import math
+from typing import Iterable, Mapping
+
+import numpy as np
+
+from sumo_scenarios.geometry import wrap_rad
+
+from ..scene import Agent, Scene
+from ..scene.agent import footprint_xy
+from ..scene.recorded_pcd import recorded_cloud
+from ..scene.scan_ground import GROUND_TOLERANCE_M, GroundPlane, fit_ground
+from .lidar_spec import LidarSpec
+from .meshes import REFLECTIVITY, SURFACES, agent_template
+from .raycast import make_caster
+from .world import SensorPose
+
+#: a removed vehicle's recorded box grown by this on every side before its points are taken (m)
+REMOVE_MARGIN_M = 0.2
+#: an azimuth window's margin beyond the footprint's corners (rad)
+WINDOW_MARGIN_RAD = math.radians(0.5)
+
+
+class RecordedWorld:
+    """The renderer of a scene whose source is a recording; see the module docstring.
+
+    ``movable_ids``: the agents a search may change (given for the interface; any vehicle whose pose
+    differs from the recording is edited, movable or not)."""
+
+    def __init__(self, scene: Scene, spec: LidarSpec, movable_ids: Iterable[str] = ()):
+        self.scene = scene
+        self.spec = spec
+        self.movable_ids = frozenset(movable_ids)
+        self.recording = scene.recording
+        self._clouds: dict[str, np.ndarray] = {}
+        self._planes: dict[str, GroundPlane | None] = {}
+        self._beams: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._rays: dict[str, tuple] = {}
+        self._windows: dict[tuple[str, str], tuple | None] = {}
+        self._sorted: dict[tuple[str, bool], _Azimuths] = {}
+        self._templates: dict[tuple, tuple] = {}
+        self._recorded = {a.agent_id: a for a in self.recording.vehicles}
+
+    # ---- the interface -------------------------------------------------------------------
+    def lidar_protocol(self) -> dict:
+        """The recorded LiDAR in CARLA's attribute names (an OPV2V scenario's data_protocol.yaml)."""
+        d = self.recording.lidar
+        return {"channels": d.channels, "upper_fov": d.upper_deg, "lower_fov": d.lower_deg, "range": d.range_m,
+                "points_per_second": d.points_per_s, "rotation_frequency": d.rotation_hz}
+
+    def sensor_pose(self, agent_id: str) -> SensorPose:
+        return SensorPose(*self.recording.views[agent_id].sensor)
+
+    def prepare(self, sensor_ids: Iterable[str]) -> None:
+        for sid in sensor_ids:
+            self._cloud(sid)
+
+    def render(self, sensor_id: str, moved: Mapping[str, Agent | None] | None = None, seed: int = 0) -> np.ndarray:
+        return self.render_many([sensor_id], moved, seed)[sensor_id]
+
+    def render_many(self, sensor_ids: Iterable[str], moved: Mapping[str, Agent | None] | None = None,
+                    seed: int = 0) -> dict[str, np.ndarray]:
+        """Points (N, 4) float32 per sensor (x, y, z in its sensor frame, intensity): its recorded
+        scan, edited for every vehicle whose pose differs from the recording. ``moved``: new poses
+        by id (None: absent), over the scene's own; ``seed`` is unused (a recording has no noise)."""
+        current = self.current_vehicles(moved)
+        changed = self.changed(current)
+        out = {}
+        for sid in sensor_ids:
+            cloud = self._cloud(sid)
+            out[sid] = cloud.copy() if not changed else self._edited(sid, cloud, current, changed)
+        return out
+
+    # ---- which vehicles changed ------------------------------------------------------------
+    def current_vehicles(self, moved: Mapping[str, Agent | None] | None = None) -> dict[str, Agent]:
+        """{id: vehicle} as the frame has them: the scene's, with ``moved`` over them."""
+        current = {a.agent_id: a for a in self.scene.vehicles}
+        for aid, agent in (moved or {}).items():
+            if agent is None:
+                current.pop(aid, None)
+            else:
+                current[aid] = agent
+        return current
+
+    def changed(self, current: Mapping[str, Agent]) -> list[str]:
+        """Ids of the vehicles whose pose differs from the recording: moved, inserted or removed."""
+        ids = sorted(set(current) | set(self._recorded))
+        return [i for i in ids if not _same_pose(current.get(i), self._recorded.get(i))]
+
+    # ---- the edit -----------------------------------------------------------------------------
+    def _edited(self, sid: str, cloud: np.ndarray, current: Mapping[str, Agent], changed: list[str]) -> np.ndarray:
+        pose = self.sensor_pose(sid)
+        xyz, t, dirs, az = self._rays_of(sid)
+        t = t.copy()
+        intensity = cloud[:, 3].copy()
+        keep = np.ones(len(cloud), dtype=bool)
+        edited = np.zeros(len(cloud), dtype=bool)
+        removed = [self._recorded[i] for i in changed if i in self._recorded and i != sid]
+        behind = [a for i, a in current.items() if i not in changed and i != sid]
+        if removed:
+            taken = self._points_of(sid, xyz, removed)
+            if taken.any():
+                idx = np.flatnonzero(taken)
+                t_new, surf, cos = self._background(sid, pose, dirs[idx], az[idx], behind)
+                t[idx], intensity[idx] = t_new, REFLECTIVITY[surf] * cos
+                keep[idx] = np.isfinite(t_new) & (t_new <= self._range_m())
+                edited[idx] = True
+        added = [current[i] for i in changed if i in current and i != sid]
+        if added:
+            bdirs, baz = self._missing_beams(sid, pose, added)
+            dirs, az = np.concatenate([dirs, bdirs]), np.concatenate([az, baz])
+            t = np.concatenate([t, np.full(len(bdirs), np.inf)])
+            intensity = np.concatenate([intensity, np.zeros(len(bdirs), np.float32)])
+            keep = np.concatenate([keep, np.zeros(len(bdirs), bool)])
+            edited = np.concatenate([edited, np.ones(len(bdirs), bool)])
+            sorted_az = self._sorted_az(sid)
+            for agent in added:
+                window = _window(pose, agent, self._range_m())
+                idx = np.concatenate([sorted_az.within(window), len(cloud) + _in_window(baz, window)])
+                limit = np.where(keep[idx], t[idx], self._range_m())
+                hit, t_hit, cos = self._cast(agent, pose, dirs[idx], limit)
+                sel = idx[hit]
+                t[sel], intensity[sel], keep[sel], edited[sel] = t_hit[hit], REFLECTIVITY[SURFACES["vehicle"]] * cos[hit], True, True
+        n = len(cloud)
+        out = np.concatenate([cloud, np.zeros((len(t) - n, 4), np.float32)]) if len(t) > n else cloud.copy()
+        rows = np.flatnonzero(edited & keep)  # the unedited rows keep the recorded values exactly
+        out[rows, :3] = dirs[rows] * t[rows, None]
+        out[rows, 3] = intensity[rows]
+        return out if keep.all() else out[keep]
+
+    def _points_of(self, sid: str, xyz: np.ndarray, vehicles: list[Agent]) -> np.ndarray:
+        """(N,) bool: the scan's points inside any of ``vehicles``' recorded boxes (grown by
+        REMOVE_MARGIN_M) and above the scan's ground, in ``sid``'s sensor frame."""
+        pose = self.sensor_pose(sid)
+        inside = np.zeros(len(xyz), dtype=bool)
+        sorted_az = self._sorted_az(sid)
+        for a in vehicles:
+            idx = sorted_az.within(_window(pose, a, self._range_m(), REMOVE_MARGIN_M))
+            d = xyz[idx] @ pose.rotation().T + pose.origin - (a.x_m, a.y_m, a.z_m + a.height_m / 2)
+            c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
+            inside[idx] |= ((np.abs(c * d[:, 0] + s * d[:, 1]) <= a.length_m / 2 + REMOVE_MARGIN_M)
+                            & (np.abs(-s * d[:, 0] + c * d[:, 1]) <= a.width_m / 2 + REMOVE_MARGIN_M)
+                            & (np.abs(d[:, 2]) <= a.height_m / 2 + REMOVE_MARGIN_M))
+        plane = self._plane(sid)
+        if plane is not None:
+            inside &= plane.height_m(xyz) > GROUND_TOLERANCE_M
+        return inside
+
+    def _background(self, sid: str, pose: SensorPose, dirs: np.ndarray, az: np.ndarray, behind: list[Agent]):
+        """Distance (K,), surface class (K,) and |cos incidence| (K,) of rays (K, 3, sensor frame;
+        ``az`` (K,) their azimuths) cast against the scan's ground plane and the ``behind``
+        vehicles' meshes (inf: nothing)."""
+        plane = self._plane(sid)
+        t = plane.ray_distance(dirs) if plane is not None else np.full(len(dirs), np.inf)
+        t = np.where(t <= self._range_m(), t, np.inf)
+        surface = np.full(len(dirs), SURFACES["ground"], dtype=np.int64)
+        cos = np.abs(dirs @ _plane_normal(plane)) if plane is not None else np.ones(len(dirs))
+        for agent in self._facing(sid, az, behind):
+            idx = _in_window(az, self._recorded_window(sid, agent))
+            hit, t_hit, c_hit = self._cast(agent, pose, dirs[idx], np.minimum(t[idx], self._range_m()))
+            sel = idx[hit]
+            t[sel], surface[sel], cos[sel] = t_hit[hit], SURFACES["vehicle"], c_hit[hit]
+        return t, surface, cos.astype(np.float32)
+
+    def _cast(self, agent: Agent, pose: SensorPose, dirs: np.ndarray, limit: np.ndarray):
+        """(hit (K,) bool, distance (K,), |cos incidence| (K,)) of rays (K, 3, sensor frame) against
+        ``agent``'s mesh, hits beyond ``limit`` (K,) ignored."""
+        if not len(dirs):
+            return np.zeros(0, bool), np.zeros(0), np.zeros(0)
+        caster, normals = self._template(agent)
+        c, s = math.cos(agent.yaw_rad), math.sin(agent.yaw_rad)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        d_world = dirs @ pose.rotation().T
+        o_local = (pose.origin - (agent.x_m, agent.y_m, agent.z_m)) @ rot
+        d_local = d_world @ rot
+        t, prim = caster.first_hits(np.broadcast_to(o_local, d_local.shape), d_local, limit)
+        hit = (prim >= 0) & (t < limit)
+        cos = np.zeros(len(dirs))
+        cos[hit] = np.abs(np.einsum("ij,ij->i", d_local[hit], normals[prim[hit]]))
+        return hit, t, cos
+
+    def _missing_beams(self, sid: str, pose: SensorPose, agents: list[Agent]) -> tuple[np.ndarray, np.ndarray]:
+        """Unit directions (K, 3, sensor frame) and azimuths (K,) of the recorded LiDAR's beams
+        within the agents' windows along which the scan recorded no return."""
+        beams, beam_az, empty = self._beam_pattern(sid)
+        sorted_az = self._sorted_az(sid, beams=True)
+        idx = np.unique(np.concatenate([sorted_az.within(_window(pose, a, self._range_m())) for a in agents]))
+        idx = idx[empty[idx]] if len(idx) else idx
+        return beams[idx], beam_az[idx]
+
+    def _rays_of(self, sid: str):
+        """The scan's points as rays: (xyz (N, 3) float64, distance (N,), unit directions (N, 3),
+        azimuth (N,) rad), all in its sensor frame; cached."""
+        if sid not in self._rays:
+            xyz = self._cloud(sid)[:, :3].astype(np.float64)
+            t = np.linalg.norm(xyz, axis=1)
+            self._rays[sid] = (xyz, t, xyz / np.maximum(t, 1e-9)[:, None], np.arctan2(xyz[:, 1], xyz[:, 0]))
+        return self._rays[sid]
+
+    def _facing(self, sid: str, az: np.ndarray, vehicles: list[Agent]) -> list[Agent]:
+        """Those of ``vehicles`` (at their recorded poses) whose azimuth window holds one of the
+        azimuths ``az`` (K,): one (K, M) test instead of a window test per vehicle."""
+        windows = [(a, self._recorded_window(sid, a)) for a in vehicles]
+        windows = [(a, w) for a, w in windows if w is not None]
+        if not windows or not len(az):
+            return []
+        table = np.array([w for _, w in windows])  # (M, 3): centre, low, high
+        rel = (az[:, None] - table[None, :, 0] + math.pi) % (2 * math.pi) - math.pi
+        hit = ((rel >= table[None, :, 1]) & (rel <= table[None, :, 2])).any(axis=0)
+        return [a for (a, _), h in zip(windows, hit) if h]
+
+    def _sorted_az(self, sid: str, beams: bool = False) -> "_Azimuths":
+        """The scan's point azimuths (or its LiDAR's beams'), sorted for window lookups; cached."""
+        key = (sid, beams)
+        if key not in self._sorted:
+            self._sorted[key] = _Azimuths(self._beam_pattern(sid)[1] if beams else self._rays_of(sid)[3])
+        return self._sorted[key]
+
+    def _recorded_window(self, sid: str, agent: Agent):
+        """:func:`_window` of a vehicle at its recorded pose, cached per sensor."""
+        key = (sid, agent.agent_id)
+        if key not in self._windows:
+            self._windows[key] = _window(self.sensor_pose(sid), agent, self._range_m())
+        return self._windows[key]
+
+    # ---- cached per sensor ---------------------------------------------------------------------
+    def _cloud(self, sid: str) -> np.ndarray:
+        if sid not in self._clouds:
+            self._clouds[sid] = recorded_cloud(self.recording.views[sid], self.recording.handed)
+        return self._clouds[sid]
+
+    def _plane(self, sid: str) -> GroundPlane | None:
+        if sid not in self._planes:
+            from sumo_scenarios.errors import InputError
+
+            try:
+                self._planes[sid] = fit_ground(self._cloud(sid))
+            except InputError:
+                self._planes[sid] = None  # no road in view: removed rays hit only vehicles, or nothing
+        return self._planes[sid]
+
+    def _beam_pattern(self, sid: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(beam directions (C * A, 3) of the recorded LiDAR, their azimuths (C * A,), (C * A,) bool:
+        no recorded point in its cell), in the sensor frame."""
+        if sid not in self._beams:
+            lidar = self.recording.lidar
+            steps = max(int(lidar.points_per_s / lidar.rotation_hz / lidar.channels), 1)
+            el = np.radians(np.linspace(lidar.upper_deg, lidar.lower_deg, lidar.channels))
+            az = -math.pi + np.arange(steps) * (2 * math.pi / steps)  # LidarSpec.azimuths_rad's columns
+            ee, aa = np.meshgrid(el, az, indexing="ij")
+            beams = np.stack([np.cos(ee) * np.cos(aa), np.cos(ee) * np.sin(aa), np.sin(ee)], axis=-1).reshape(-1, 3)
+            xyz = self._cloud(sid)[:, :3].astype(np.float64)
+            r = np.linalg.norm(xyz, axis=1)
+            ok = r > 1e-6
+            p_el = np.arcsin(np.clip(xyz[ok, 2] / r[ok], -1, 1))
+            p_az = np.arctan2(xyz[ok, 1], xyz[ok, 0])
+            step_el = (el[0] - el[-1]) / max(lidar.channels - 1, 1) if lidar.channels > 1 else 1.0
+            ch = np.clip(np.rint((el[0] - p_el) / step_el).astype(np.int64), 0, lidar.channels - 1)
+            col = np.rint((p_az + math.pi) / (2 * math.pi / steps)).astype(np.int64) % steps
+            empty = np.ones(lidar.channels * steps, dtype=bool)
+            empty[ch * steps + col] = False
+            self._beams[sid] = (beams, aa.reshape(-1), empty)
+        return self._beams[sid]
+
+    def _template(self, agent: Agent):
+        key = (agent.kind, agent.type_id, round(agent.length_m, 3), round(agent.width_m, 3), round(agent.height_m, 3))
+        if key not in self._templates:
+            mesh = agent_template(agent.type_id, agent.kind, agent.length_m, agent.width_m, agent.height_m)
+            self._templates[key] = (make_caster(self.spec.backend, mesh.vertices[mesh.faces], self.spec.embree_robust),
+                                    np.asarray(mesh.face_normals, dtype=np.float64))
+        return self._templates[key]
+
+    def _range_m(self) -> float:
+        return float(self.recording.lidar.range_m)
+
+
+def _same_pose(a: Agent | None, b: Agent | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return (abs(a.x_m - b.x_m) < 1e-6 and abs(a.y_m - b.y_m) < 1e-6 and abs(a.z_m - b.z_m) < 1e-6
+            and abs(wrap_rad(a.yaw_rad - b.yaw_rad)) < 1e-9 and abs(a.length_m - b.length_m) < 1e-6
+            and abs(a.width_m - b.width_m) < 1e-6 and abs(a.height_m - b.height_m) < 1e-6)
+
+
+def _window(pose: SensorPose, agent: Agent, range_m: float, margin_m: float = 0.0) -> tuple[float, float, float] | None:
+    """``agent``'s azimuth window seen from ``pose`` in its sensor frame: (centre, low, high) rad,
+    low and high relative to the centre; None if it is out of range or the sensor stands in its
+    footprint (grown by ``margin_m``)."""
+    corners = footprint_xy(agent.x_m, agent.y_m, agent.yaw_rad, agent.length_m + 2 * margin_m,
+                           agent.width_m + 2 * margin_m) - (pose.x_m, pose.y_m)
+    centre = corners.mean(axis=0)
+    if math.hypot(*centre) > range_m + agent.length_m or _inside(np.zeros(2), corners):
+        return None
+    az_c = math.atan2(centre[1], centre[0])
+    rel = np.arctan2(corners[:, 1], corners[:, 0]) - az_c
+    rel = (rel + math.pi) % (2 * math.pi) - math.pi
+    return az_c - pose.yaw_rad, float(rel.min()) - WINDOW_MARGIN_RAD, float(rel.max()) + WINDOW_MARGIN_RAD
+
+
+class _Azimuths:
+    """Azimuths (N,) rad in [-pi, pi] sorted once, so that a window's rays are two binary searches."""
+
+    def __init__(self, az: np.ndarray):
+        self.order = np.argsort(az, kind="stable")
+        self.sorted = az[self.order]
+
+    def within(self, window: tuple[float, float, float] | None) -> np.ndarray:
+        """Indices (into the unsorted azimuths) within ``window`` (see :func:`_window`)."""
+        if window is None:
+            return np.zeros(0, dtype=np.int64)
+        centre, lo, hi = window
+        a = (centre + lo + math.pi) % (2 * math.pi) - math.pi
+        b = a + (hi - lo)
+        spans = [(a, b)] if b <= math.pi else [(a, math.pi), (-math.pi, b - 2 * math.pi)]
+        parts = [self.order[np.searchsorted(self.sorted, s, "left"):np.searchsorted(self.sorted, e, "right")]
+                 for s, e in spans]
+        return np.sort(np.concatenate(parts))
+
+
+def _in_window(az: np.ndarray, window: tuple[float, float, float] | None) -> np.ndarray:
+    """Indices of azimuths ``az`` (N,) rad within ``window`` (see :func:`_window`)."""
+    if window is None:
+        return np.zeros(0, dtype=np.int64)
+    centre, lo, hi = window
+    rel = (az - centre + math.pi) % (2 * math.pi) - math.pi
+    return np.flatnonzero((rel >= lo) & (rel <= hi))
+
+
+def _plane_normal(plane: GroundPlane) -> np.ndarray:
+    n = np.array([-plane.a, -plane.b, 1.0])
+    return n / np.linalg.norm(n)
+
+
+def _inside(point: np.ndarray, corners: np.ndarray) -> bool:
+    """Is ``point`` (2,) inside the convex polygon ``corners`` (K, 2), counter-clockwise?"""
+    a, b = corners, np.roll(corners, -1, axis=0)
+    return bool((((b[:, 0] - a[:, 0]) * (point[1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (point[0] - a[:, 0])) >= 0).all())
