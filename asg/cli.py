@@ -31,7 +31,8 @@ class _Parser(argparse.ArgumentParser):
 #: Command groups (``asg GROUP ACTION``): name -> (help, description, what the action is called)
 COMMAND_GROUPS = {
     "towns": ("build or list the bundled SUMO towns", "Build or list the SUMO towns in nets/.", "ACTION"),
-    "scenes": ("extract scenes (one frame each) from a traffic log", "Scenes from traffic logs.", "ACTION"),
+    "scenes": ("scenes (one frame each) from a traffic log or a recording", "Scenes from traffic logs and recordings.",
+               "ACTION"),
     "dataset": ("build the data sets (detector-train, normal, challenging)", "Data sets.", "ACTION"),
     "bench": ("benchmarks: simulate, lidar, detect, generate, train, scale, paper",
               "Speed benchmarks and the paper's tables.", "WHAT"),
@@ -62,6 +63,8 @@ COMMAND_MODULES: tuple[Command, ...] = tuple(Command(*c) for c in (
     ("towns list", "asg.commands.towns_list", "print name, area, lanes, junctions and buildings of each town"),
     ("simulate", "asg.commands.simulate", "run dense traffic in a town and record a SUMO fcd-output log"),
     ("scenes extract", "asg.commands.scenes_extract", "write every N-th frame of a log as a scene yaml"),
+    ("scenes import", "asg.commands.scenes_import", "write each timestamp of a recording in OPV2V's layout (OPV2V, "
+     "V2XSet, V2V4Real) as a scene yaml; its clouds are edited, not simulated"),
     ("render", "asg.commands.render", "render a scene's cooperative LiDAR frame to a bird's-eye picture (and PCD files)"),
     ("dataset build", "asg.commands.dataset_build", "simulate and extract a data set from configs/datasets.yaml, or "
      "generate a challenging set", True),

@@ -20,7 +20,7 @@ from ..scene import Scene
 from ..perception.data import in_range
 from ..scene.feasibility import Plausibility, in_eval_range
 from ..scene.recheck import recheck
-from ..scene.neighbours import vehicles_within
+from ..scene.neighbours import collaborator_candidates
 from ..search import EmptyFeasibleSet, Evaluation, FeasibleSet, SearchSpace, best_of, build_optimizer, check_settings, run_search
 from ..sensors import LidarSpec, load_lidar_spec, occlusion_scores, world_for
 from ..sensors.frame import CooperativeFrame, apply_link, delayed_view, render_frame
@@ -100,7 +100,7 @@ class Generator:
     def normal_collaborators(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> Scene:
         if scene.collaborators:
             return scene
-        cands = [a.agent_id for a in vehicles_within(scene, scene.ego_id, self.cfg.comm_range_m)]
+        cands = [a.agent_id for a in collaborator_candidates(scene, scene.ego_id, self.cfg.comm_range_m)]
         need = self.cfg.sensing_agents - 1
         if len(cands) < need:
             notes.append(f"only {len(cands)} vehicles within {self.cfg.comm_range_m:g} m of the ego; using them all")
@@ -113,7 +113,7 @@ class Generator:
         from ..collaborators import ACS_STRATEGIES
 
         strategy = ACS_STRATEGIES.entry(self.cfg.acs)(self.cfg.acs_samples, self.cfg.acs_tau)
-        cands = [a.agent_id for a in vehicles_within(scene, scene.ego_id, self.cfg.comm_range_m)]
+        cands = [a.agent_id for a in collaborator_candidates(scene, scene.ego_id, self.cfg.comm_range_m)]
         size = self.cfg.sensing_agents - 1
         if len(cands) < size:
             notes.append(f"ACS: {len(cands)} candidate collaborators for {size} places; using what exists")

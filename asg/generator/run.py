@@ -363,8 +363,16 @@ def _has_finished_scenes(out: Path) -> bool:
 
 def check_scenes(cfg: GenerateConfig, scenes: Sequence[Scene]) -> None:
     """What a run refuses before computing any scene (InputError): two scenes of one id, a scene
-    whose log cannot give the past a space reads (latency)."""
+    whose log cannot give the past a space reads (latency), a scene without lanes where a space or
+    the plausibility level reads them."""
     _refuse_duplicates(scenes)
+    if cfg.space.needs_lanes and (bare := next((s for s in scenes if not s.lane_map.lanes), None)):
+        raise InputError(f"scene {bare.scene_id} has no lanes (a recording imported without --map): the insert space "
+                         "and --plausibility traffic read lanes; use --space poses (or a link space) and "
+                         "--plausibility paper, or import it with its town's map")
+    if cfg.space.needs_past and (recorded := next((s for s in scenes if not s.keeps_past), None)):
+        raise InputError(f"scene {recorded.scene_id} is a recording, whose earlier frames are not imported: the "
+                         "latency space reads a scene's past; use another space")
     if cfg.space.needs_past:
         from ..scene.history import check_past
 

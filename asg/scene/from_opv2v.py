@@ -48,6 +48,9 @@ PROTOCOL_NAME = "data_protocol.yaml"
 KMH_PER_MPS = 3.6
 #: the size of a sensing vehicle no agent labels (OPV2V's ego cars are about this): l, w, h (m)
 UNLABELLED_CAR_M = (4.9, 2.1, 1.5)
+#: the vehicle classes asg has meshes of (asg.sensors.meshes); a label's ``obj_type`` (asg's export,
+#: V2V4Real's) of another class is a car
+VEHICLE_TYPES = ("car", "suv", "van", "truck", "bus")
 #: the pole of an RSU whose ground the scan does not show (m)
 RSU_POLE_M = 4.5
 
@@ -96,8 +99,16 @@ def scenario_folders(source: Path) -> list[Path]:
 def _agent_dirs(folder: Path, root: Path) -> list[Path]:
     dirs = [p for p in sorted(folder.iterdir()) if p.is_dir() and _AGENT.fullmatch(p.name)]
     for p in dirs:
-        checks.inside(root, p)
+        _within(root, p)
     return dirs
+
+
+def _within(root: Path, path: Path) -> Path:
+    """``path``, refused unless it resolves inside the source folder ``root`` (a link out of it)."""
+    r, p = Path(root).resolve(), Path(path).resolve()
+    if p != r and r not in p.parents:
+        raise InputError(f"{path}: leads outside {root} (a link); a recording's files must lie inside the folder imported")
+    return path
 
 
 def import_scenes(source: Path, params: ImportParams = ImportParams()) -> Iterator[Scene]:
@@ -155,11 +166,11 @@ def read_frame_yaml(path: Path) -> dict:
 
 def _scene(scenario: Path, stamp: str, root: Path) -> Scene:
     agents = [p.name for p in _agent_dirs(scenario, root)]
-    metas = {a: read_frame_yaml(checks.inside(root, scenario / a / f"{stamp}.yaml")) for a in agents}
+    metas = {a: read_frame_yaml(_within(root, scenario / a / f"{stamp}.yaml")) for a in agents}
     handed = _handedness(metas, scenario / agents[0] / f"{stamp}.yaml")
     views, clouds = {}, {}
     for a in agents:
-        pcd = checks.inside(root, scenario / a / f"{stamp}.pcd").resolve()
+        pcd = _within(root, scenario / a / f"{stamp}.pcd").resolve()
         where = scenario / a / f"{stamp}.yaml"
         pose, roll, pitch = _lidar_pose(metas[a].get("lidar_pose"), handed, where)
         raw = read_recorded_pcd(pcd)
@@ -246,7 +257,7 @@ def _vehicle(vid: str, box, handed: Handedness, where: str) -> Agent:
         checks.number(v, f"{where} {key}", 0.0, SIZE_LIMITS_M[key], lo_open=True)
     speed = checks.number(box.get("speed", 0.0), f"{where} speed", -1000.0, 1000.0)
     kind = str(box.get("obj_type", "car")).lower()
-    return Agent(agent_id=vid, kind="vehicle", type_id=kind if kind in ("car", "truck", "bus") else "car",
+    return Agent(agent_id=vid, kind="vehicle", type_id=kind if kind in VEHICLE_TYPES else "car",
                  x_m=lx + cx, y_m=sign * (ly + cy), z_m=lz + cz - ez, yaw_rad=sign * math.radians(yaw_deg),
                  speed_mps=min(abs(speed) / KMH_PER_MPS, 150.0), **size)
 
@@ -283,7 +294,7 @@ def _lidar_of(scenario: Path, root: Path) -> RecordedLidar:
     path = scenario / PROTOCOL_NAME
     if not path.is_file():
         return RecordedLidar()
-    found = _lidar_block(read_frame_yaml(checks.inside(root, path)))
+    found = _lidar_block(read_frame_yaml(_within(root, path)))
     if found is None:
         return RecordedLidar()
     d = RecordedLidar().to_dict()

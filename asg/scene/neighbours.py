@@ -18,19 +18,25 @@ def vehicles_within(scene: Scene, center_id: str, range_m: float = COMM_RANGE_M)
     return sorted(near, key=lambda a: (math.hypot(a.x_m - c.x_m, a.y_m - c.y_m), a.agent_id))
 
 
+def collaborator_candidates(scene: Scene, center_id: str, range_m: float = COMM_RANGE_M) -> list[Agent]:
+    """The vehicles within ``range_m`` of ``center_id`` that can share a scan (every vehicle of a
+    simulated scene; in a recording, those whose scan was recorded), nearest first."""
+    return [a for a in vehicles_within(scene, center_id, range_m) if scene.can_sense(a.agent_id)]
+
+
 def with_nearest_collaborators(scene: Scene, count: int, range_m: float = COMM_RANGE_M) -> Scene:
     """The scene with its collaborators set to the ``count`` nearest vehicles to the ego (fewer if
     fewer are in range); a scene that already names collaborators is returned as is."""
     if scene.collaborators or count <= 0:
         return scene
-    return scene.with_collaborators([a.agent_id for a in vehicles_within(scene, scene.ego_id, range_m)[:count]])
+    return scene.with_collaborators([a.agent_id for a in collaborator_candidates(scene, scene.ego_id, range_m)[:count]])
 
 
 def random_collaborators(scene: Scene, ego_id: str, count: int, rng: np.random.Generator,
                          range_m: float = COMM_RANGE_M) -> tuple[str, ...] | None:
     """``count`` vehicles drawn at random (without replacement) among those within ``range_m`` of
     ``ego_id``, in id order (fewer if fewer are in range; None if none is): how the data sets pick."""
-    cands = sorted(a.agent_id for a in vehicles_within(scene, ego_id, range_m))
+    cands = sorted(a.agent_id for a in collaborator_candidates(scene, ego_id, range_m))
     if not cands:
         return None
     pick = rng.choice(len(cands), size=min(count, len(cands)), replace=False)

@@ -80,6 +80,11 @@ class Scene:
         """Nothing to see: no vehicle, no building and no recorded scan."""
         return not self.vehicles and not self.buildings and self.recording is None
 
+    @property
+    def keeps_past(self) -> bool:
+        """Can its earlier frames be had (its traffic log)? Not for a recording."""
+        return self.recording is None
+
     def can_sense(self, agent_id: str) -> bool:
         """Can ``agent_id`` share a LiDAR scan (be a collaborator)? Every agent of a simulated
         scene; in a recording, the agents whose scan was recorded."""

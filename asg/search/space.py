@@ -63,6 +63,11 @@ class SpaceConfig:
         return self.past_s > 0
 
     @property
+    def needs_lanes(self) -> bool:
+        """Does a space of ``kinds``, or the plausibility level, read the scene's lanes?"""
+        return self.plausibility == "traffic" or any(SPACES.entry(k).needs_lanes for k in self.kinds)
+
+    @property
     def needs_movers(self) -> bool:
         """Does a space of ``kinds`` move the vehicles the occlusion heuristic picks (poses)?"""
         return any(SPACES.entry(k).needs_movers for k in self.kinds)

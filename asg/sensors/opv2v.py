@@ -101,7 +101,8 @@ def _vehicle_entry(agent) -> dict:
     x, y, z, _, yaw_deg, _ = mirrored_pose(agent.x_m, agent.y_m, agent.z_m, agent.yaw_rad)
     return {"location": [x, y, z], "center": [0.0, 0.0, float(agent.height_m / 2)],
             "extent": [float(agent.length_m / 2), float(agent.width_m / 2), float(agent.height_m / 2)],
-            "angle": [0.0, yaw_deg, 0.0], "speed": float(agent.speed_mps * KMH_PER_MPS)}
+            "angle": [0.0, yaw_deg, 0.0], "speed": float(agent.speed_mps * KMH_PER_MPS),
+            "obj_type": agent.type_id}  # V2V4Real's key; OpenCOOD's OPV2V reader ignores it
 
 
 def pcd_intensity_levels(intensity: np.ndarray) -> np.ndarray:

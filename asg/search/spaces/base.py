@@ -64,6 +64,9 @@ class PerturbationSpace(ABC):
     #: the space moves the vehicles the occlusion heuristic picks (``SpaceContext.movers``): the
     #: generator picks them only when a space of the run asks
     needs_movers: bool = False
+    #: the space reads the scene's lanes (free lane positions): a scene without lanes (a recording
+    #: imported without a map) cannot take it
+    needs_lanes: bool = False
 
     @classmethod
     def past_s(cls, cfg) -> float:

@@ -91,6 +91,8 @@ class InsertSlot(Slot):
 
 @SPACES.register("insert")
 class InsertSpace(PerturbationSpace):
+    needs_lanes = True
+
     @property
     def slots(self) -> list[InsertSlot]:
         scene = self.ctx.scene

@@ -1,0 +1,37 @@
+"""``asg scenes import``: a recording in OPV2V's layout (a scenario folder, or a split of them) as
+scene yaml files, one per timestamp (asg.scene.from_opv2v; docs/recordings.md)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from sumo_scenarios.checks import inside, safe_id
+
+from ..cli_args import COUNT
+from ..progress import console
+from ..scene.from_opv2v import ImportParams, import_scenes
+from ..scene.recording import RecordingFormat
+from ..scene.scene import save_scene
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", type=Path, help="a scenario folder (agent folders of TIMESTAMP.yaml and .pcd) or a "
+                                             "split of them")
+    p.add_argument("--format", choices=[f.value for f in RecordingFormat], default=RecordingFormat.OPV2V.value,
+                   help="the recording's layout (opv2v: OPV2V, V2XSet and V2V4Real)")
+    p.add_argument("--every", type=COUNT, default=1, help="take every N-th timestamp of each scenario (default 1)")
+    p.add_argument("--limit", type=COUNT, default=None, help="at most this many scenes in all")
+    p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Every scene is read (and refused in one line) before the first file is written."""
+    scenes = list(import_scenes(args.source, ImportParams(every=args.every, limit=args.limit)))
+    out = Path(args.out)
+    paths = [inside(out, out / f"{safe_id(s.scene_id, 'scene id')}.yaml") for s in scenes]
+    out.mkdir(parents=True, exist_ok=True)
+    for scene, path in zip(scenes, paths):
+        save_scene(scene, path)
+    agents = sum(len(s.sensing_ids) for s in scenes)
+    console.print(f"wrote {len(scenes)} scenes ({agents} recorded scans, referenced by path and sha256) to {out}")
+    return 0
