@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -192,6 +192,13 @@ class LaneMap:
             [Lane.from_dict(x) for x in d.get("lanes", [])],
             [Junction.from_dict(x) for x in d.get("junctions", [])],
         )
+
+    def translated(self, dx_m: float, dy_m: float) -> "LaneMap":
+        """The same lanes and junctions moved by (dx_m, dy_m) (another frame's origin)."""
+        shift = np.array([dx_m, dy_m])
+        return LaneMap([replace(l, centerline_xy=l.centerline_xy + shift) for l in self.lanes],
+                       [replace(j, shape_xy=j.shape_xy + shift if len(j.shape_xy) else j.shape_xy,
+                                center_xy=(j.center_xy[0] + dx_m, j.center_xy[1] + dy_m)) for j in self.junctions])
 
     def crop(self, center_xy: tuple[float, float], radius_m: float) -> "LaneMap":
         """The lanes and junctions that come within ``radius_m`` of ``center_xy`` (kept whole)."""

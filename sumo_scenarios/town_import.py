@@ -143,6 +143,29 @@ def import_town(source: Path, name: str, force: bool = False, towns_dir: Path | 
     return net_out
 
 
+def map_lanes(source: Path) -> LaneMap:
+    """The lanes of a map file in the map's own frame: a SUMO net's as it holds them; an OpenDRIVE
+    map's converted by netconvert and moved back by netconvert's netOffset, so that they lie where
+    the map's own coordinates put them (CARLA's world frame, y mirrored). One InputError for a
+    file that is not a map, as for :func:`import_town`."""
+    source = Path(source)
+    kind = map_kind(source)
+    if kind == "osm":
+        raise InputError(f"{source}: an OpenStreetMap extract has no frame a recording shares; give the recording's "
+                         "OpenDRIVE map (.xodr) or a SUMO net")
+    check_map_file(source)
+    if kind == "sumo":
+        return _check_net(source, source)
+    with tempfile.TemporaryDirectory(prefix="asg-map-") as tmp:
+        net = Path(tmp) / "map.net.xml"
+        sumo_tools.run([sumo_tools.binary("netconvert"), *_netconvert_input(kind, source), "-o", str(net),
+                        "--no-warnings"], f"netconvert of {source.name}", timeout_s=NETCONVERT_LIMIT_S)
+        lane_map = _check_net(net, source)
+        location = parse_net_root(net).find("location")
+        dx, dy = _floats(location.get("netOffset", "0,0"))[:2] if location is not None else (0.0, 0.0)
+    return lane_map.translated(-dx, -dy)
+
+
 def _make_folder(folder: Path) -> list[Path]:
     """Create ``folder`` and its missing parents; the folders made, deepest first. One InputError
     where it cannot be (ASG_HOME under /proc, on a file, without permission)."""

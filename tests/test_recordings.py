@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from asg.io.export import export
 from asg.scene import save_scene
 from asg.scene.from_log import ExtractParams, extract_scenes
-from asg.scene.from_opv2v import import_scenes
+from asg.scene.from_opv2v import ImportParams, import_scenes
 from asg.scene.recorded_pcd import read_recorded_pcd
 from asg.scene.scene import load_scene
 from asg.sensors import load_lidar_spec, render_frame, simulate_frame, world_for
@@ -350,3 +350,38 @@ def test_a_recording_is_attacked_and_its_edited_clouds_export(recorded, capsys, 
     frame = simulate_frame(final, SPEC)
     pcd = next((tmp_path / "x").glob(f"*/{final.ego_id}/000000.pcd"))
     assert len(read_recorded_pcd(pcd)) == len(frame.clouds[final.ego_id])
+
+
+def test_a_map_gives_a_recording_its_lanes_and_a_map_elsewhere_is_refused(recorded, capsys, tmp_path):
+    """``--map``: the town's SUMO net, or its OpenDRIVE map (netconvert's own conversion, moved back
+    by its netOffset to the map's frame), carries the recording's vehicles on its lanes; another
+    town's map is one line."""
+    from sumo_scenarios import sumo_tools
+    from sumo_scenarios.paths import nets_dir
+
+    scene, export_dir, _, _ = recorded
+    net = nets_dir() / f"{scene.town}.net.xml"
+    xodr = tmp_path / "town.xodr"
+    sumo_tools.run([sumo_tools.binary("netconvert"), "--sumo-net-file", str(net), "--opendrive-output", str(xodr)],
+                   "netconvert")
+    for map_file in (net, xodr):
+        (mapped,) = import_scenes(export_dir, ImportParams(map=map_file))
+        assert mapped.lane_map.lanes
+        on = [mapped.lane_map.point_on_road(a.x_m, a.y_m) for a in mapped.vehicles]
+        assert np.mean(on) >= 0.9, map_file
+    code, err = run(capsys, "scenes", "import", str(export_dir), "--map", str(nets_dir() / "roundabout.net.xml"),
+                    "--out", str(tmp_path / "o"))
+    assert code == 2 and not (tmp_path / "o").exists()
+    assert_one_line_error(err, "does not cover the recording")
+
+
+def test_with_its_map_a_recording_takes_the_traffic_level_and_insertion(recorded, capsys, tmp_path):
+    from sumo_scenarios.paths import nets_dir
+
+    scene, export_dir, _, _ = recorded
+    code, err = run(capsys, "scenes", "import", str(export_dir), "--map", str(nets_dir() / f"{scene.town}.net.xml"),
+                    "--out", str(tmp_path / "scenes"))
+    assert code == 0, err
+    code, err = run(capsys, "generate", "--scenes", str(tmp_path / "scenes"), "--fusion", "none", "--acs", "off",
+                    "--budget", "2", "--plausibility", "traffic", "--space", "poses,insert", "--out", str(tmp_path / "g"))
+    assert code == 0, err

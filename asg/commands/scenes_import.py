@@ -21,12 +21,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the recording's layout (opv2v: OPV2V, V2XSet and V2V4Real)")
     p.add_argument("--every", type=COUNT, default=1, help="take every N-th timestamp of each scenario (default 1)")
     p.add_argument("--limit", type=COUNT, default=None, help="at most this many scenes in all")
+    p.add_argument("--map", type=Path, default=None, metavar="FILE",
+                   help="the recording's town (OpenDRIVE .xodr, e.g. the CARLA town's, or a SUMO .net.xml): moves "
+                        "obey its lanes (both --plausibility levels); without it, the drivable area is read from "
+                        "the scans (--plausibility paper only)")
     p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
 
 
 def run(args: argparse.Namespace) -> int:
     """Every scene is read (and refused in one line) before the first file is written."""
-    scenes = list(import_scenes(args.source, ImportParams(every=args.every, limit=args.limit)))
+    scenes = list(import_scenes(args.source, ImportParams(every=args.every, limit=args.limit, map=args.map)))
     out = Path(args.out)
     paths = [inside(out, out / f"{safe_id(s.scene_id, 'scene id')}.yaml") for s in scenes]
     out.mkdir(parents=True, exist_ok=True)

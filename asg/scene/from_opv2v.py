@@ -41,6 +41,10 @@ from .scene import Scene
 _AGENT = re.compile(r"-?[0-9]{1,9}")
 #: a timestamp's stem
 _STAMP = re.compile(r"[0-9]{1,9}")
+#: a map's lanes kept around the ego (m): what a move within the evaluation range can reach
+MAP_RADIUS_M = 150.0
+#: a map must carry at least this share of a recording's labelled vehicles on its roads
+MAP_COVERAGE = 0.5
 #: a frame yaml larger than this is not one (OPV2V's: a few kB; with camera data up to ~100 kB)
 MAX_FRAME_YAML_BYTES = 2 << 20
 #: a scenario folder's LiDAR description (OpenCDA's), read where present
@@ -70,9 +74,12 @@ if getattr(yaml, "__with_libyaml__", False):
 
 @dataclass(frozen=True)
 class ImportParams:
-    """Which timestamps become scenes: every ``every``-th of each scenario, at most ``limit`` in all."""
+    """Which timestamps become scenes: every ``every``-th of each scenario, at most ``limit`` in all;
+    ``map``: the recording's town (an OpenDRIVE .xodr, e.g. the CARLA town's, or a SUMO net) whose
+    lanes become each scene's, instead of the drivable area read from the scans."""
     every: int = 1
     limit: int | None = None
+    map: Path | None = None
 
     def validate(self) -> "ImportParams":
         checks.number(self.every, "--every", 1, 1_000_000)
@@ -114,14 +121,18 @@ def _within(root: Path, path: Path) -> Path:
 def import_scenes(source: Path, params: ImportParams = ImportParams()) -> Iterator[Scene]:
     """The scenes of every scenario of ``source`` (see the module docstring), in scenario and
     timestamp order."""
+    from sumo_scenarios.town_import import map_lanes
+
     params.validate()
     source = Path(source).resolve()
+    folders = scenario_folders(source)
+    lanes = map_lanes(params.map) if params.map is not None else None
     made = 0
-    for scenario in scenario_folders(source):
+    for scenario in folders:
         for stamp in _timestamps(scenario, source)[::params.every]:
             if params.limit is not None and made >= params.limit:
                 return
-            yield _scene(scenario, stamp, source)
+            yield _scene(scenario, stamp, source, lanes, params.map)
             made += 1
 
 
@@ -164,7 +175,7 @@ def read_frame_yaml(path: Path) -> dict:
     return data
 
 
-def _scene(scenario: Path, stamp: str, root: Path) -> Scene:
+def _scene(scenario: Path, stamp: str, root: Path, lanes: LaneMap | None = None, map_path: Path | None = None) -> Scene:
     agents = [p.name for p in _agent_dirs(scenario, root)]
     metas = {a: read_frame_yaml(_within(root, scenario / a / f"{stamp}.yaml")) for a in agents}
     handed = _handedness(metas, scenario / agents[0] / f"{stamp}.yaml")
@@ -186,7 +197,22 @@ def _scene(scenario: Path, stamp: str, root: Path) -> Scene:
     scene = Scene(scene_id=scene_id, town=_safe_stem(scenario.name), source=RECORDING_SOURCE,
                   time_s=int(stamp) * 0.05, ego_id=ego, agents=all_agents, buildings=(), lane_map=LaneMap([]),
                   collaborators=tuple(a for a in agents if a != ego), log=str(scenario), recording=recording)
-    return replace(scene, lane_map=scan_area(scene, clouds))
+    if lanes is None:
+        return replace(scene, lane_map=scan_area(scene, clouds))
+    x, y = views[ego].sensor[:2]
+    return replace(scene, lane_map=_covering(lanes.crop((x, y), MAP_RADIUS_M), vehicles, scene.scene_id, map_path))
+
+
+def _covering(lanes: LaneMap, vehicles: dict[str, Agent], scene_id: str, map_path: Path | None) -> LaneMap:
+    """``lanes`` if they carry the recording's labelled vehicles (at least MAP_COVERAGE of them stand
+    on the drivable area); InputError for a map that does not cover, or is not aligned with, it."""
+    if not vehicles:
+        return lanes
+    on = sum(lanes.point_on_road(a.x_m, a.y_m) for a in vehicles.values())
+    if not lanes.lanes or on < MAP_COVERAGE * len(vehicles):
+        raise InputError(f"{map_path}: {on} of the {len(vehicles)} labelled vehicles of {scene_id} stand on its roads; "
+                         "the map does not cover the recording (give its own town's map)")
+    return lanes
 
 
 def _safe_stem(name: str) -> str:
