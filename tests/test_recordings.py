@@ -203,9 +203,8 @@ def test_an_opv2v_ascii_scan_reads_as_open3d_reads_it(tmp_path):
     rng = np.random.default_rng(0)
     xyz = rng.normal(0, 20, (300, 3)).astype(np.float32)
     red = rng.integers(0, 256, 300).astype(np.uint32)
-    packed = (red << 16).view(np.float32)
     path = tmp_path / "000070.pcd"
-    body = "\n".join(f"{x:.10g} {y:.10g} {z:.10g} {p:.10g}" for (x, y, z), p in zip(xyz, packed.astype(np.float64)))
+    body = "\n".join(f"{x:.10g} {y:.10g} {z:.10g} {_float32_value(int(r) << 16):.10g}" for (x, y, z), r in zip(xyz, red))
     path.write_text("# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\n"
                     "TYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 300\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 300\n"
                     f"DATA ascii\n{body}\n")
@@ -214,6 +213,15 @@ def test_an_opv2v_ascii_scan_reads_as_open3d_reads_it(tmp_path):
     assert np.array_equal(ours[:, :3], xyz) and np.allclose(ours[:, :3], np.asarray(theirs.points), atol=1e-6)
     assert np.allclose(ours[:, 3], np.asarray(theirs.colors)[:, 0], atol=1e-6)
     assert np.array_equal(ours[:, 3], (red / 255.0).astype(np.float32))
+
+
+def _float32_value(bits: int) -> float:
+    """The number a float32 of these bits holds, in Python's integer and float64 arithmetic (a cast
+    of a subnormal float32 reads 0 where a library set the CPU's denormals-are-zero mode, as torch's
+    threads do)."""
+    exponent, mantissa = (bits >> 23) & 0xFF, bits & 0x7FFFFF
+    assert exponent < 0xFF
+    return mantissa * 2.0 ** -149 if exponent == 0 else (1 + mantissa / 2 ** 23) * 2.0 ** (exponent - 127)
 
 
 # ---- bad recordings ------------------------------------------------------------------------------
