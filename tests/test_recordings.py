@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from scipy.spatial import cKDTree
 
 from asg.io.export import export
 from asg.scene import save_scene
@@ -22,6 +21,7 @@ from asg.scene.from_opv2v import ImportParams, import_scenes
 from asg.scene.recorded_pcd import read_recorded_pcd
 from asg.scene.scene import load_scene
 from asg.sensors import load_lidar_spec, render_frame, simulate_frame, world_for
+from asg.sensors.agreement import share_within
 from sumo_scenarios.errors import InputError
 
 from test_cli import assert_one_line_error, run
@@ -82,11 +82,6 @@ def test_an_imported_scene_saved_and_loaded_exports_the_recorded_files_again(rec
                 assert np.allclose(ours["vehicles"][vid][key], box[key], atol=1e-6), (vid, key)
 
 
-def _share_within(a: np.ndarray, b: np.ndarray, tol_m: float) -> float:
-    """The share of points of ``a`` (N, >=3) within ``tol_m`` of a point of ``b``."""
-    return float((cKDTree(b[:, :3]).query(a[:, :3])[0] <= tol_m).mean())
-
-
 def _movers(scene, count=2):
     ego = scene.ego
     return sorted((a for a in scene.vehicles if a.agent_id not in scene.sensing_ids),
@@ -108,7 +103,7 @@ def test_an_edit_agrees_with_the_simulator_rendering_the_same_move(recorded):
     frame = render_frame(world, moved=edited)
     for agent in scene.sensing_ids:
         a, b = sim.clouds[agent], frame.clouds[ids[agent]]
-        assert _share_within(a, b, 0.05) >= 0.95 and _share_within(b, a, 0.05) >= 0.95, agent
+        assert share_within(a, b, 0.05) >= 0.95 and share_within(b, a, 0.05) >= 0.95, agent
     assert not any(np.array_equal(frame.clouds[ids[a]], simulate_frame(imported, SPEC).clouds[ids[a]])
                    for a in scene.sensing_ids)
 
@@ -125,7 +120,7 @@ def test_a_vehicle_taken_out_and_put_back_at_its_pose_gives_the_recorded_scan(re
     plain = simulate_frame(imported, SPEC)
     for agent in imported.sensing_ids:
         a, b = plain.clouds[agent], frame.clouds[agent]
-        assert _share_within(a, b, 0.02) >= 0.99 and _share_within(b, a, 0.02) >= 0.99, agent
+        assert share_within(a, b, 0.02) >= 0.99 and share_within(b, a, 0.02) >= 0.99, agent
 
 
 def test_an_inserted_car_hides_what_is_behind_it_and_holds_no_point(recorded):
@@ -393,3 +388,10 @@ def test_with_its_map_a_recording_takes_the_traffic_level_and_insertion(recorded
     code, err = run(capsys, "generate", "--scenes", str(tmp_path / "scenes"), "--fusion", "none", "--acs", "off",
                     "--budget", "2", "--plausibility", "traffic", "--space", "poses,insert", "--out", str(tmp_path / "g"))
     assert code == 0, err
+
+
+def test_cloud_agreement_counts_the_points_near_the_other_cloud():
+    a = np.array([[0.0, 0, 0], [1, 0, 0], [5, 0, 0]])
+    b = np.array([[0.01, 0, 0], [1.2, 0, 0]])
+    assert share_within(a, b, 0.05) == pytest.approx(1 / 3) and share_within(b, a, 0.25) == 1.0
+    assert share_within(a[:0], b, 0.1) != share_within(a[:0], b, 0.1) and share_within(a, b[:0], 0.1) == 0.0
