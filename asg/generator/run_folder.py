@@ -36,6 +36,7 @@ from .pipeline import SceneResult
 from .stages import Stage
 from ..scene import save_scene
 from ..io.figures import bev_figure
+from ..sensors.agreement import cloud_changes
 from ..io.pcd import write_pcd
 
 
@@ -95,9 +96,11 @@ def _write_artifacts(work: Path, r: SceneResult) -> None:
         with atomic_path(work / "clouds" / f"{aid}.npy") as tmp:
             np.save(tmp, cloud)
     for stage in Stage:
+        final = stage == Stage.FINAL
         bev_figure(r.scene(stage), r.frames[stage], work / f"{stage}.png",
                    title=f"{r.scene_id} {stage}: AP@0.7 {r.ap(stage).get('0.7', 0):.2f}",
-                   marked_ids=r.perturbed if stage == Stage.FINAL else ())
+                   marked_ids=r.perturbed if final else (),
+                   changes=cloud_changes(r.frames[Stage.AFTER_ACS], r.frames[stage]) if final and r.moved else None)
 
 
 def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:

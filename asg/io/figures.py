@@ -31,9 +31,12 @@ def points_above_ground(frame: CooperativeFrame, above_m: float = 0.2) -> list[t
 
 
 def bev_figure(scene: Scene, frame: CooperativeFrame, out_path: str | Path, title: str = "",
-               marked_ids: Iterable[str] = (), extent_m: float = 60.0) -> None:
+               marked_ids: Iterable[str] = (), extent_m: float = 60.0,
+               changes: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Points of every sensing agent in the ego frame (coloured by agent), ground-truth boxes,
-    buildings, agent markers; ``marked_ids`` (perturbed vehicles) circled, as in the paper's Fig. 3."""
+    buildings, agent markers; ``marked_ids`` (perturbed vehicles) circled, as in the paper's Fig. 3.
+    ``changes``: (removed (K, 3), added (L, 3)) points in the ego's sensor frame, drawn over the
+    rest (asg.sensors.agreement.cloud_changes: a recording's edit told apart)."""
     ego_pose = frame.poses[frame.ego_id]
     fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
     c, s = np.cos(ego_pose.yaw_rad), np.sin(ego_pose.yaw_rad)
@@ -51,6 +54,11 @@ def bev_figure(scene: Scene, frame: CooperativeFrame, out_path: str | Path, titl
         p = frame.poses[aid]
         m = to_ego(np.array([[p.x_m, p.y_m]]))[0]
         ax.plot(m[0], m[1], marker="^", markersize=10, color=AGENT_COLOURS[k % len(AGENT_COLOURS)], mec="k", zorder=5)
+    if changes is not None:
+        for pts, colour, marker, label in ((changes[0], "0.35", "x", "removed"), (changes[1], "magenta", ".", "added")):
+            pts = pts[pts[:, 2] > -ego_pose.z_m + 0.2]
+            ax.scatter(pts[:, 0], pts[:, 1], s=6, color=colour, marker=marker, lw=0.6, zorder=6,
+                       label=f"{label} by the move ({len(pts)} pts above ground)")
     marked = set(marked_ids)
     for box, gid in zip(frame.ego_boxes, frame.gt_ids):
         fp = footprint_xy(box[0], box[1], box[6], box[3], box[4])
