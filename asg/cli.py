@@ -125,7 +125,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 #: errno values of output problems a user can fix (disk full, read-only, no permission, quota)
-_OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.ENOTDIR, errno.EISDIR}
+_OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.ENOTDIR, errno.EISDIR,
+                  errno.ENAMETOOLONG}
 
 
 def _preload(argv: Sequence[str]) -> None:
@@ -186,6 +187,10 @@ def _run(args, held_signals: frozenset) -> int:
     except OSError as exc:
         if exc.errno not in _OUTPUT_ERRNOS:
             raise
+        if exc.errno == errno.ENAMETOOLONG:
+            name = f" ({str(exc.filename)[:80]}...)" if exc.filename else ""
+            sys.stderr.write(f"asg: error: a name or path is longer than the file system allows{name}; shorten it\n")
+            return 2
         where = f" ({exc.filename})" if exc.filename else ""
         sys.stderr.write(f"asg: error: cannot write or read{where}: {exc.strerror}; free space or pick a writable folder\n")
         return 2

@@ -489,3 +489,35 @@ def test_rosbag2_without_rosbags_is_one_line(capsys, scenes_dir, tmp_path, monke
     assert code == 2
     assert_one_line_error(err, "asg[ros]")
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+@pytest.mark.parametrize("fmt, planted", [("kitti", "training/velodyne"), ("kitti", "ImageSets"),
+                                          ("opv2v", "SCENE/0"), ("sumo", "x")])
+def test_no_export_writes_through_a_link_planted_inside_out(fmt, planted, scenes_dir, capsys, tmp_path):
+    """A link inside --out (to another folder) is refused before anything is written, in every format."""
+    import os
+
+    folder, (scene, _) = scenes_dir
+    out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    link = out / planted.replace("SCENE", scene.scene_id)
+    link.parent.mkdir(parents=True)
+    os.symlink(elsewhere, link)
+    code, err = run(capsys, "export", str(folder), "--format", fmt, "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "symbolic link inside --out")
+    assert not any(elsewhere.iterdir())
+
+
+@pytest.mark.parametrize("argv", [
+    ["export", "SCENES", "--format", "opv2v", "--out", "LONG"],
+    ["evaluate", "--fusion", "none", "--set", "LONG", "--limit", "1"],
+    ["generate", "--scenes", "SCENES", "--fusion", "none", "--acs", "off", "--budget", "1", "--out", "LONG"],
+    ["export", "LONG", "--format", "kitti", "--out", "OUT"]])
+def test_a_name_longer_than_the_file_system_allows_is_one_line(argv, scenes_dir, capsys, tmp_path):
+    folder, _ = scenes_dir
+    long = str(tmp_path / ("n" * 300) / "x")
+    argv = [{"SCENES": str(folder), "LONG": long, "OUT": str(tmp_path / "o")}.get(a, a) for a in argv]
+    code, err = run(capsys, *argv)
+    assert code == 2
+    assert_one_line_error(err)

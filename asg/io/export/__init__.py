@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import os
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -91,6 +92,7 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     from sumo_scenarios.checks import output_dir
 
     out = output_dir(Path(out))
+    _refuse_links_inside(out)
     scenes = unique_ids(source_scenes(source))
     if views is Views.ALL:
         scenes = every_view(scenes)
@@ -110,6 +112,17 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
             progress(n)
     writer.close()
     return n
+
+
+def _refuse_links_inside(out: Path) -> None:
+    """Refuse (one InputError) an output folder holding a symbolic link anywhere inside it: a writer
+    that wrote into ``out/training/velodyne`` or ``out/SCENE/0`` would write through it, outside ``out``."""
+    for folder, dirs, files in os.walk(out):
+        for name in (*dirs, *files):
+            path = Path(folder) / name
+            if path.is_symlink():
+                raise InputError(f"{path}: a symbolic link inside --out {out}; an export writes nothing through "
+                                 "a link: remove it or choose another folder")
 
 
 def _source_name(source: Path | str) -> str:
