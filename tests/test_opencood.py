@@ -205,6 +205,35 @@ def test_a_harden_config_setting_an_opencood_round_would_ignore_is_refused(capsy
     check_opencood_settings(config, shipped | {"opencood_epochs": 2, "data": "random", "guard_set": None}, shipped)
 
 
+#: a config's training settings spoiled, and what the one line names
+UNTRAINABLE = {
+    "no train_params": (lambda h: h.pop("train_params"), "'train_params'"),
+    "batch size 0": (lambda h: h["train_params"].update(batch_size=0), "train_params.batch_size"),
+    "epochs as text": (lambda h: h["train_params"].update(epoches="15"), "train_params.epoches"),
+    "no loss": (lambda h: h.pop("loss"), "'loss'"),
+    "an unknown loss": (lambda h: h["loss"].update(core_method="focal_magic"), "not one of OpenCOOD's losses"),
+    "loss args a list": (lambda h: h["loss"].update(args=[1]), "loss.args"),
+    "an unknown optimiser": (lambda h: h["optimizer"].update(core_method="Adamm"), "not a torch optimiser"),
+    "a code string as optimiser": (lambda h: h["optimizer"].update(core_method="__import__('os')"), "must be a name"),
+    "a negative rate": (lambda h: h["optimizer"].update(lr=-0.1), "optimizer.lr"),
+    "an unknown schedule": (lambda h: h["lr_scheduler"].update(core_method="cosine"), "lr_scheduler.core_method"),
+    "a schedule without gamma": (lambda h: h["lr_scheduler"].pop("gamma"), "lr_scheduler.gamma"),
+    "milestones not a list": (lambda h: h["lr_scheduler"].update(core_method="multistep", step_size=3), "step_size"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(UNTRAINABLE))
+def test_harden_refuses_a_folder_opencoods_trainer_cannot_train_before_any_work(case, capsys, tmp_path):
+    spoil, needle = UNTRAINABLE[case]
+    model = make_model_dir(tmp_path / "m", "early")
+    hypes = yaml.safe_load((model / "config.yaml").read_text())
+    spoil(hypes)
+    (model / "config.yaml").write_text(yaml.safe_dump(hypes))
+    out = tmp_path / "out"
+    err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--out", str(out))
+    assert needle in err and not out.exists()
+
+
 def test_a_missing_opencood_install_names_the_extra(monkeypatch):
     import builtins
 

@@ -568,6 +568,7 @@ def _run_opencood(args: argparse.Namespace) -> int:
     from .harden_opencood import check_opencood_run, check_opencood_settings, harden_opencood
 
     check_opencood_run(args)
+    resolve_target(args.fusion).check().check_trainable()  # before the folder is claimed or any scene attacked
     config = load_harden_config(args.config, data=args.data)
     if args.config is not None:
         check_opencood_settings(args.config, train_block(HARDEN_BLOCK, args.config), train_block(HARDEN_BLOCK, None))

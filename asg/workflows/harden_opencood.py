@@ -46,7 +46,7 @@ def harden_opencood(fusion: str, out: Path, cfg, executor=None, force: bool = Fa
     ``reattack``); returns the card."""
     from ..generator.run import file_digest
     from ..io.run_record import claim
-    target = resolve_target(fusion).check()
+    target = resolve_target(fusion).check().check_trainable()
     start = target.model_dir
     files = target.model_files()
     settings = {"fusion": fusion, "start": {k: file_digest(p) for k, p in files.items()}, "data": cfg.data,
