@@ -32,8 +32,8 @@ from sumo_scenarios.numpy_yaml import add_numpy_data
 
 from .agent import SIZE_LIMITS_M, Agent
 from .recorded_pcd import file_sha256, in_scene_frame, read_recorded_pcd
-from .recording import (RECORDING_SOURCE, Handedness, RecordedLidar, RecordedView, Recording, RecordingFormat,
-                        opencood_ego)
+from .recording import (MAX_LOWERED_M, RECORDING_SOURCE, Handedness, RecordedLidar, RecordedView, Recording,
+                        RecordingFormat, opencood_ego)
 from .scan_area import scan_area
 from .scene import Scene
 
@@ -49,6 +49,8 @@ MAP_COVERAGE = 0.5
 MAX_FRAME_YAML_BYTES = 2 << 20
 #: a scenario folder's LiDAR description (OpenCDA's), read where present
 PROTOCOL_NAME = "data_protocol.yaml"
+#: the file asg's export writes beside a scenario's agent folders (ids, the lowered frames)
+EXPORT_IDS_NAME = "ids.yaml"
 KMH_PER_MPS = 3.6
 #: the size of a sensing vehicle no agent labels (OPV2V's ego cars are about this): l, w, h (m)
 UNLABELLED_CAR_M = (4.9, 2.1, 1.5)
@@ -180,12 +182,13 @@ def _scene(scenario: Path, stamp: str, root: Path, lanes: LaneMap | None = None,
     metas = {a: read_frame_yaml(_within(root, scenario / a / f"{stamp}.yaml")) for a in agents}
     handed = _handedness(metas, scenario / agents[0] / f"{stamp}.yaml")
     views, clouds = {}, {}
+    lowered = _lowered_frames(scenario, root)
     for a in agents:
         pcd = _within(root, scenario / a / f"{stamp}.pcd").resolve()
         where = scenario / a / f"{stamp}.yaml"
         pose, roll, pitch = _lidar_pose(metas[a].get("lidar_pose"), handed, where)
         raw = read_recorded_pcd(pcd)
-        views[a] = RecordedView(str(pcd), file_sha256(pcd), len(raw), pose, roll, pitch)
+        views[a] = RecordedView(str(pcd), file_sha256(pcd), len(raw), pose, roll, pitch, lowered.get(a, 0.0))
         clouds[a] = in_scene_frame(raw, handed)
     vehicles = _labelled(metas, handed, scenario, stamp)
     sensing = _sensing_agents(agents, metas, vehicles, views, clouds)
@@ -213,6 +216,19 @@ def _covering(lanes: LaneMap, vehicles: dict[str, Agent], scene_id: str, map_pat
         raise InputError(f"{map_path}: {on} of the {len(vehicles)} labelled vehicles of {scene_id} stand on its roads; "
                          "the map does not cover the recording (give its own town's map)")
     return lanes
+
+
+def _lowered_frames(scenario: Path, root: Path) -> dict[str, float]:
+    """{agent folder: how far its view's frame lies below its LiDAR (m)}: asg's export writes a high
+    sensor's view in a lowered frame and records it in the scenario's ids.yaml (``frames_lowered_m``);
+    a recording without that file has its LiDAR at each frame's origin."""
+    path = scenario / EXPORT_IDS_NAME
+    if not path.is_file():
+        return {}
+    lowered = read_frame_yaml(_within(root, path)).get("frames_lowered_m") or {}
+    if not isinstance(lowered, dict):
+        raise InputError(f"{path}: frames_lowered_m must map agent ids to metres")
+    return {str(k): checks.number(v, f"{path}: frames_lowered_m", 0.0, MAX_LOWERED_M) for k, v in lowered.items()}
 
 
 def _safe_stem(name: str) -> str:

@@ -21,7 +21,7 @@ Schema (the scene's ``recording`` key)::
     timestamp: "000069"
     lidar: {channels, upper_deg, lower_deg, points_per_s, rotation_hz, range_m}   # the recorded LiDAR
     views: {AGENT_ID: {cloud: /abs/path.pcd, sha256, points, sensor: [x_m, y_m, z_m, yaw_rad],
-                       roll_deg, pitch_deg}}
+                       roll_deg, pitch_deg, origin_z_m}}
     vehicles: [Agent]        # every labelled vehicle as recorded (scene agent schema)
 """
 from __future__ import annotations
@@ -40,6 +40,8 @@ from .agent import Agent
 #: a scene's source when its frame is a recording (beside the traffic sources of sumo_scenarios.log)
 RECORDING_SOURCE = "recording"
 _SHA256 = re.compile(r"[0-9a-f]{64}")
+#: the furthest a view's frame may lie below its LiDAR (m; asg's export lowers a 4.5 m RSU by 2.6)
+MAX_LOWERED_M = 20.0
 #: the most points one recorded cloud may hold (OPV2V: about 60k; a 128-channel scan: about 250k)
 MAX_CLOUD_POINTS = 4_000_000
 
@@ -100,18 +102,21 @@ class RecordedLidar:
 @dataclass(frozen=True)
 class RecordedView:
     """One sensing agent's recorded scan: its cloud file (absolute), that file's sha256 and point
-    count, and its LiDAR's pose in the scene's frame (x_m, y_m, z_m, yaw_rad; roll and pitch kept)."""
+    count, and the pose of its view's frame in the scene's frame (x_m, y_m, z_m, yaw_rad; roll and
+    pitch kept). ``origin_z_m``: how far above that frame's origin the LiDAR's rays start (0 but
+    where the view was written in a lowered frame, as asg's export writes a high sensor's)."""
     cloud: str
     sha256: str
     points: int
     sensor: tuple[float, float, float, float]
     roll_deg: float = 0.0
     pitch_deg: float = 0.0
+    origin_z_m: float = 0.0
 
     def to_dict(self) -> dict:
         return {"cloud": self.cloud, "sha256": self.sha256, "points": self.points,
                 "sensor": [float(v) for v in self.sensor], "roll_deg": float(self.roll_deg),
-                "pitch_deg": float(self.pitch_deg)}
+                "pitch_deg": float(self.pitch_deg), "origin_z_m": float(self.origin_z_m)}
 
     @staticmethod
     def from_dict(d: Mapping, where: str) -> "RecordedView":
@@ -129,7 +134,8 @@ class RecordedView:
         yaw = checks.number(sensor[3], f"{where} sensor yaw", -8 * 3.1416, 8 * 3.1416)
         return RecordedView(cloud, sha, int(checks.number(d["points"], f"{where} points", 0, MAX_CLOUD_POINTS)),
                             (x, y, z, yaw), checks.number(d.get("roll_deg", 0.0), f"{where} roll_deg", -180, 180),
-                            checks.number(d.get("pitch_deg", 0.0), f"{where} pitch_deg", -180, 180))
+                            checks.number(d.get("pitch_deg", 0.0), f"{where} pitch_deg", -180, 180),
+                            checks.number(d.get("origin_z_m", 0.0), f"{where} origin_z_m", 0.0, MAX_LOWERED_M))
 
 
 @dataclass(frozen=True)

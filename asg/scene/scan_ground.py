@@ -36,13 +36,14 @@ class GroundPlane:
         p = np.asarray(points, dtype=np.float64)
         return p[:, 2] - (self.a * p[:, 0] + self.b * p[:, 1] + self.c)
 
-    def ray_distance(self, dirs: np.ndarray) -> np.ndarray:
-        """(N,) distance from the sensor (the origin) along unit rays (N, 3) to the plane (inf:
-        parallel or upward of it)."""
+    def ray_distance(self, dirs: np.ndarray, origin: np.ndarray = np.zeros(3)) -> np.ndarray:
+        """(N,) distance along unit rays (N, 3) from ``origin`` (3,; the sensor: the frame's origin
+        unless the frame was lowered) to the plane (inf: parallel or upward of it)."""
         d = np.asarray(dirs, dtype=np.float64)
+        o = np.asarray(origin, dtype=np.float64)
         denom = d[:, 2] - self.a * d[:, 0] - self.b * d[:, 1]
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = self.c / denom
+            t = (self.c + self.a * o[0] + self.b * o[1] - o[2]) / denom
         return np.where((denom < -1e-9) & (t > 0), t, np.inf)
 
 

@@ -91,7 +91,7 @@ def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | Non
             agent = scene.agent(agent_id)
             body, speed_mps = mirrored_pose(agent.x_m, agent.y_m, agent.z_m, agent.yaw_rad), agent.speed_mps
         meta = {"lidar_pose": lidar_pose, "true_ego_pos": body, "predicted_ego_pos": body,
-                "ego_speed": float(speed_mps * KMH_PER_MPS),
+                "ego_speed": float(speed_mps * KMH_PER_MPS), "RSU": frame.agent_kinds.get(agent_id) == "rsu",
                 "vehicles": {ids[v]: entry for v, entry in vehicles.items() if v != agent_id}}
         views[agent_id] = (meta, cloud)
     return views, drops

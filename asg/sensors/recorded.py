@@ -144,13 +144,13 @@ class RecordedWorld:
                 window = _window(pose, agent, self._range_m())
                 idx = np.concatenate([sorted_az.within(window), len(cloud) + _in_window(baz, window)])
                 limit = np.where(keep[idx], t[idx], self._range_m())
-                hit, t_hit, cos = self._cast(agent, pose, dirs[idx], limit)
+                hit, t_hit, cos = self._cast(agent, pose, dirs[idx], limit, self._origin(sid))
                 sel = idx[hit]
                 t[sel], intensity[sel], keep[sel], edited[sel] = t_hit[hit], REFLECTIVITY[SURFACES["vehicle"]] * cos[hit], True, True
         n = len(cloud)
         out = np.concatenate([cloud, np.zeros((len(t) - n, 4), np.float32)]) if len(t) > n else cloud.copy()
         rows = np.flatnonzero(edited & keep)  # the unedited rows keep the recorded values exactly
-        out[rows, :3] = dirs[rows] * t[rows, None]
+        out[rows, :3] = self._origin(sid) + dirs[rows] * t[rows, None]
         out[rows, 3] = intensity[rows]
         return out if keep.all() else out[keep]
 
@@ -177,27 +177,27 @@ class RecordedWorld:
         ``az`` (K,) their azimuths) cast against the scan's ground plane and the ``behind``
         vehicles' meshes (inf: nothing)."""
         plane = self._plane(sid)
-        t = plane.ray_distance(dirs) if plane is not None else np.full(len(dirs), np.inf)
+        t = plane.ray_distance(dirs, self._origin(sid)) if plane is not None else np.full(len(dirs), np.inf)
         t = np.where(t <= self._range_m(), t, np.inf)
         surface = np.full(len(dirs), SURFACES["ground"], dtype=np.int64)
         cos = np.abs(dirs @ _plane_normal(plane)) if plane is not None else np.ones(len(dirs))
         for agent in self._facing(sid, az, behind):
             idx = _in_window(az, self._recorded_window(sid, agent))
-            hit, t_hit, c_hit = self._cast(agent, pose, dirs[idx], np.minimum(t[idx], self._range_m()))
+            hit, t_hit, c_hit = self._cast(agent, pose, dirs[idx], np.minimum(t[idx], self._range_m()), self._origin(sid))
             sel = idx[hit]
             t[sel], surface[sel], cos[sel] = t_hit[hit], SURFACES["vehicle"], c_hit[hit]
         return t, surface, cos.astype(np.float32)
 
-    def _cast(self, agent: Agent, pose: SensorPose, dirs: np.ndarray, limit: np.ndarray):
-        """(hit (K,) bool, distance (K,), |cos incidence| (K,)) of rays (K, 3, sensor frame) against
-        ``agent``'s mesh, hits beyond ``limit`` (K,) ignored."""
+    def _cast(self, agent: Agent, pose: SensorPose, dirs: np.ndarray, limit: np.ndarray, origin: np.ndarray):
+        """(hit (K,) bool, distance (K,), |cos incidence| (K,)) of rays (K, 3, sensor frame) from
+        ``origin`` (3,) against ``agent``'s mesh, hits beyond ``limit`` (K,) ignored."""
         if not len(dirs):
             return np.zeros(0, bool), np.zeros(0), np.zeros(0)
         caster, normals = self._template(agent)
         c, s = math.cos(agent.yaw_rad), math.sin(agent.yaw_rad)
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         d_world = dirs @ pose.rotation().T
-        o_local = (pose.origin - (agent.x_m, agent.y_m, agent.z_m)) @ rot
+        o_local = (pose.origin + pose.rotation() @ origin - (agent.x_m, agent.y_m, agent.z_m)) @ rot
         d_local = d_world @ rot
         t, prim = caster.first_hits(np.broadcast_to(o_local, d_local.shape), d_local, limit)
         hit = (prim >= 0) & (t < limit)
@@ -215,13 +215,19 @@ class RecordedWorld:
         return beams[idx], beam_az[idx]
 
     def _rays_of(self, sid: str):
-        """The scan's points as rays: (xyz (N, 3) float64, distance (N,), unit directions (N, 3),
-        azimuth (N,) rad), all in its sensor frame; cached."""
+        """The scan's points as rays from its LiDAR (:meth:`_origin`): (xyz (N, 3) float64,
+        distance (N,), unit directions (N, 3), azimuth (N,) rad), all in its view's frame; cached."""
         if sid not in self._rays:
             xyz = self._cloud(sid)[:, :3].astype(np.float64)
-            t = np.linalg.norm(xyz, axis=1)
-            self._rays[sid] = (xyz, t, xyz / np.maximum(t, 1e-9)[:, None], np.arctan2(xyz[:, 1], xyz[:, 0]))
+            v = xyz - self._origin(sid)
+            t = np.linalg.norm(v, axis=1)
+            self._rays[sid] = (xyz, t, v / np.maximum(t, 1e-9)[:, None], np.arctan2(v[:, 1], v[:, 0]))
         return self._rays[sid]
+
+    def _origin(self, sid: str) -> np.ndarray:
+        """(3,) where the LiDAR's rays start in its view's frame: the origin, but above it where a
+        view was written in a lowered frame (asg's export of a high sensor)."""
+        return np.array([0.0, 0.0, self.recording.views[sid].origin_z_m])
 
     def _facing(self, sid: str, az: np.ndarray, vehicles: list[Agent]) -> list[Agent]:
         """Those of ``vehicles`` (at their recorded poses) whose azimuth window holds one of the
@@ -275,7 +281,7 @@ class RecordedWorld:
             az = -math.pi + np.arange(steps) * (2 * math.pi / steps)  # LidarSpec.azimuths_rad's columns
             ee, aa = np.meshgrid(el, az, indexing="ij")
             beams = np.stack([np.cos(ee) * np.cos(aa), np.cos(ee) * np.sin(aa), np.sin(ee)], axis=-1).reshape(-1, 3)
-            xyz = self._cloud(sid)[:, :3].astype(np.float64)
+            xyz = self._cloud(sid)[:, :3].astype(np.float64) - self._origin(sid)
             r = np.linalg.norm(xyz, axis=1)
             ok = r > 1e-6
             p_el = np.arcsin(np.clip(xyz[ok, 2] / r[ok], -1, 1))

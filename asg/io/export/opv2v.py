@@ -33,7 +33,7 @@ from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
 
 from ...scene import Scene
-from ...scene.from_opv2v import PROTOCOL_NAME
+from ...scene.from_opv2v import EXPORT_IDS_NAME, PROTOCOL_NAME
 from .base import EXPORT_FORMATS
 
 TIMESTAMP = "000000"
@@ -66,7 +66,7 @@ class ScenarioWriter:
             write_text_atomic(agent_dir / f"{TIMESTAMP}.yaml", yaml.safe_dump(meta, sort_keys=False))
         write_text_atomic(folder / PROTOCOL_NAME, yaml.safe_dump({"lidar": world.lidar_protocol()}, sort_keys=False))
         picked = int(opencood_ego([str(ids[a]) for a in frame.sensing_ids]))
-        write_text_atomic(folder / "ids.yaml", yaml.safe_dump(
+        write_text_atomic(folder / EXPORT_IDS_NAME, yaml.safe_dump(
             {"scene_id": scene.scene_id, "ego": ids[scene.ego_id], "opencood_ego": picked,
              "sensing": [ids[a] for a in frame.sensing_ids],
              "ids": dict(ids), "frame": "CARLA left-handed: y and yaw mirrored from SUMO",
