@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parent.parent / "asg"
 
 #: each part of asg (a sub-package, or a module directly in asg/) and its layer
 LAYERS = {
-    "__init__": 0, "registry": 0, "dataset_spec": 0, "progress": 0, "interrupts": 0,
+    "__init__": 0, "registry": 0, "dataset_spec": 0, "progress": 0, "interrupts": 0, "schemas": 0,
     "scene": 1,
     "sensors": 2, "objective": 2, "search": 2, "collaborators": 2,
     "metrics": 3, "perception": 3, "executors": 3,

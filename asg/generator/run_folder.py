@@ -35,6 +35,7 @@ from ..objective.ap import (AP_METHODS, DEFAULT_AP_METHOD, Yardstick, FrameMatch
 from .pipeline import SceneResult
 from .stages import Stage
 from ..scene import save_scene
+from ..schemas import CURRENT, SCHEMA_KEY, SchemaFile, schema_of
 from ..io.figures import bev_figure
 from ..sensors.agreement import cloud_changes
 from ..io.pcd import write_pcd
@@ -206,6 +207,7 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
     pooled = {stage.ap_key: _pooled_from_matches(per_scene, stage) for stage in Stage}
     by_method = {m: {k: (None if v is None else v[m]) for k, v in pooled.items()} for m in AP_METHODS}
     summary = {
+        SCHEMA_KEY: CURRENT[SchemaFile.SUMMARY],
         "config": config,
         "scenes": entries,
         "aggregate": {
@@ -220,6 +222,27 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
     }
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=1))
     return summary
+
+
+def read_summary(path: Path, what: str = "the run") -> tuple[dict, int]:
+    """(a run's summary.json in today's shape, the schema version the file was written in): a file of
+    schema 1 (the final stage's AP under ``ap_challenging``) has its keys renamed as today's;
+    InputError for a damaged file or one from a newer asg (asg.schemas)."""
+    from ..io.json_file import read_json
+
+    summary = read_json(path, what)
+    if not isinstance(summary, dict) or not isinstance(summary.get("aggregate"), dict):
+        raise InputError(f"{path}: not a run's summary (no aggregate); rerun the command to write it again")
+    version = schema_of(SchemaFile.SUMMARY, summary, str(path))
+    if version == 1:
+        old, new = Stage.FINAL.old_pooled_key, Stage.FINAL.ap_key
+        for holder in (summary["aggregate"], *summary["aggregate"].get("by_method", {}).values(),
+                       *(e for e in summary.get("scenes", []) if isinstance(e, dict))):
+            if isinstance(holder, dict):
+                for prefix in ("", "mean_scene_"):
+                    if prefix + old in holder and prefix + new not in holder:
+                        holder[prefix + new] = holder.pop(prefix + old)
+    return summary, version
 
 
 def print_table(summary: dict, out) -> None:

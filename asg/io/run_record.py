@@ -15,6 +15,8 @@ from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.checks import output_dir
 from sumo_scenarios.errors import InputError
 
+from ..schemas import SchemaFile, schema_of, stamped, unversioned
+
 #: the file in a run folder that records its settings
 RUN_RECORD = "run.json"
 
@@ -39,14 +41,16 @@ def claim(out: Path, settings: dict, force: bool = False, *, what: str = "a run"
     output_dir(out)
     record = out / RUN_RECORD
     if record.is_file() and holds_results(out):
-        diff = first_difference(as_today(read_record(record)), settings)
+        old = read_record(record)
+        schema_of(SchemaFile.RUN, old, str(record))  # one from a newer asg is refused, not compared
+        diff = first_difference(as_today(unversioned(old)), settings)
         if diff:
             raise InputError(f"{out} holds {what} made with other settings ({diff}); give another --out, "
                              f"or --force to start it over")
     elif not record.is_file() and holds_results(out):
         raise InputError(f"{out} holds {what} that recorded no settings; give another --out, or --force")
     try:
-        write_text_atomic(record, json.dumps(settings, indent=1, sort_keys=True))
+        write_text_atomic(record, json.dumps(stamped(SchemaFile.RUN, settings), indent=1, sort_keys=True))
     except OSError as exc:
         raise InputError(f"--out {out}: cannot write in it ({exc.strerror}); give a writable folder") from None
     return settings

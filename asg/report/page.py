@@ -41,7 +41,8 @@ from ..objective.ap import Yardstick  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
 from ..io.figures import points_above_ground  # noqa: E402
 from ..io.json_file import read_json  # noqa: E402
-from ..generator.run_folder import aggregate_ap, load_detections  # noqa: E402
+from ..generator.run_folder import aggregate_ap, load_detections, read_summary  # noqa: E402
+from ..schemas import CURRENT, SchemaFile  # noqa: E402
 from ..generator.stages import Stage  # noqa: E402
 from .training import training_folders, training_section  # noqa: E402
 from .view3d import plotly_script, scene_view_html  # noqa: E402
@@ -146,8 +147,10 @@ def _is_table(path: Path) -> bool:
 
 
 def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
-    summary = read_json(run / "summary.json", "the run")
+    summary, version = read_summary(run / "summary.json")
     cfg, agg, entries = summary["config"], summary["aggregate"], summary["scenes"]
+    older = (f"<p class=note>summary.json of schema {version} (written by an earlier asg), read in today's "
+             f"shape, schema {CURRENT[SchemaFile.SUMMARY]}.</p>" if version < CURRENT[SchemaFile.SUMMARY] else "")
     rows = [["pooled", *(ap_text(aggregate_ap(agg, stage)) for stage in Stage), "", ""]]
     per_frame = agg.get("by_method", {}).get(Yardstick.PER_FRAME) if isinstance(agg.get("by_method"), dict) else None
     if isinstance(per_frame, dict):  # the paper's yardstick: no sort across frames (docs/generate.md)
@@ -161,7 +164,7 @@ def _run_section(run: Path, scenes_shown: int, view_ids: Iterator[int]) -> str:
     config = ", ".join(f"{_text(k)}: {_text(json.dumps(v))}" for k, v in cfg.items() if k not in ("objective", "space"))
     hardest = sorted((e for e in entries if is_safe_id(str(e["scene_id"]))), key=_ap_lost, reverse=True)
     views = "".join(_scene_views(run, e, next(view_ids)) for e in hardest[:scenes_shown])
-    return (f"<section><h2>{html.escape(run.name)}</h2><p class=config>{config}</p>"
+    return (f"<section><h2>{html.escape(run.name)}</h2>{older}<p class=config>{config}</p>"
             f"<p>{_text(agg['scenes'])} scenes, median {_text(agg['seconds_per_scene_median'])} s a scene; "
             f"plausibility: {len(entries) - implausible} of {len(entries)} scenes with no collision, nothing off "
             f"the drivable area, nothing out of range.</p>"

@@ -85,7 +85,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     agg = run.summary["aggregate"]
     # the attacked detector: the shipped FUSION, its WEIGHTS, or a detector factory's target
     attacked = {"fusion": fusion, "weights": cfg.weights, **({"detector": detector_factory} if detector_factory else {})}
-    index = {"name": out.name, "frames": len(ids), "splits": {split: ids},
+    index = {SCHEMA_KEY: CURRENT[SchemaFile.INDEX], "name": out.name, "frames": len(ids), "splits": {split: ids},
              "source": {"set": "normal", "split": split, **attacked, "seed": SEED,
                         "skipped": [sid for sid, _ in run.skipped]},
              **pair_json({"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)})}
