@@ -205,6 +205,117 @@ def test_a_harden_config_setting_an_opencood_round_would_ignore_is_refused(capsy
     check_opencood_settings(config, shipped | {"opencood_epochs": 2, "data": "random", "guard_set": None}, shipped)
 
 
+def _set(key: str, value):
+    """A spoiler of ``hypes`` setting the dotted ``key`` (a missing last part is created)."""
+    def spoil(hypes):
+        *parents, last = key.split(".")
+        holder = hypes
+        for p in parents:
+            holder = holder[p]
+        if value is _DROP:
+            holder.pop(last)
+        else:
+            holder[last] = value
+    return spoil
+
+
+_DROP = object()
+#: one value of a working config changed, grouped by cause, and what the one line names
+HOSTILE_SETTINGS = {
+    # signs and ranges of counts
+    "anchor num 0": ("early", _set("postprocess.anchor_args.num", 0), "anchor_args.num"),
+    "negative stride": ("early", _set("model.args.base_bev_backbone.layer_strides", [-2, 2, 2]), "layer_strides"),
+    "zero filters": ("early", _set("model.args.base_bev_backbone.num_filters", [0, 64, 64]), "num_filters"),
+    "zero upsample stride": ("early", _set("model.args.base_bev_backbone.upsample_strides", [0, 2, 4]), "upsample_strides"),
+    "negative feature stride": ("intermediate", _set("postprocess.anchor_args.feature_stride", -2), "feature_stride"),
+    "zero points a voxel": ("early", _set("preprocess.args.max_points_per_voxel", 0), "max_points_per_voxel"),
+    "negative voxels": ("early", _set("preprocess.args.max_voxel_test", -5), "max_voxel_test"),
+    "zero max_num": ("early", _set("postprocess.max_num", 0), "max_num"),
+    # ranges and sizes that multiply into gigabytes
+    "an inverted range": ("early", _set("preprocess.cav_lidar_range", [51.2, -51.2, -3, -51.2, 51.2, 1]), "cav_lidar_range"),
+    "a zero range": ("early", _set("preprocess.cav_lidar_range", [0, 0, 0, 0, 0, 0]), "cav_lidar_range"),
+    "a 1e5 m range": ("early", _set("preprocess.cav_lidar_range", [-1e5, -1e5, -3, 1e5, 1e5, 1]), "cav_lidar_range"),
+    "a 3e3 m range": ("early", _set("preprocess.cav_lidar_range", [-3e3, -3e3, -3, 3e3, 3e3, 1]), "cav_lidar_range"),
+    "a 1e9 m range": ("intermediate", _set("preprocess.cav_lidar_range", [-1e9, -1e9, -3, 1e9, 1e9, 1]), "cav_lidar_range"),
+    "a tiny voxel": ("early", _set("preprocess.args.voxel_size", [1e-4, 1e-4, 4]), "voxel_size"),
+    "a negative voxel": ("early", _set("preprocess.args.voxel_size", [-0.4, 0.4, 4]), "voxel_size"),
+    "a boolean voxel": ("early", _set("preprocess.args.voxel_size", [True, 0.4, 4]), "voxel_size"),
+    "a huge integer voxel": ("early", _set("preprocess.args.voxel_size", [10**400, 0.4, 4]), "voxel_size"),
+    "1e9 points a voxel": ("early", _set("preprocess.args.max_points_per_voxel", 10**9), "max_points_per_voxel"),
+    "2e6 filters": ("early", _set("model.args.base_bev_backbone.num_filters", [2_000_000, 64, 64]), "num_filters"),
+    "100,000 layers": ("early", _set("model.args.base_bev_backbone.layer_nums", [100_000, 1, 1]), "layer_nums"),
+    # strings where numbers go, lists or dicts where names go
+    "a text threshold": ("early", _set("postprocess.target_args.score_threshold", "0.2"), "score_threshold"),
+    "a text anchor size": ("early", _set("postprocess.anchor_args.l", "3.9"), "anchor_args.l"),
+    "a text point count": ("early", _set("preprocess.args.max_points_per_voxel", "32"), "max_points_per_voxel"),
+    "a list as fusion": ("early", _set("fusion.core_method", ["EarlyFusionDataset"]), "fusion"),
+    "a dict as model": ("early", _set("model.core_method", {"a": 1}), "model"),
+    # keys OpenCOOD reads, missing
+    "no model args": ("early", _set("model.args", _DROP), "model.args"),
+    "no backbone": ("early", _set("model.args.base_bev_backbone", _DROP), "base_bev_backbone"),
+    "no pillar_vfe": ("early", _set("model.args.pillar_vfe", _DROP), "pillar_vfe"),
+    "no nms_thresh": ("early", _set("postprocess.nms_thresh", _DROP), "nms_thresh"),
+    "no order": ("early", _set("postprocess.order", _DROP), "order"),
+    "no target_args": ("early", _set("postprocess.target_args", _DROP), "target_args"),
+    "no max_num": ("early", _set("postprocess.max_num", _DROP), "max_num"),
+    "no data_augment": ("early", _set("data_augment", _DROP), "data_augment"),
+    "no yaml_parser (grid_size unset)": ("early", _set("yaml_parser", _DROP), "yaml_parser"),
+    "F-Cooper without max_cav": ("fcooper", _set("model.args.max_cav", _DROP), "max_cav"),
+    # kinds that do not fit, names OpenCOOD does not know
+    "early dataset, intermediate model": ("intermediate", _set("fusion.core_method", "EarlyFusionDataset"), "fusion.core_method"),
+    "late dataset, F-Cooper": ("fcooper", _set("fusion.core_method", "LateFusionDataset"), "fusion.core_method"),
+    "an unknown pre-processor": ("early", _set("preprocess.core_method", "MagicPreprocessor"), "preprocess.core_method"),
+    "an unknown post-processor": ("early", _set("postprocess.core_method", "MagicPostprocessor"), "postprocess.core_method"),
+    "anchors and rotations disagree": ("early", _set("postprocess.anchor_args.num", 3), "anchor_args.num"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE_SETTINGS))
+def test_every_opencood_setting_is_checked_before_opencood_runs(case, tmp_path):
+    """One value of a working config spoiled: one line naming the key, before any model is built,
+    within a second (no allocation, no parse of OpenCOOD's)."""
+    import time
+
+    from asg.perception.opencood.folder import read_hypes
+    from opencood_models import tiny_hypes
+
+    kind, spoil, needle = HOSTILE_SETTINGS[case]
+    hypes = tiny_hypes(kind)
+    spoil(hypes)
+    folder = tmp_path / "m"
+    folder.mkdir()
+    (folder / "config.yaml").write_text(yaml.safe_dump(hypes))
+    start = time.perf_counter()
+    with pytest.raises(InputError) as err:
+        read_hypes(folder)
+    assert time.perf_counter() - start < 1.0
+    assert needle in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+def test_a_spoiled_setting_is_one_line_from_evaluate_and_generate(capsys, tmp_path):
+    model = make_model_dir(tmp_path / "m", "intermediate")
+    hypes = yaml.safe_load((model / "config.yaml").read_text())
+    hypes["preprocess"]["cav_lidar_range"] = [-1e9, -1e9, -3, 1e9, 1e9, 1]
+    (model / "config.yaml").write_text(yaml.safe_dump(hypes))
+    for argv in (["evaluate", "--set", "normal-val"],
+                 ["generate", "--town", "fiveleg", "--count", "1", "--out", str(tmp_path / "g")]):
+        err = _refusal(capsys, *argv, "--fusion", f"opencood:{model}")
+        assert "cav_lidar_range" in err and "configs/generate.yaml" not in err
+    assert not (tmp_path / "g").exists()
+
+
+def test_a_checkpoint_of_sparse_or_meta_tensors_is_refused(tmp_path):
+    import torch
+
+    from asg.perception.opencood.folder import load_checkpoint
+
+    model = torch.nn.Linear(2, 2)
+    for odd in (torch.eye(2).to_sparse(), torch.empty(2, 2, device="meta")):
+        torch.save({"weight": odd, "bias": torch.zeros(2)}, tmp_path / "c.pth")
+        with pytest.raises(InputError, match="dense tensors on the CPU"):
+            load_checkpoint(model, tmp_path / "c.pth")
+
+
 #: a config's training settings spoiled, and what the one line names
 UNTRAINABLE = {
     "no train_params": (lambda h: h.pop("train_params"), "'train_params'"),

@@ -52,11 +52,18 @@ class GenerateConfig:
         return self.acs != ACS_OFF and ACS_STRATEGIES.entry(self.acs).needs_attention
 
     def validate(self) -> "GenerateConfig":
-        from ..collaborators import ACS_STRATEGIES
+        """The settings checked: the target (its own messages name its source: a model folder's
+        config.yaml, not this config), then every other value (:meth:`validate_values`)."""
         from ..perception.targets import check_fusion
-        from ..search import SEARCHES
 
         check_fusion(self.fusion)
+        return self.validate_values()
+
+    def validate_values(self) -> "GenerateConfig":
+        """Every setting but the target checked (its names and ranges)."""
+        from ..collaborators import ACS_STRATEGIES
+        from ..search import SEARCHES
+
         SEARCHES.check(self.search)
         ACS_STRATEGIES.check(self.acs, extra=(ACS_OFF,))
         if not 1 <= self.budget <= MAX_BUDGET:
@@ -112,12 +119,13 @@ def load_generate_config(path: Path | None = None, protocol: str | None = None, 
     if overrides.get("budget") is None and data.get("search") in budget_by_search:
         data["budget"] = budget_by_search[data["search"]]
     try:
-        return from_mapping(GenerateConfig, data, str(path)).validate()
+        cfg = from_mapping(GenerateConfig, data, str(path)).validate_values()
     except InputError as exc:  # a range check inside a component's config: say which file it came from
         text = str(exc)
         if str(path) in text or text.startswith("--"):
             raise
         raise InputError(f"{path}: {text}") from None
+    return cfg.validate()  # the target's refusal names its own source (a model folder), not this file
 
 
 def with_space_flags(cfg: GenerateConfig, plausibility: str | None, spaces: str | None) -> GenerateConfig:

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sumo_scenarios.errors import InputError
+
 from ...sensors.opv2v import agent_views, frame_ids
 from ...sensors.frame import CooperativeFrame
 from ..data import in_range
@@ -39,12 +41,17 @@ class OpenCOODDetector:
         self.kind = FUSION_KINDS[hypes["fusion"]["core_method"]]
         self.has_attention = MODELS[hypes["model"]["core_method"]] and self.kind == "intermediate"
         empty = tempfile.mkdtemp(prefix="asg-opencood-")  # its dataset lists a data folder: an empty one
+        step = "dataset"
         try:
             self.dataset = module("data_utils.datasets").build_dataset(
                 {**hypes, "root_dir": empty, "validate_dir": empty}, visualize=False, train=False)
+            step = "model"
+            self.model = module("tools.train_utils").create_model(hypes)
+        except Exception as exc:  # the last wall: OpenCOOD's own code on a user's folder, whatever it raises
+            raise InputError(f"{folder}: OpenCOOD could not build its {step} ({_first_line(exc)}); check the "
+                             "folder's config.yaml against OpenCOOD's hypes_yaml") from None
         finally:
             shutil.rmtree(empty, ignore_errors=True)
-        self.model = module("tools.train_utils").create_model(hypes)
         load_checkpoint(self.model, checkpoint_of(folder))
         self.model.eval()
         self.fusions = use_ego_row(self.model)  # AttFuse's attention by the ego's row: OpenCOOD's function, faster
@@ -72,10 +79,15 @@ class OpenCOODDetector:
         self.dataset.retrieve_base_data = lambda idx: data
         state = np.random.get_state()
         np.random.seed(FRAME_SEED)
+        step = "pre-processing"
         try:
             batch = self.dataset.collate_batch_test([self.dataset[0]])
+            step = "model and post-processing"
             with torch.no_grad():
                 corners, scores, _ = self.infer(batch, self.model, self.dataset)
+        except Exception as exc:  # the last wall: OpenCOOD's own code on a user's folder, whatever it raises
+            raise InputError(f"{self.folder}: OpenCOOD's {step} failed on {frame.scene_id} "
+                             f"({_first_line(exc)}); check the folder's config.yaml") from None
         finally:
             np.random.set_state(state)
         return corners, scores, data, lowered_m
@@ -125,6 +137,11 @@ class OpenCOODDetector:
         ego = next(iter(data.values()))["params"]["lidar_pose"]
         return [by_id[k] for k, v in data.items()
                 if np.hypot(v["params"]["lidar_pose"][0] - ego[0], v["params"]["lidar_pose"][1] - ego[1]) <= com_range_m]
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0][:160]}" if text else type(exc).__name__
 
 
 def boxes_from_opv2v(boxes: np.ndarray, lowered_m: float) -> np.ndarray:

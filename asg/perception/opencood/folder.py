@@ -14,6 +14,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.numpy_yaml import add_numpy_data
 
 from .runtime import module
+from .settings import check_settings
 
 #: the dataset classes (OpenCOOD's ``fusion.core_method``) the adapter runs, and how each infers
 FUSION_KINDS = {"LateFusionDataset": "late", "EarlyFusionDataset": "early",
@@ -92,6 +93,7 @@ def read_hypes(folder: Path) -> dict:
         raise InputError(f"{path}: expected a mapping of OpenCOOD's settings")
     _check_size(hypes, path)
     _check_supported(hypes, path)
+    check_settings(hypes, path)
     parser = hypes.get("yaml_parser")
     if parser is not None:
         if parser not in PARSERS:
@@ -129,10 +131,10 @@ def _check_supported(hypes: dict, path: Path) -> None:
         hypes["preprocess"]["cav_lidar_range"], hypes["postprocess"]["anchor_args"]
     except (KeyError, TypeError):
         raise InputError(f"{path}: lacks fusion, model, preprocess or postprocess settings; not an OpenCOOD config") from None
-    if fusion not in FUSION_KINDS:
-        raise InputError(f"{path}: fusion {fusion!r} is not run here; the adapter runs {', '.join(FUSION_KINDS)}")
-    if model not in MODELS:
-        raise InputError(f"{path}: model {model!r} is not run here (the adapter runs OpenCOOD's PointPillars "
+    if not isinstance(fusion, str) or fusion not in FUSION_KINDS:
+        raise InputError(f"{path}: fusion {str(fusion)[:60]!r} is not run here; the adapter runs {', '.join(FUSION_KINDS)}")
+    if not isinstance(model, str) or model not in MODELS:
+        raise InputError(f"{path}: model {str(model)[:60]!r} is not run here (the adapter runs OpenCOOD's PointPillars "
                          f"models: {', '.join(MODELS)})")
 
 
@@ -160,6 +162,10 @@ def load_checkpoint(model, path: Path) -> None:
                          "only as tensors (weights_only), never as pickled objects") from None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise InputError(f"{path}: not a state dict of tensors; save model.state_dict() as OpenCOOD's trainer does")
+    odd = next((k for k, v in state.items() if v.layout is not torch.strided or v.device.type != "cpu"), None)
+    if odd is not None:
+        raise InputError(f"{path}: tensor {str(odd)[:60]} is {state[odd].layout} on {state[odd].device.type}; a "
+                         "checkpoint holds dense tensors on the CPU (torch.save(model.state_dict()))")
     own = model.state_dict()
     missing = sorted(set(own) - set(state))
     unexpected = sorted(set(state) - set(own))
