@@ -203,7 +203,9 @@ def _scene(scenario: Path, stamp: str, root: Path, lanes: LaneMap | None = None,
     if lanes is None:
         return replace(scene, lane_map=scan_area(scene, clouds))
     x, y = views[ego].sensor[:2]
-    return replace(scene, lane_map=_covering(lanes.crop((x, y), MAP_RADIUS_M), vehicles, scene.scene_id, map_path))
+    town = map_path.name.split(".")[0]  # the map's town (a bundled or imported town's net: what exports read)
+    return replace(scene, town=_safe_stem(town),
+                   lane_map=_covering(lanes.crop((x, y), MAP_RADIUS_M), vehicles, scene.scene_id, map_path))
 
 
 def _covering(lanes: LaneMap, vehicles: dict[str, Agent], scene_id: str, map_path: Path | None) -> LaneMap:
