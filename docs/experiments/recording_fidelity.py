@@ -5,7 +5,7 @@ feasible set) applied by the scan editor to the imported scene and by the World 
 
 Per scene and sensing agent: the share of re-simulated points within 5 cm of an edited point, and
 the reverse; per target, AP@0.3/0.5/0.7 by both yardsticks on the edited frames and on the
-re-simulated ones; and one vehicle taken out and put back at its own pose (the editor's removal,
+re-simulated ones (their intensities at the 8 bits a recorded PCD holds, as the recording's are); and one vehicle taken out and put back at its own pose (the editor's removal,
 then its insertion) against the recorded scan: the share within 2 cm both ways.
 
     python docs/experiments/recording_fidelity.py SET COUNT OUT.json [TARGET ...]
@@ -34,9 +34,10 @@ from asg.perception.data import in_range
 from asg.scene import save_scene
 from asg.scene.from_opv2v import import_scenes
 from asg.scene.neighbours import with_nearest_collaborators
-from asg.search import FeasibleSet, SearchSpace
+from asg.search import EmptyFeasibleSet, FeasibleSet, SearchSpace
 from asg.sensors import load_lidar_spec, occlusion_scores, render_frame, simulate_frame, world_for
 from asg.sensors.agreement import share_within
+from asg.sensors.opv2v import pcd_intensity_levels
 
 DEFAULT_TARGETS = ("attfuse", "opencood:docs/experiments/opencood-attfuse-asg")
 SPEC = load_lidar_spec()
@@ -48,11 +49,21 @@ def one_move(scene, rng: np.random.Generator) -> dict:
     cfg = GenerateConfig()
     others = [a for a in scene.vehicles if a.agent_id not in scene.sensing_ids]
     scores = occlusion_scores([scene.agent(i) for i in scene.sensing_ids], others, SPEC.range_m)
+    ranked = [a.agent_id for a in sorted(others, key=lambda a: (-scores[a.agent_id], a.agent_id))]
     count = int(rng.integers(1, 4))
-    movers = [a.agent_id for a in sorted(others, key=lambda a: (-scores[a.agent_id], a.agent_id))[:count]]
+    movers: list[str] = []
+    for vid in ranked:  # the heuristic's picks, passing over a vehicle that is boxed in
+        if len(movers) == count:
+            break
+        try:
+            FeasibleSet(SearchSpace(scene, [*movers, vid], cfg.space), rng)
+            movers.append(vid)
+        except EmptyFeasibleSet:
+            continue
+    if not movers:
+        return {}
     space = SearchSpace(scene, movers, cfg.space)
-    feasible = FeasibleSet(space, rng)
-    x = feasible.project(rng.uniform(-1.0, 1.0, space.dim))
+    x = FeasibleSet(space, rng).project(rng.uniform(-1.0, 1.0, space.dim))
     return dict(space.decode(x).moved)
 
 
@@ -60,6 +71,18 @@ def in_world(frame, agent: str) -> np.ndarray:
     """``agent``'s cloud (N, 3) in the world frame."""
     pose = frame.poses[agent]
     return frame.clouds[agent][:, :3].astype(np.float64) @ pose.rotation().T + pose.origin
+
+
+def as_recorded(frame):
+    """``frame`` with each point's intensity at the 8 bits an OPV2V PCD stores (``asg export``
+    quantises every recorded scan so, and the edit keeps the recorded points as they are): the
+    re-simulated frame the edit is measured against, apart from the edit itself."""
+    clouds = {}
+    for aid, cloud in frame.clouds.items():
+        c = cloud.copy()
+        c[:, 3] = pcd_intensity_levels(c[:, 3]) / np.float32(255.0)
+        clouds[aid] = c
+    return replace(frame, clouds=clouds)
 
 
 def detections(target, frame) -> tuple:
@@ -91,6 +114,7 @@ def measure_scene(native, folder: Path, targets: dict, rng: np.random.Generator)
         back = render_frame(world_for(imported, SPEC), moved={car.agent_id: None, twin.agent_id: twin})
         row["put_back_2cm"] = {a: [share_within(recorded.clouds[a], back.clouds[a], 0.02),  # one frame: same pose
                                    share_within(back.clouds[a], recorded.clouds[a], 0.02)] for a in imported.sensing_ids}
+    sim = as_recorded(sim)  # the re-simulated frame as a recording holds it: 8-bit intensities
     row["detections"] = {name: {"sim": detections(t, sim), "edit": detections(t, edited)} for name, t in targets.items()}
     return row
 
