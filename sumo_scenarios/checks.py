@@ -75,11 +75,12 @@ def safe_id(value: Any, where: str) -> str:
     return text
 
 
-def inside(root: Path, path: Path) -> Path:
-    """``path``, refused unless it resolves inside folder ``root`` (no write may leave it)."""
+def inside(root: Path, path: Path, why: str = "would be written outside {root}; check the ids in the input") -> Path:
+    """``path``, refused unless it resolves inside folder ``root`` (no write may leave it; no read
+    of a source may leave it through a link): ``why`` (with ``{root}``) says so in the one line."""
     r, p = Path(root).resolve(), Path(path).resolve()
     if p != r and r not in p.parents:
-        raise InputError(f"{path}: would be written outside {root}; check the ids in the input")
+        raise InputError(f"{path}: {why.format(root=root)}")
     return path
 
 

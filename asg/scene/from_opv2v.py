@@ -114,10 +114,7 @@ def _agent_dirs(folder: Path, root: Path) -> list[Path]:
 
 def _within(root: Path, path: Path) -> Path:
     """``path``, refused unless it resolves inside the source folder ``root`` (a link out of it)."""
-    r, p = Path(root).resolve(), Path(path).resolve()
-    if p != r and r not in p.parents:
-        raise InputError(f"{path}: leads outside {root} (a link); a recording's files must lie inside the folder imported")
-    return path
+    return checks.inside(root, path, "leads outside {root} (a link); a recording's files must lie inside the folder imported")
 
 
 def import_scenes(source: Path, params: ImportParams = ImportParams()) -> Iterator[Scene]:
