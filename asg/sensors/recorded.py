@@ -115,44 +115,45 @@ class RecordedWorld:
 
     # ---- the edit -----------------------------------------------------------------------------
     def _edited(self, sid: str, cloud: np.ndarray, current: Mapping[str, Agent], changed: list[str]) -> np.ndarray:
-        pose = self.sensor_pose(sid)
+        """``sid``'s scan with the ``changed`` vehicles taken out (at their recorded poses) and put in
+        (at their ``current`` ones); its own body is never edited."""
         xyz, t, dirs, az = self._rays_of(sid)
-        t = t.copy()
-        intensity = cloud[:, 3].copy()
-        keep = np.ones(len(cloud), dtype=bool)
-        edited = np.zeros(len(cloud), dtype=bool)
+        scan = _Scan(cloud, t.copy(), dirs, az)
         removed = [self._recorded[i] for i in changed if i in self._recorded and i != sid]
-        behind = [a for i, a in current.items() if i not in changed and i != sid]
         if removed:
-            taken = self._points_of(sid, xyz, removed)
-            if taken.any():
-                idx = np.flatnonzero(taken)
-                t_new, surf, cos = self._background(sid, pose, dirs[idx], az[idx], behind)
-                t[idx], intensity[idx] = t_new, REFLECTIVITY[surf] * cos
-                keep[idx] = np.isfinite(t_new) & (t_new <= self._range_m())
-                edited[idx] = True
+            behind = [a for i, a in current.items() if i not in changed and i != sid]
+            self._take_out(sid, scan, self._points_of(sid, xyz, removed), behind)
         added = [current[i] for i in changed if i in current and i != sid]
         if added:
-            bdirs, baz = self._missing_beams(sid, pose, added)
-            dirs, az = np.concatenate([dirs, bdirs]), np.concatenate([az, baz])
-            t = np.concatenate([t, np.full(len(bdirs), np.inf)])
-            intensity = np.concatenate([intensity, np.zeros(len(bdirs), np.float32)])
-            keep = np.concatenate([keep, np.zeros(len(bdirs), bool)])
-            edited = np.concatenate([edited, np.ones(len(bdirs), bool)])
-            sorted_az = self._sorted_az(sid)
-            for agent in added:
-                window = _window(pose, agent, self._range_m())
-                idx = np.concatenate([sorted_az.within(window), len(cloud) + _in_window(baz, window)])
-                limit = np.where(keep[idx], t[idx], self._range_m())
-                hit, t_hit, cos = self._cast(agent, pose, dirs[idx], limit, self._origin(sid))
-                sel = idx[hit]
-                t[sel], intensity[sel], keep[sel], edited[sel] = t_hit[hit], REFLECTIVITY[SURFACES["vehicle"]] * cos[hit], True, True
-        n = len(cloud)
-        out = np.concatenate([cloud, np.zeros((len(t) - n, 4), np.float32)]) if len(t) > n else cloud.copy()
-        rows = np.flatnonzero(edited & keep)  # the unedited rows keep the recorded values exactly
-        out[rows, :3] = self._origin(sid) + dirs[rows] * t[rows, None]
-        out[rows, 3] = intensity[rows]
-        return out if keep.all() else out[keep]
+            self._put_in(sid, scan, added)
+        return scan.points(self._origin(sid))
+
+    def _take_out(self, sid: str, scan: "_Scan", taken: np.ndarray, behind: list[Agent]) -> None:
+        """The ``taken`` (N,) bool rays cast again against what lies behind (a ray hitting nothing
+        in range dropped)."""
+        idx = np.flatnonzero(taken)
+        if not len(idx):
+            return
+        t_new, surf, cos = self._background(sid, self.sensor_pose(sid), scan.dirs[idx], scan.az[idx], behind)
+        scan.t[idx], scan.intensity[idx] = t_new, REFLECTIVITY[surf] * cos
+        scan.keep[idx] = np.isfinite(t_new) & (t_new <= self._range_m())
+        scan.edited[idx] = True
+
+    def _put_in(self, sid: str, scan: "_Scan", added: list[Agent]) -> None:
+        """Each of ``added`` cast against the rays in its azimuth window (the scan's, and the
+        LiDAR's beams where it recorded no return), a return replaced where its mesh is nearer."""
+        pose, n = self.sensor_pose(sid), len(scan.cloud)
+        bdirs, baz = self._missing_beams(sid, pose, added)
+        scan.extend(bdirs, baz)
+        sorted_az = self._sorted_az(sid)
+        for agent in added:
+            window = _window(pose, agent, self._range_m())
+            idx = np.concatenate([sorted_az.within(window), n + _in_window(baz, window)])
+            limit = np.where(scan.keep[idx], scan.t[idx], self._range_m())
+            hit, t_hit, cos = self._cast(agent, pose, scan.dirs[idx], limit, self._origin(sid))
+            sel = idx[hit]
+            scan.t[sel], scan.intensity[sel] = t_hit[hit], REFLECTIVITY[SURFACES["vehicle"]] * cos[hit]
+            scan.keep[sel] = scan.edited[sel] = True
 
     def _points_of(self, sid: str, xyz: np.ndarray, vehicles: list[Agent]) -> np.ndarray:
         """(N,) bool: the scan's points inside any of ``vehicles``' recorded boxes (grown by
@@ -327,6 +328,38 @@ def _window(pose: SensorPose, agent: Agent, range_m: float, margin_m: float = 0.
     rel = np.arctan2(corners[:, 1], corners[:, 0]) - az_c
     rel = (rel + math.pi) % (2 * math.pi) - math.pi
     return az_c - pose.yaw_rad, float(rel.min()) - WINDOW_MARGIN_RAD, float(rel.max()) + WINDOW_MARGIN_RAD
+
+
+class _Scan:
+    """One scan under edit, per ray: distance ``t``, unit direction ``dirs`` and azimuth ``az`` (view
+    frame, from the LiDAR), ``intensity``, whether it still returns (``keep``) and was changed
+    (``edited``); rays past the recorded cloud's rows are the LiDAR's beams that recorded nothing."""
+
+    def __init__(self, cloud: np.ndarray, t: np.ndarray, dirs: np.ndarray, az: np.ndarray):
+        self.cloud, self.t, self.dirs, self.az = cloud, t, dirs, az
+        self.intensity = cloud[:, 3].copy()
+        self.keep = np.ones(len(cloud), dtype=bool)
+        self.edited = np.zeros(len(cloud), dtype=bool)
+
+    def extend(self, dirs: np.ndarray, az: np.ndarray) -> None:
+        """Add rays (K, 3) with azimuths (K,) that return nothing yet."""
+        k = len(dirs)
+        self.dirs, self.az = np.concatenate([self.dirs, dirs]), np.concatenate([self.az, az])
+        self.t = np.concatenate([self.t, np.full(k, np.inf)])
+        self.intensity = np.concatenate([self.intensity, np.zeros(k, np.float32)])
+        self.keep = np.concatenate([self.keep, np.zeros(k, bool)])
+        self.edited = np.concatenate([self.edited, np.ones(k, bool)])
+
+    def points(self, origin: np.ndarray) -> np.ndarray:
+        """(M, 4) float32: the recorded rows as recorded unless edited, edited ones from ``origin``
+        (3,) along their rays, dropped ones out, the beams that now return appended."""
+        n = len(self.cloud)
+        out = np.concatenate([self.cloud, np.zeros((len(self.t) - n, 4), np.float32)]) if len(self.t) > n \
+            else self.cloud.copy()
+        rows = np.flatnonzero(self.edited & self.keep)
+        out[rows, :3] = origin + self.dirs[rows] * self.t[rows, None]
+        out[rows, 3] = self.intensity[rows]
+        return out if self.keep.all() else out[self.keep]
 
 
 class _Azimuths:
