@@ -5,6 +5,7 @@ hardening and the tables score with it.
 """
 from __future__ import annotations
 
+import enum
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -18,6 +19,26 @@ from .perception import V2XDetector, build_detector
 from .scene import Scene
 from .sensors import LidarSpec, load_lidar_spec, simulate_frame
 from .sensors.lidar_spec import DEFAULT_LIDAR
+
+
+class GroundTruth(str, enum.Enum):
+    """What a detector is scored against (``asg evaluate --ground-truth``)."""
+    #: every vehicle of the scene but the ego whose centre lies within asg's evaluation range of the
+    #: ego (|x|, |y| <= 48 m), the detections likewise
+    ASG = "asg"
+    #: OpenCOOD's own test-time rule, for an OpenCOOD model: what its tools/inference.py scores (its
+    #: fixed range, the ego's own car where a collaborator lists it; docs/opencood.md)
+    OPENCOOD = "opencood"
+
+
+def check_ground_truth(truth: GroundTruth, fusion: str) -> GroundTruth:
+    """``truth`` if the target ``fusion`` can be scored by it; one InputError otherwise."""
+    from .perception import resolve_target
+
+    if truth is GroundTruth.OPENCOOD and not resolve_target(fusion).own_ground_truth:
+        raise InputError(f"--ground-truth opencood scores an OpenCOOD model folder by OpenCOOD's own test-time rule; "
+                         f"'{fusion}' is not one (use --ground-truth asg)")
+    return truth
 
 
 def scored(frames: list[tuple], keep_matches: bool = False) -> dict:
@@ -34,25 +55,28 @@ def scored(frames: list[tuple], keep_matches: bool = False) -> dict:
 
 
 def evaluate_detector(detector: V2XDetector, scenes: Iterable[Scene], progress: Callable[[int], None] | None = None,
-                      keep_matches: bool = False, lidar: str = DEFAULT_LIDAR) -> dict:
+                      keep_matches: bool = False, lidar: str = DEFAULT_LIDAR, truth: GroundTruth = GroundTruth.ASG) -> dict:
     """{"ap": {"0.3", "0.5", "0.7"}, "ap_per_frame": the same without the global sort, "frames": N,
-    "without_collaborators": M} with ground truth = every vehicle in range; M counts the scenes
-    that name no collaborator (scored single-agent); every frame rendered with the ``lidar`` preset.
-    No scenes is a ValueError (see :func:`scored`)."""
+    "without_collaborators": M} against ground truth ``truth`` (every vehicle in range by default);
+    M counts the scenes that name no collaborator (scored single-agent); every frame rendered with
+    the ``lidar`` preset. No scenes is a ValueError (see :func:`scored`)."""
     spec = load_lidar_spec(lidar)
     frames = []
     alone = 0
     for i, scene in enumerate(scenes):
         alone += not scene.collaborators
-        frames.append(_detect(detector, spec, scene))
+        frames.append(_detect(detector, spec, scene, truth))
         if progress:
             progress(i + 1)
     return scored(frames, keep_matches) | {"without_collaborators": alone}
 
 
-def _detect(detector: V2XDetector, spec: LidarSpec, scene: Scene) -> tuple:
-    """(boxes (K, 7), scores (K,), ground truth in range (M, 7)) of ``detector`` on ``scene``, ego frame."""
+def _detect(detector: V2XDetector, spec: LidarSpec, scene: Scene, truth: GroundTruth = GroundTruth.ASG) -> tuple:
+    """(boxes (K, 7), scores (K,), ground truth (M, 7)) of ``detector`` on ``scene``, ego frame, by
+    the ground-truth rule ``truth``."""
     sample = Sample(scene.scene_id, simulate_frame(scene, spec))
+    if truth is GroundTruth.OPENCOOD:
+        return detector.opencood_frame(sample.frame)
     boxes, scores = detector.detect(sample.frame)
     return boxes, scores, sample.gt_eval()
 
@@ -68,33 +92,37 @@ def target_detector(fusion: str, weights_file: str | None = None, detector_facto
     return build_detector(fusion, weights_file=weights_file)
 
 
-def _worker_setup(fusion: str, weights_file: str | None, detector_factory: str | None) -> tuple[V2XDetector, LidarSpec]:
-    return target_detector(fusion, weights_file, detector_factory), load_lidar_spec()
+def _worker_setup(fusion: str, weights_file: str | None, detector_factory: str | None,
+                  truth: str = GroundTruth.ASG.value) -> tuple[V2XDetector, LidarSpec, GroundTruth]:
+    return target_detector(fusion, weights_file, detector_factory), load_lidar_spec(), GroundTruth(truth)
 
 
-def _worker_run(state: tuple[V2XDetector, LidarSpec], item: tuple[int, dict]) -> tuple:
-    return _detect(*state, Scene.from_dict(item[1]))
+def _worker_run(state: tuple[V2XDetector, LidarSpec, GroundTruth], item: tuple[int, dict]) -> tuple:
+    detector, spec, truth = state
+    return _detect(detector, spec, Scene.from_dict(item[1]), truth)
 
 
 def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None,
              weights_file: str | None = None, executor=None, detector_factory: str | None = None,
-             keep_matches: bool = False) -> dict:
+             keep_matches: bool = False, truth: GroundTruth = GroundTruth.ASG) -> dict:
     """AP of detector ``fusion`` (its shipped weights, or ``weights_file``, or what
     ``detector_factory`` returns) on a set (see scenes_of), its scenes on ``executor`` (default:
-    this process); the frames are pooled in the set's order (``keep_matches``: see :func:`scored`).
-    A set with no scenes is one InputError."""
+    this process), against the ground truth ``truth``; the frames are pooled in the set's order
+    (``keep_matches``: see :func:`scored`). A set with no scenes is one InputError."""
     import itertools
 
     from .executors import Job
 
+    check_ground_truth(truth, fusion)
     scenes = list(itertools.islice(scenes_of(set_name), limit))
     if not scenes:
         raise InputError(f"set {set_name!r} has no scenes to score; rebuild it ('asg dataset build') or pick another set")
     if executor is None:
-        result = evaluate_detector(target_detector(fusion, weights_file, detector_factory), scenes, progress, keep_matches)
+        result = evaluate_detector(target_detector(fusion, weights_file, detector_factory), scenes, progress, keep_matches,
+                                   truth=truth)
     else:
         frames: dict[int, tuple] = {}
-        job = Job(_worker_setup, _worker_run, (fusion, weights_file, detector_factory))
+        job = Job(_worker_setup, _worker_run, (fusion, weights_file, detector_factory, truth.value))
         for (i, _), detected in executor.map_unordered(job, [(i, s.to_dict()) for i, s in enumerate(scenes)]):
             frames[i] = detected
             if progress:
@@ -103,6 +131,7 @@ def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None
         result = scored(ordered, keep_matches) | {"without_collaborators": sum(not s.collaborators for s in scenes)}
     result["fusion"] = fusion
     result["set"] = set_name
+    result["ground_truth"] = truth.value
     return result
 
 

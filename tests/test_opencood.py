@@ -552,6 +552,53 @@ def test_asgs_ap_equals_opencoods_evaluation_on_the_adapters_detections(scenes, 
 
 
 @pytest.mark.slow
+def test_evaluate_by_opencoods_rule_equals_opencoods_own_inference_on_the_export(scenes, tmp_path):
+    """``asg evaluate --ground-truth opencood`` scores as OpenCOOD's ``tools/inference.py`` does:
+    its dataset reading the scenes' OPV2V export (its ground truth: its fixed range, the ego's own
+    car where a collaborator lists it), its model and post-processor, its eval_utils (per frame, no
+    sort across frames): AP at 0.3, 0.5 and 0.7 within 0.1 point. A trained model (OpenCOOD's
+    AttFuse with asg's weights, docs/experiments/opencood-attfuse-asg), so that AP is not 0."""
+    import torch
+
+    from asg.evaluation import GroundTruth, evaluate_detector
+    from asg.io.export.opv2v import ScenarioWriter
+    from asg.perception.opencood.folder import read_hypes
+    from asg.perception.opencood.runtime import module
+
+    chosen = [replace(s, scene_id=f"{s.scene_id}-{ego}{k}") for (ego, k) in (("rsu", 2), ("vehicle", 2), ("vehicle", 1))
+              for s in scenes[ego, k]]  # one scenario folder each
+    model_dir, kind = Path(__file__).resolve().parent.parent / "docs" / "experiments" / "opencood-attfuse-asg", "intermediate"
+    export_dir = tmp_path / "export"
+    writer = ScenarioWriter(export_dir)
+    for s in chosen:
+        writer.write(s)
+    hypes = read_hypes(model_dir)
+    hypes.update(root_dir=str(export_dir), validate_dir=str(export_dir))
+    dataset = module("data_utils.datasets").build_dataset(hypes, visualize=False, train=False)
+    model = module("tools.train_utils").create_model(hypes)
+    model.load_state_dict(torch.load(model_dir / "net_epoch4.pth", weights_only=True))
+    model.eval()
+    infer = getattr(module("tools.inference_utils"), f"inference_{kind}_fusion")
+    eval_utils = module("utils.eval_utils")
+    stat = {t: {"tp": [], "fp": [], "gt": 0} for t in (0.3, 0.5, 0.7)}
+    order = {name: i for i, name in enumerate(sorted(p.name for p in export_dir.iterdir() if p.is_dir()))}
+    for s in chosen:  # the frames in asg's order (per frame: the order of the lists matters)
+        np.random.seed(0)
+        batch = dataset.collate_batch_test([dataset[order[s.scene_id]]])
+        with torch.no_grad():
+            corners, scores, truth = infer(batch, model, dataset)
+        for t in stat:
+            eval_utils.caluclate_tp_fp(corners, scores, truth, stat, t)
+    theirs = {f"{t:g}": eval_utils.calculate_ap(stat, t)[0] for t in stat}
+    ours = evaluate_detector(build_detector(f"opencood:{model_dir}"), chosen, truth=GroundTruth.OPENCOOD)
+    assert 0.02 < theirs["0.3"] < 0.98, theirs  # a figure that can tell the rules apart
+    for t, ap in theirs.items():
+        assert abs(ours["ap_per_frame"][t] - ap) <= 1e-3, (t, ours["ap_per_frame"], theirs)
+    asg_rule = evaluate_detector(build_detector(f"opencood:{model_dir}"), chosen)
+    assert asg_rule["ap_per_frame"] != ours["ap_per_frame"]  # the two rules differ on these frames
+
+
+@pytest.mark.slow
 def test_a_challenging_set_is_built_against_an_opencood_model_and_evaluated(capsys, tmp_path, monkeypatch):
     """``asg dataset build challenging --fusion opencood:DIR``: the set is named by the model folder
     and its files' digest (a safe name; another checkpoint, another set), and is read back by

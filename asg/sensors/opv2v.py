@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from ..scene import Scene
+from ..scene import Agent, Scene
 from ..scene.recording import opencood_ego  # noqa: F401  (the layout's ego rule, read by the import too)
 from .ego_frame import ego_frame_drop_m
 from .frame import CooperativeFrame
@@ -40,12 +40,13 @@ def opv2v_ids(scene: Scene, sensing_ids: tuple[str, ...] | None = None) -> dict[
     return ids
 
 
-def frame_ids(frame: CooperativeFrame) -> dict[str, int]:
-    """:func:`opv2v_ids` of a frame's sensing agents, from the frame alone (its ground truth lists
-    the scene's other vehicles in the scene's order)."""
+def frame_ids(frame: CooperativeFrame, every_vehicle: bool = False) -> dict[str, int]:
+    """:func:`opv2v_ids` of a frame's sensing agents (``every_vehicle``: and of every vehicle of its
+    ground truth), from the frame alone (its ground truth lists the scene's other vehicles in the
+    scene's order)."""
     sensing_rsus = [a for a in frame.sensing_ids if a != frame.ego_id and frame.agent_kinds.get(a, "vehicle") == "rsu"]
     ids = _numbered(frame.ego_id, frame.gt_ids, sensing_rsus)
-    return {a: ids[a] for a in frame.sensing_ids}
+    return ids if every_vehicle else {a: ids[a] for a in frame.sensing_ids}
 
 
 def _numbered(ego_id: str, vehicles, sensing_rsus) -> dict[str, int]:
@@ -62,7 +63,8 @@ def mirrored_pose(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> list[fl
     return [float(x_m), float(-y_m), float(z_m), 0.0, float(-math.degrees(yaw_rad)), 0.0]
 
 
-def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | None = None) -> tuple[dict, dict]:
+def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | None = None,
+                labelled: bool = False) -> tuple[dict, dict]:
     """Each sensing agent's view as OpenCOOD reads it from this layout, in memory: ({agent id:
     (meta, cloud)}, {agent id: how far its frame is lowered, m}). ``meta``: the agent's yaml
     (lidar_pose, true_ego_pos, ego_speed, vehicles: {OPV2V id: box entry}, every vehicle but itself);
@@ -72,10 +74,14 @@ def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | Non
     lidar_pose lowered by the same, so that OpenCOOD's ground-truth range around each agent's LiDAR
     (late fusion's per-agent labels) keeps its vehicles, and every projection between agents stays
     exact. ``scene``: the scene's agents (the boxes, the speeds); without it (a detector's input) no
-    vehicles are listed and the bodies are the sensors."""
+    vehicles are listed and the bodies are the sensors, unless ``labelled``: then the frame's own
+    ground truth (every vehicle but the ego, and the ego's box) is listed, at speed 0."""
     drops = {a: ego_frame_drop_m(frame.poses[a].z_m, frame.ground_z_m.get(a, frame.poses[a].z_m))
              for a in frame.sensing_ids}
-    vehicles = {} if scene is None else {a.agent_id: _vehicle_entry(a) for a in scene.agents if a.kind == "vehicle"}
+    if scene is not None:
+        vehicles = {a.agent_id: _vehicle_entry(a) for a in scene.agents if a.kind == "vehicle"}
+    else:
+        vehicles = frame_labels(frame) if labelled else {}
     views = {}
     for agent_id in frame.sensing_ids:
         pose = frame.poses[agent_id]
@@ -95,6 +101,19 @@ def agent_views(frame: CooperativeFrame, ids: dict[str, int], scene: Scene | Non
                 "vehicles": {ids[v]: entry for v, entry in vehicles.items() if v != agent_id}}
         views[agent_id] = (meta, cloud)
     return views, drops
+
+
+def frame_labels(frame: CooperativeFrame) -> dict[str, dict]:
+    """{vehicle id: its yaml entry} of every vehicle a frame's ground truth holds, the ego's own box
+    among them (what the scene's agents give an export, from the frame alone; speeds 0)."""
+    boxes = list(zip(frame.gt_ids, frame.gt_boxes_world))
+    if frame.ego_box_world is not None:
+        boxes.append((frame.ego_id, frame.ego_box_world))
+    out = {}
+    for vid, (x, y, zc, length, width, height, yaw) in boxes:
+        agent = Agent(vid, "vehicle", "car", x, y, zc - height / 2, yaw, length, width, height)
+        out[vid] = _vehicle_entry(agent)
+    return out
 
 
 def _vehicle_entry(agent) -> dict:

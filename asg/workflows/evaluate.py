@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..cli_args import COUNT, executor_args, fusion_arg, weights_arg
-from ..evaluation import evaluate
+from ..evaluation import GroundTruth, check_ground_truth, evaluate
 
 
 # ``asg evaluate``: this workflow's command (asg.cli's COMMAND_MODULES)
@@ -15,6 +15,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", default="normal", help="normal (train split), normal-val, normal-all, or a folder of scenes")
     p.add_argument("--limit", type=COUNT, default=None, help="only the first N scenes")
     weights_arg(p)
+    p.add_argument("--ground-truth", choices=[g.value for g in GroundTruth], default=GroundTruth.ASG.value,
+                   help="asg (default): every vehicle within 48 m of the ego; opencood: an OpenCOOD model scored as "
+                        "OpenCOOD's own tools/inference.py scores it (its fixed range, the ego's own car where a "
+                        "collaborator lists it; docs/opencood.md)")
     p.add_argument("--json", action="store_true", help="print JSON only")
     executor_args(p)
 
@@ -29,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import console, print_result, progress_bar
 
     check_fusion(args.fusion)
+    truth = check_ground_truth(GroundTruth(args.ground_truth), args.fusion)
     weights = None if args.weights is None else str(args.weights)
     if weights:
         check_weights_file(args.fusion, weights)
@@ -38,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
                                  if spread else contextlib.nullcontext()) as executor:
         task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
         result = evaluate(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n),
-                          weights_file=weights, executor=executor)
+                          weights_file=weights, executor=executor, truth=truth)
     if note := resolve_target(args.fusion).evaluation_note():
         console.print(f"[yellow]note: {note}")
     if result["without_collaborators"]:
@@ -47,9 +52,9 @@ def run(args: argparse.Namespace) -> int:
                       "extract scenes with 'asg scenes extract --collaborators K'")
     if args.json:
         print(json.dumps({"ap": result["ap"], "ap_per_frame": result["ap_per_frame"], "frames": result["frames"],
-                          "without_collaborators": result["without_collaborators"]}))
+                          "without_collaborators": result["without_collaborators"], "ground_truth": truth.value}))
     else:
-        print_result(f"asg evaluate --fusion {args.fusion} --set {args.set}",
+        print_result(f"asg evaluate --fusion {args.fusion} --set {args.set} --ground-truth {truth.value}",
                      {**{f"AP@{k}": round(v, 4) for k, v in result["ap"].items()},
                       **{f"AP@{k} per frame (paper)": round(v, 4) for k, v in result["ap_per_frame"].items()},
                       "frames": result["frames"]}, False)

@@ -58,11 +58,12 @@ class OpenCOODDetector:
         self.infer = getattr(module("tools.inference_utils"), f"inference_{self.kind}_fusion")
         self._corner_to_center = module("utils.box_utils").corner_to_center
 
-    def base_data(self, frame: CooperativeFrame) -> tuple[OrderedDict, float]:
+    def base_data(self, frame: CooperativeFrame, labelled: bool = False) -> tuple[OrderedDict, float]:
         """The frame as OpenCOOD's ``retrieve_base_data`` returns it from the OPV2V export (ego first,
-        the others in its folder order), and how far the ego's frame is lowered (m)."""
-        ids = frame_ids(frame)
-        views, drops = agent_views(frame, ids)
+        the others in its folder order; ``labelled``: with the frame's ground truth listed, as the
+        export lists the scene's vehicles), and how far the ego's frame is lowered (m)."""
+        ids = frame_ids(frame, every_vehicle=labelled)
+        views, drops = agent_views(frame, ids, labelled=labelled)
         order = [frame.ego_id] + sorted((a for a in frame.sensing_ids if a != frame.ego_id), key=lambda a: str(ids[a]))
         data = OrderedDict()
         for a in order:
@@ -70,12 +71,13 @@ class OpenCOODDetector:
             data[str(ids[a])] = OrderedDict(ego=a == frame.ego_id, params=meta, lidar_np=cloud)
         return data, drops[frame.ego_id]
 
-    def _run(self, frame: CooperativeFrame):
+    def _run(self, frame: CooperativeFrame, with_truth: bool = False):
         """(corners (K, 8, 3) or None, scores (K,) or None) in OpenCOOD's ego frame, the base data it ran
-        on (:meth:`base_data`) and the ego frame's drop (m)."""
+        on (:meth:`base_data`) and the ego frame's drop (m); ``with_truth``: OpenCOOD's own ground
+        truth corners (M, 8, 3) of the frame too, last."""
         import torch
 
-        data, lowered_m = self.base_data(frame)
+        data, lowered_m = self.base_data(frame, labelled=with_truth)
         self.dataset.retrieve_base_data = lambda idx: data
         state = np.random.get_state()
         np.random.seed(FRAME_SEED)
@@ -84,25 +86,37 @@ class OpenCOODDetector:
             batch = self.dataset.collate_batch_test([self.dataset[0]])
             step = "model and post-processing"
             with torch.no_grad():
-                corners, scores, _ = self.infer(batch, self.model, self.dataset)
+                corners, scores, truth = self.infer(batch, self.model, self.dataset)
         except Exception as exc:  # the last wall: OpenCOOD's own code on a user's folder, whatever it raises
             raise InputError(f"{self.folder}: OpenCOOD's {step} failed on {frame.scene_id} "
                              f"({_first_line(exc)}); check the folder's config.yaml") from None
         finally:
             np.random.set_state(state)
-        return corners, scores, data, lowered_m
+        return (corners, scores, data, lowered_m, truth) if with_truth else (corners, scores, data, lowered_m)
 
     def detect(self, frame: CooperativeFrame) -> tuple[np.ndarray, np.ndarray]:
         """Boxes (K, 7) x, y, z (centre), l, w, h, yaw in the ego's sensor frame and scores (K,),
         within the evaluation range."""
         corners, scores, _, lowered_m = self._run(frame)
-        if corners is None or len(corners) == 0:
-            return np.zeros((0, 7)), np.zeros(0)
-        boxes = self._corner_to_center(corners.detach().cpu().numpy().astype(np.float64), order="lwh")
-        boxes = boxes_from_opv2v(boxes, lowered_m)
-        scores = scores.detach().cpu().numpy().astype(np.float64).reshape(-1)
+        boxes, scores = self._boxes(corners, lowered_m), _numpy(scores)
         keep = in_range(boxes)
         return boxes[keep], scores[keep]
+
+    def opencood_frame(self, frame: CooperativeFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(boxes (K, 7), scores (K,), ground truth (M, 7)) as OpenCOOD's own ``tools/inference.py``
+        scores the frame, in the ego's sensor frame: its detections as its post-processor leaves them
+        (no cut to asg's evaluation range) and its test-time ground truth (every vehicle any agent
+        lists, the ego's own car where a collaborator lists it, kept where all eight corners lie in
+        its fixed range, GT_RANGE: |x| <= 140 m, |y| <= 40 m, -3 <= z <= 1 m in its ego frame)."""
+        corners, scores, _, lowered_m, truth = self._run(frame, with_truth=True)
+        return self._boxes(corners, lowered_m), _numpy(scores), self._boxes(truth, lowered_m)
+
+    def _boxes(self, corners, lowered_m: float) -> np.ndarray:
+        """Corners (K, 8, 3) of OpenCOOD's ego frame (a tensor, or None) as boxes (K, 7) in asg's."""
+        if corners is None or len(corners) == 0:
+            return np.zeros((0, 7))
+        boxes = self._corner_to_center(corners.detach().cpu().numpy().astype(np.float64), order="lwh")
+        return boxes_from_opv2v(boxes, lowered_m)
 
     def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float] | None:
         """AttFuse's ego-row self-attention toward each agent, averaged over BEV cells and over the
@@ -137,6 +151,10 @@ class OpenCOODDetector:
         ego = next(iter(data.values()))["params"]["lidar_pose"]
         return [by_id[k] for k, v in data.items()
                 if np.hypot(v["params"]["lidar_pose"][0] - ego[0], v["params"]["lidar_pose"][1] - ego[1]) <= com_range_m]
+
+
+def _numpy(scores) -> np.ndarray:
+    return np.zeros(0) if scores is None else scores.detach().cpu().numpy().astype(np.float64).reshape(-1)
 
 
 def _first_line(exc: BaseException) -> str:

@@ -40,6 +40,9 @@ class Target:
     header: ClassVar[str] = "detectors"
     #: does ``asg bench detect`` time the framework's own pipeline beside asg's run of it?
     has_reference_pipeline: ClassVar[bool] = False
+    #: can its detector score a frame by its framework's own test-time ground truth
+    #: (``opencood_frame``: ``asg evaluate --ground-truth opencood``)?
+    own_ground_truth: ClassVar[bool] = False
 
     def __init__(self, name: str):
         self.name = name

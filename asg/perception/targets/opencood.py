@@ -23,6 +23,7 @@ class OpenCOODTarget(Target):
     training = Training.OPENCOOD
     header = "OpenCOOD model folders"
     has_reference_pipeline = True
+    own_ground_truth = True
 
     @classmethod
     def claims(cls, name: str) -> bool:
