@@ -27,6 +27,7 @@ import numpy as np
 
 from sumo_scenarios.atomic import atomic_dir, atomic_path, write_text_atomic
 from sumo_scenarios.checks import inside
+from sumo_scenarios.errors import InputError
 
 from ..objective import AP_KEYS, ap_text
 from ..objective.pooled import PooledAP

@@ -22,6 +22,7 @@ from sumo_scenarios.errors import InputError
 from ..datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
 from ..objective.ap import DEFAULT_AP_METHOD
 from ..objective.pooled import pair_json
+from ..schemas import CURRENT, SCHEMA_KEY, SchemaFile
 from ..scene import load_scene
 
 #: the split of the normal set each challenging set is generated from
