@@ -395,3 +395,20 @@ def test_cloud_agreement_counts_the_points_near_the_other_cloud():
     b = np.array([[0.01, 0, 0], [1.2, 0, 0]])
     assert share_within(a, b, 0.05) == pytest.approx(1 / 3) and share_within(b, a, 0.25) == 1.0
     assert share_within(a[:0], b, 0.1) != share_within(a[:0], b, 0.1) and share_within(a, b[:0], 0.1) == 0.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("space", ["poses", "pose-error,dropout", "poses,pose-error"])
+def test_every_space_a_recording_takes_runs_on_it(space, recorded, capsys, tmp_path):
+    """The spaces a recording takes without a map (moves on the scanned area, the V2X link) each run
+    a search on it (one worker, then two: the scene crosses to a worker process and back)."""
+    import json
+
+    _, _, imported, _ = recorded
+    save_scene(imported, tmp_path / "scenes" / f"{imported.scene_id}.yaml")
+    for workers in ("1", "2"):
+        code, err = run(capsys, "generate", "--scenes", str(tmp_path / "scenes"), "--fusion", "none", "--acs", "random",
+                        "--budget", "3", "--space", space, "--workers", workers, "--out", str(tmp_path / f"g{workers}"))
+        assert code == 0, err
+    results = [json.loads(next((tmp_path / f"g{w}" / "scenes").glob("*/result.json")).read_text()) for w in "12"]
+    assert results[0]["ap_final"] == results[1]["ap_final"] and results[0]["evaluations"] >= 3
