@@ -4,6 +4,7 @@ for bit; an edit of the recorded clouds agrees with the simulator re-rendering t
 recordings are one line."""
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 from dataclasses import replace
@@ -352,7 +353,17 @@ def test_a_recording_is_attacked_and_its_edited_clouds_export(recorded, capsys, 
     assert code == 0, err
     frame = simulate_frame(final, SPEC)
     pcd = next((tmp_path / "x").glob(f"*/{final.ego_id}/000000.pcd"))
-    assert len(read_recorded_pcd(pcd)) == len(frame.clouds[final.ego_id])
+    assert np.array_equal(read_recorded_pcd(pcd)[:, 0], frame.clouds[final.ego_id][:, 0])  # the edited scan
+    if importlib.util.find_spec("opencood") is not None:  # OpenCOOD's own dataset reads the edited export
+        from opencood_models import make_model_dir
+
+        from asg.perception.opencood.folder import read_hypes
+        from asg.perception.opencood.runtime import module
+
+        hypes = read_hypes(make_model_dir(tmp_path / "m", "intermediate"))
+        hypes.update(root_dir=str(tmp_path / "x"), validate_dir=str(tmp_path / "x"))
+        item = module("data_utils.datasets").build_dataset(hypes, visualize=False, train=False)[0]
+        assert item["ego"]["object_bbx_mask"].sum() > 0 and len(item["ego"]["processed_lidar"]["voxel_features"])
 
 
 def test_a_map_gives_a_recording_its_lanes_and_a_map_elsewhere_is_refused(recorded, capsys, tmp_path):
