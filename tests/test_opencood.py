@@ -267,6 +267,8 @@ HOSTILE_SETTINGS = {
     "an unknown pre-processor": ("early", _set("preprocess.core_method", "MagicPreprocessor"), "preprocess.core_method"),
     "an unknown post-processor": ("early", _set("postprocess.core_method", "MagicPostprocessor"), "postprocess.core_method"),
     "anchors and rotations disagree": ("early", _set("postprocess.anchor_args.num", 3), "anchor_args.num"),
+    "an order its anchors exit on": ("early", _set("postprocess.order", "lwh"), "postprocess.order"),
+    "per-anchor sizes, one short": ("early", _set("postprocess.anchor_args.l", [3.9]), "anchor_args.l"),
 }
 
 

@@ -47,7 +47,7 @@ class OpenCOODDetector:
                 {**hypes, "root_dir": empty, "validate_dir": empty}, visualize=False, train=False)
             step = "model"
             self.model = module("tools.train_utils").create_model(hypes)
-        except Exception as exc:  # the last wall: OpenCOOD's own code on a user's folder, whatever it raises
+        except (Exception, SystemExit) as exc:  # the last wall: whatever OpenCOOD raises (it calls sys.exit too)
             raise InputError(f"{folder}: OpenCOOD could not build its {step} ({_first_line(exc)}); check the "
                              "folder's config.yaml against OpenCOOD's hypes_yaml") from None
         finally:
@@ -87,7 +87,7 @@ class OpenCOODDetector:
             step = "model and post-processing"
             with torch.no_grad():
                 corners, scores, truth = self.infer(batch, self.model, self.dataset)
-        except Exception as exc:  # the last wall: OpenCOOD's own code on a user's folder, whatever it raises
+        except (Exception, SystemExit) as exc:  # the last wall: whatever OpenCOOD raises (it calls sys.exit too)
             raise InputError(f"{self.folder}: OpenCOOD's {step} failed on {frame.scene_id} "
                              f"({_first_line(exc)}); check the folder's config.yaml") from None
         finally:

@@ -135,19 +135,22 @@ def check_settings(hypes: dict, path: Path) -> None:
 def _postprocess(c: _Checker, cells: int) -> None:
     c.name("postprocess.core_method", POSTPROCESSORS)
     c.lidar_range("postprocess.anchor_args.cav_lidar_range")
-    for key in ("l", "w", "h"):
-        c.number(f"postprocess.anchor_args.{key}", 0.0, 30.0, lo_open=True)
     rotations = c.numbers("postprocess.anchor_args.r", (1, 8), -360.0, 360.0)
     num = c.whole("postprocess.anchor_args.num", 1, 8)
     if num != len(rotations):
         c.fail("postprocess.anchor_args.num", f"the number of rotations r ({len(rotations)}), got {num}")
+    for key in ("l", "w", "h"):  # one size for every anchor, or one per anchor
+        if isinstance(c.get(f"postprocess.anchor_args.{key}"), list):
+            c.numbers(f"postprocess.anchor_args.{key}", num, 0.0, 30.0)
+        else:
+            c.number(f"postprocess.anchor_args.{key}", 0.0, 30.0, lo_open=True)
     stride = c.whole("postprocess.anchor_args.feature_stride", 1, 16,
                      c.optional("postprocess.anchor_args.feature_stride", 2))  # OpenCOOD's default
     if cells // (stride * stride) * num > MAX_ANCHORS:
         c.fail("postprocess.anchor_args.feature_stride", f"a stride that keeps at most {MAX_ANCHORS:,} anchors")
     for key in ("pos_threshold", "neg_threshold", "score_threshold"):
         c.number(f"postprocess.target_args.{key}", 0.0, 1.0)
-    c.name("postprocess.order", ("hwl", "lwh"))
+    c.name("postprocess.order", ("hwl",))  # its anchors take hwl or lhw, its corners hwl or lwh
     c.whole("postprocess.max_num", 1, 10_000)
     c.number("postprocess.nms_thresh", 0.0, 1.0)
 
