@@ -76,7 +76,7 @@ COMMAND_MODULES: tuple[Command, ...] = tuple(Command(*c) for c in (
     ("train", "asg.training.command", "train a detector on CPU (resumes from runs/train/NAME/last.pt)", True),
     ("finetune", "asg.workflows.finetune", "train a detector further on its challenging scenes, then evaluate it "
      "before and after and attack it again (runs/finetune/FUSION-ft/)", True),
-    ("harden", "asg.workflows.harden", "iterated adversarial training: each round attacks the current weights on "
+    ("harden", "asg.workflows.harden_command", "iterated adversarial training: each round attacks the current weights on "
      "fresh training scenes, fine-tunes on them and evaluates (runs/harden/FUSION/)", True),
     ("evaluate", "asg.workflows.evaluate", "AP of a detector on a scene set", True),
     ("bench simulate", "asg.commands.bench_simulate", "10 simulated minutes of a dense town at 0.1 s steps"),

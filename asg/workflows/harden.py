@@ -25,10 +25,9 @@ settings: a rerun with other settings is refused (``force`` starts over).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Literal, get_args
 
@@ -40,17 +39,18 @@ from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
 
 from . import MAX_ROUNDS
-from ..cli_args import executor_from_args, fusion_arg, training_run_args, whole
 from .finetune import fit_chunk, mixed_sources
-from .random_control import ATTACK_SEED, random_draw  # noqa: F401  (ATTACK_SEED: this module's API too)
+from .harden_rounds import (NOISY_SET, REATTACK_EVAL, STARTED_FROM, evaluate_round, evaluated_set,  # noqa: F401
+                            load_scenes, noisy_val_set, reattack_round, round_data, save_scenes,
+                            started_from_on_reattack, upgraded_rounds)  # (this module's API too: scripts, tests)
+from .random_control import ATTACK_SEED  # noqa: F401  (this module's API too)
 from ..io.run_record import claim, with_defaults
-from ..objective.pooled import REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..sensors.lidar_spec import DEFAULT_LIDAR
 from ..training.cards import lidar_of_weights
 from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
 from ..training.point_stage_fit import PointStageFitConfig, load_point_stage_config
 from ..perception.weights_io import weights_path
-from ..scene import Scene, load_scene
+from ..scene import Scene
 
 #: the train.yaml block of ``asg harden``
 HARDEN_BLOCK = "harden"
@@ -59,12 +59,6 @@ DataKind = Literal["adversarial", "random", "normal"]
 DATA_KINDS: tuple[str, ...] = get_args(DataKind)
 #: a round's weights averaged with its start's (the guard's cure), in its folder
 AVERAGED_WEIGHTS = "averaged.pt"
-#: the name of the noisy evaluation set in a card
-NOISY_SET = "normal-val-noisy"
-#: a round's re-attack record of the weights the round started from on the scenes attacked against
-#: the round, and the cache of those two evaluations in the round's folder
-STARTED_FROM = "started_from"
-REATTACK_EVAL = "reattack-eval"
 
 
 @dataclass(frozen=True)
@@ -178,7 +172,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         if k:
             scenes = pool[(k - 1) * cfg.scenes_per_round: k * cfg.scenes_per_round]
             row["data"] = _round_scenes(fusion, current, scenes, cfg, space, round_dir, executor, detector_factory, log)
-            first = {f"round-{j}": _load_scenes(out / f"round-{j}" / "scenes")
+            first = {f"round-{j}": load_scenes(out / f"round-{j}" / "scenes")
                      for j in (range(1, k + 1) if cfg.keep_previous else [k])}
             weights, record = round_dir / "weights.pt", round_dir / "trained.json"
             if not (weights.is_file() and record.is_file()):
@@ -383,33 +377,6 @@ def _pool(cfg: HardenConfig) -> list[Scene]:
     return [scenes[int(i)] for i in order]
 
 
-def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfig, space, run_dir: Path, executor,
-               detector_factory: str | None, log: Callable[[str], None]) -> tuple[list[Scene], dict]:
-    """The round's training scenes (see ``cfg.data``) and a record of how they were made."""
-    from ..generator.run import open_run
-    from ..generator.config import load_generate_config
-
-    gen_cfg = load_generate_config(fusion=fusion, weights=str(weights))
-    if space:
-        gen_cfg = replace(gen_cfg, space=replace(gen_cfg.space, kinds=tuple(space))).validate()
-    if cfg.data == "normal":
-        return list(scenes), {"kind": "normal", "scenes": len(scenes)}
-    if cfg.data == "random":
-        made = [random_draw(s, gen_cfg, ATTACK_SEED) for s in scenes]
-        return made, {"kind": "random", "scenes": len(made), "moved": sum(m is not s for m, s in zip(made, scenes))}
-    from ..generator.run_folder import aggregate_pooled
-    from ..generator.stages import Stage
-
-    log(f"attacking {len(scenes)} scenes against {weights} ...")
-    run = open_run(gen_cfg, run_dir, scenes=scenes, record={"harden": str(run_dir), "detector": detector_factory},
-                   seed=ATTACK_SEED).run(detector_factory=detector_factory, executor=executor, artifacts=False)
-    ids = [e["scene_id"] for e in run.summary["scenes"]]
-    made = [load_scene(run_dir / "scenes" / i / "final.yaml") for i in ids]
-    agg = run.summary["aggregate"]
-    return made, {"kind": "adversarial", "scenes": len(made), "skipped": len(run.skipped),
-                  **pair_json({"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)})}
-
-
 def _round_scenes(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfig, space, round_dir: Path,
                   executor, detector_factory: str | None, log: Callable[[str], None]) -> dict:
     """Make (or find) the round's training scenes, ``round_dir/scenes/``, and return the record of
@@ -420,225 +387,6 @@ def _round_scenes(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenCo
     if (folder / ".complete").is_file() and record.is_file():
         return json.loads(record.read_text())
     made, data = round_data(fusion, weights, scenes, cfg, space, round_dir / "attack", executor, detector_factory, log)
-    _save_scenes(made, folder)
+    save_scenes(made, folder)
     write_text_atomic(record, json.dumps(data, indent=1))
     return data
-
-
-def evaluate_round(fusion: str, weights: Path, cfg: HardenConfig, cache: Path, executor,
-                   log: Callable[[str], None]) -> dict:
-    """{set: {"ap", "ap_per_frame": AP by threshold, ours and the paper's (a pooled AP,
-    asg.objective.pooled), "frames": N}} of ``weights`` on the fixed evaluation sets and the guard
-    set, each result cached in ``cache`` (a cached result without the paper's yardstick, from before
-    it was recorded, is evaluated again), the guard set's per-frame matches beside it
-    (``SET.matches.npz``, for the guard's paired interval)."""
-    from .challenging import own_val_set
-
-    own_val = own_val_set(fusion, executor, log)
-    sets = {s: s for s in (*cfg.eval_sets, own_val, *([cfg.guard_set] if cfg.guard_set else []))}
-    if cfg.noisy:
-        sets[NOISY_SET] = str(noisy_val_set())
-    return {label: evaluated_set(fusion, weights, label, set_arg, cache, label == cfg.guard_set, executor, log)
-            for label, set_arg in sets.items()}
-
-
-def evaluated_set(fusion: str, weights: Path, label: str, set_arg: str, cache: Path, guarded: bool,
-                  executor, log: Callable[[str], None]) -> dict:
-    """``weights`` on one set (``{"ap", "ap_per_frame", "frames"}``), cached in ``cache`` as
-    ``LABEL.json``; ``guarded``: its per-frame matches too (``LABEL.matches.npz``), a cached result
-    without them evaluated again."""
-    from ..evaluation import evaluate
-    from ..objective.paired import save_matches
-
-    hit, matches = cache / f"{label}.json", cache / f"{label}.matches.npz"
-    if hit.is_file():
-        cached = json.loads(hit.read_text())
-        pooled = PooledAP.from_json(cached)
-        if pooled.ap_per_frame is not None and (matches.is_file() or not guarded):
-            return pooled.to_json() | {"frames": cached["frames"]}
-    result = evaluate(fusion, set_arg, weights_file=str(weights), executor=executor, keep_matches=guarded)
-    pooled = PooledAP.from_result(result)
-    row = pooled.to_json(4) | {"frames": result["frames"]}
-    cache.mkdir(parents=True, exist_ok=True)
-    if guarded:
-        save_matches(matches, result["matches"])
-    write_text_atomic(hit, json.dumps(row))
-    log(f"  {label}: AP@0.7 ours / per frame {pooled.text()} ({result['frames']} frames)")
-    return row
-
-
-def upgraded_rounds(rounds: list[dict]) -> list[dict]:
-    """A card's rounds with every pooled AP in today's form (``{"ap", "ap_per_frame"}``): cards
-    written before it kept AP by threshold at the top and the paper's under "per_frame"."""
-    out = []
-    for row in rounds:
-        row = dict(row)
-        row["evaluation"] = {s: PooledAP.from_json(ev).to_json() | {"frames": ev["frames"]}
-                             for s, ev in row.get("evaluation", {}).items()}
-        if row.get("reattack"):
-            kept = {k: v for k, v in row["reattack"].items() if k == STARTED_FROM}  # written in today's form
-            row["reattack"] = {"frames": row["reattack"]["frames"],
-                               **pair_json(pooled_pair(row["reattack"], REATTACK_PAIR)), **kept}
-        out.append(row)
-    return out
-
-
-def noisy_val_set() -> Path:
-    """normal-val under the standard noisy V2X setting (built once under the data root)."""
-    from ..datasets import data_root
-    from ..datasets import scenes_of
-    from ..scene.noisy import write_noisy_set
-
-    return write_noisy_set(scenes_of("normal-val"), data_root() / NOISY_SET, seed=ATTACK_SEED)
-
-
-def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detector_factory: str | None,
-                   log: Callable[[str], None], evaluation: dict) -> dict:
-    """The paper's protocol on normal-val against ``weights``: {"frames", "normal", "challenging"},
-    each a pooled AP (``{"ap", "ap_per_frame"}``; the paper's yardstick None for a set built before
-    it was recorded) (round 0 from other than the shipped weights: those weights attacked).
-    None: the shipped weights, whose own attack is challenging-F-val; its AP is taken from
-    the round's ``evaluation`` (scored by today's code), not from the AP the set's index recorded
-    when it was built (older meshes or detectors give another figure for the same scenes); its
-    "normal" from the evaluation's normal-val when the round has one, else from the index."""
-    from .challenging import build_challenging, set_name
-    from ..datasets import data_root
-
-    if weights is None:
-        own = set_name(fusion, "val")
-        index = json.loads((data_root() / own / "index.json").read_text())
-        normal = (PooledAP.from_json(evaluation["normal-val"]) if "normal-val" in evaluation
-                  else pooled_pair(index, REATTACK_PAIR)["normal"])
-        return {"frames": evaluation[own]["frames"],
-                **pair_json({"normal": normal, "challenging": PooledAP.from_json(evaluation[own])})}
-    log(f"re-attacking {weights} on normal-val ...")
-    built = build_challenging(fusion, "val", executor=executor, weights_file=str(weights), out=out,
-                              detector_factory=detector_factory)
-    index = json.loads((built / "index.json").read_text())
-    return {"frames": index["frames"], **pair_json(pooled_pair(index, REATTACK_PAIR))}
-
-
-def started_from_on_reattack(fusion: str, started_from: Path, attacked: Path, round_dir: Path, executor,
-                             log: Callable[[str], None]) -> dict:
-    """The weights a round started from, scored on the scenes its re-attack found against the
-    round's weights (``round_dir/reattack``): their pooled AP and frames, and "gap", the round's
-    weights over them on those same scenes ({yardstick: AP@0.7 gap with its 95 % paired interval}).
-    The re-attack's gain over the start's own attack is this gap plus how much easier these scenes
-    are for the start than its own attack: a gap below zero means the new attack found scenes the
-    round is worse on than its start (the round moved its start's weak spots rather than removed
-    them). Both evaluations cached in ``round_dir/reattack-eval``."""
-    from ..objective.ap import Yardstick
-    from ..objective.paired import load_matches, paired_ap_gap
-
-    scenes, cache = str(round_dir / "reattack"), round_dir / REATTACK_EVAL
-    row = evaluated_set(fusion, started_from, "started-from", scenes, cache, True, executor, log)
-    evaluated_set(fusion, attacked, "attacked", scenes, cache, True, executor, log)
-    before, after = (load_matches(cache / f"{label}.matches.npz") for label in ("started-from", "attacked"))
-    return row | {"gap": {y.value: paired_ap_gap(before, after, 0.7, method=y).to_dict() for y in Yardstick}}
-
-
-def _save_scenes(scenes: list[Scene], folder: Path) -> None:
-    """The round's training scenes, one yaml each (kept: a resumed round trains on the same)."""
-    from sumo_scenarios.atomic import atomic_dir
-    from ..scene import save_scene
-
-    if (folder / ".complete").is_file():
-        return
-    if folder.exists():
-        shutil.rmtree(folder)
-    with atomic_dir(folder) as work:
-        for s in scenes:
-            save_scene(s, work / f"{s.scene_id}.yaml")
-        (work / ".complete").write_text("")
-
-
-def _load_scenes(folder: Path) -> list[Scene]:
-    return [load_scene(p) for p in sorted(folder.glob("*.yaml"))]
-
-
-# ``asg harden``: this workflow's command (asg.cli's COMMAND_MODULES)
-
-def _run_opencood(args: argparse.Namespace) -> int:
-    """``asg harden --fusion opencood:DIR``: one round by OpenCOOD's trainer (asg.workflows.harden_opencood)."""
-    from rich.table import Table
-
-    from ..objective.pooled import FINETUNE_PAIR, pooled_pair
-    from ..perception.targets import resolve_target
-    from ..progress import console, stdout
-    from .harden_opencood import check_opencood_run, check_opencood_settings, harden_opencood
-
-    check_opencood_run(args)
-    resolve_target(args.fusion).check().check_trainable()  # before the folder is claimed or any scene attacked
-    config = load_harden_config(args.config, data=args.data)
-    if args.config is not None:
-        check_opencood_settings(args.config, train_block(HARDEN_BLOCK, args.config), train_block(HARDEN_BLOCK, None))
-    out = args.out or default_out(resolve_target(args.fusion).label, config.data)
-    with executor_from_args(args, 10**6) as executor:
-        card = harden_opencood(args.fusion, out, config, executor, force=args.force, log=console.print)
-    table = Table(title=f"asg harden --fusion {args.fusion} ({card['data']}, {card['epochs']} epochs): AP@0.7 ours / "
-                        "per frame, and the gap with its 95 % paired interval")
-    for col in ("set", "frames", "before", "after", "gap (ours)", "gap (per frame)"):
-        table.add_column(col, justify="left" if col == "set" else "right")
-    for set_name, row in card["evaluation"].items():
-        pair = pooled_pair(row, FINETUNE_PAIR)
-        gaps = [f"{100 * g['gap']:+.1f} [{100 * g['low']:+.1f}, {100 * g['high']:+.1f}]" for g in row["gap"].values()]
-        table.add_row(set_name, str(row["frames"]), pair["before"].text(), pair["after"].text(), *gaps)
-    if "reattack" in card:
-        before, after = (pooled_pair(card["reattack"][w], ("challenging",))["challenging"] for w in FINETUNE_PAIR)
-        table.add_row("own attack on normal-val", str(card["reattack"]["frames"]), before.text(), after.text(), "", "")
-    stdout.print(table)
-    kept = card.get("guard", {}).get("kept", True)
-    console.print(f"card: {out}/card.json; the model: {card['model']}" + ("" if kept else " (worse on the guard set: not kept)"))
-    return 0
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    fusion_arg(p, "the model hardened", required=True)
-    p.add_argument("--rounds", type=whole(1, MAX_ROUNDS, "--rounds"), required=True, help="rounds to run (resumable)")
-    p.add_argument("--data", default=None, choices=DATA_KINDS,
-                   help="what a round trains on: adversarial (default), or a control at equal compute: random "
-                        "(one plausible random perturbation a scene) or normal (the scenes unperturbed)")
-    p.add_argument("--space", default=None, metavar="KIND[,KIND]",
-                   help="the perturbation spaces of the attacks (default configs/generate.yaml's)")
-    p.add_argument("--weights", type=Path, default=None, metavar="PATH",
-                   help="start from this weights file, or a harden card (its last round), not the shipped weights")
-    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/harden/FUSION[-DATA])")
-    training_run_args(p, "harden")
-
-
-def run(args: argparse.Namespace) -> int:
-    from rich.table import Table
-
-    from ..perception.targets import Training, resolve_target
-    from ..progress import console, loss_progress, progress_bar, stdout
-
-    training = resolve_target(args.fusion).training  # one line for an unknown fusion
-    if training is Training.OPENCOOD:
-        return _run_opencood(args)
-    weights_for(args.fusion)  # one line for a target asg's trainer cannot train
-    space = tuple(k.strip() for k in args.space.split(",") if k.strip()) if args.space else None
-    config = load_harden_config(args.config, data=args.data)
-    out = args.out or default_out(args.fusion, config.data)
-    with progress_bar() as bar, executor_from_args(args, 10**6) as executor:
-        report = loss_progress(bar, bar.add_task(f"hardening {args.fusion}", total=None), f"hardening {args.fusion}")
-        card = harden(args.fusion, args.rounds, out, weights=args.weights, config=config, space=space,
-                      executor=executor, threads=args.threads, force=args.force, log=console.print, progress=report)
-    rows = card["rounds"]
-    sets = list(rows[0]["evaluation"]) if rows else []
-    table = Table(title=f"asg harden --fusion {args.fusion} ({card['data']}): AP@0.7 by round, "
-                        "ours / ranked per frame (the paper's yardstick)")
-    reattacked = bool(rows) and "reattack" in rows[0]
-    for col in ("round", *sets, *(["re-attacked", "its start on those scenes"] if reattacked else [])):
-        table.add_column(col, justify="right")
-    for row in rows:
-        cells = [PooledAP.from_json(row["evaluation"][s]).text() for s in sets]
-        if "reattack" in row:
-            started_from = row["reattack"].get(STARTED_FROM)
-            cells += [pooled_pair(row["reattack"], REATTACK_PAIR)["challenging"].text(),
-                      PooledAP.from_json(started_from).text() if started_from else ""]
-        table.add_row(str(row["round"]) + ("" if not row["round"] or is_kept(row) else " (not kept)"), *cells)
-    stdout.print(table)
-    kept = card.get("weights")
-    console.print(f"card and weights: {out}/card.json, {out}/round-K/weights.pt"
-                  + (f"; the weights kept: {kept}" if kept else ""))
-    return 0
