@@ -273,6 +273,18 @@ def _break(case: str, folder: Path) -> None:
                 import shutil
 
                 shutil.rmtree(p)
+    elif case == "an agent id twice":  # "1000" and "01000": one agent to OpenCOOD
+        import shutil
+
+        shutil.copytree(agent, agent.with_name("0" + agent.name))
+    elif case == "a vehicle id twice":  # a second box under an id the yaml lists already
+        vid = next(iter(yaml.safe_load(yml.read_text())["vehicles"]))
+        box = "{location: [0, 0, 0], center: [0, 0, 0.7], extent: [2, 1, 0.7], angle: [0, 0, 0]}"
+        yml.write_text(yml.read_text().replace("vehicles:\n", f"vehicles:\n  {vid}: {box}\n", 1))
+    elif case == "a pose that is a number":
+        meta = yaml.safe_load(yml.read_text())
+        meta["lidar_pose"] = 5
+        yml.write_text(yaml.safe_dump(meta))
     elif case == "a folder that is not a recording":
         (folder / "notes.txt").write_text("x")
         for p in folder.iterdir():
@@ -289,7 +301,8 @@ BAD = {"malformed yaml": "not a readable frame yaml", "a Python tag": "numpy",
        "fewer points than declared": "values where POINTS", "a NaN point": "non-finite",
        "10^9 points declared": "declares 1000000000 points", "timestamps that disagree": "other timestamps",
        "a yaml without its pcd": "without a pcd", "a link out of the source": "outside",
-       "no agent folder": "holds no OPV2V scenario", "a folder that is not a recording": "holds no OPV2V scenario"}
+       "no agent folder": "holds no OPV2V scenario", "a folder that is not a recording": "holds no OPV2V scenario",
+       "an agent id twice": "two agent folders", "a vehicle id twice": "written twice", "a pose that is a number": "lidar_pose"}
 
 
 @pytest.mark.parametrize("case", sorted(BAD))

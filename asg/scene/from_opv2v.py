@@ -61,17 +61,24 @@ VEHICLE_TYPES = ("car", "suv", "van", "truck", "bus")
 RSU_POLE_M = 4.5
 
 
-class FrameLoader(yaml.SafeLoader):
-    """Safe YAML with numpy's data tags read as lists and numbers (V2V4Real's poses)."""
+class FrameLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc, valid-type]
+    """Safe YAML (libyaml's parser where installed) with numpy's data tags read as lists and numbers
+    (V2V4Real's poses); a key written twice in one mapping (two boxes under one vehicle id) refused."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if isinstance(key_node, yaml.ScalarNode):
+                    if key_node.value in seen:
+                        raise yaml.constructor.ConstructorError(
+                            None, None, f"id or key {key_node.value[:40]!r} written twice (line {key_node.start_mark.line + 1})",
+                            key_node.start_mark)
+                    seen.add(key_node.value)
+        return super().construct_mapping(node, deep)
 
 
 add_numpy_data(FrameLoader)
-if getattr(yaml, "__with_libyaml__", False):
-    class _CFrameLoader(yaml.CSafeLoader):
-        pass
-
-    add_numpy_data(_CFrameLoader)
-    FrameLoader = _CFrameLoader  # noqa: F811  (the same rules on libyaml's parser)
 
 
 @dataclass(frozen=True)
@@ -109,6 +116,10 @@ def _agent_dirs(folder: Path, root: Path) -> list[Path]:
     dirs = [p for p in sorted(folder.iterdir()) if p.is_dir() and _AGENT.fullmatch(p.name)]
     for p in dirs:
         _within(root, p)
+    numbers = [int(p.name) for p in dirs]
+    twice = next((p.name for p, n in zip(dirs, numbers) if numbers.count(n) > 1), None)
+    if twice is not None:
+        raise InputError(f"{folder}: two agent folders name agent {int(twice)} ({twice} and another); OpenCOOD reads one")
     return dirs
 
 
@@ -236,7 +247,7 @@ def _safe_stem(name: str) -> str:
 
 def _handedness(metas: dict, where: Path) -> Handedness:
     """Left (CARLA: a 6-value lidar_pose) or right (V2V4Real: a 4 x 4 matrix), one for the frame."""
-    kinds = {len(m.get("lidar_pose") or ()) for m in metas.values()}
+    kinds = {len(m["lidar_pose"]) if isinstance(m.get("lidar_pose"), list) else -1 for m in metas.values()}
     if kinds == {6}:
         return Handedness.LEFT
     if kinds == {4}:
