@@ -52,6 +52,12 @@ class Target:
         """The kind's name in TARGET_KINDS ("shipped", "plugin", "opencood")."""
         return type(self).registry_name
 
+    def __eq__(self, other) -> bool:
+        return type(other) is type(self) and other.name == self.name
+
+    def __hash__(self) -> int:
+        return hash((type(self), self.name))
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"
 
@@ -134,22 +140,18 @@ def shipped_list() -> str:
     return ", ".join(FUSIONS.names())
 
 
-_RESOLVED: dict[str, Target] = {}
-
-
 def resolve_target(name: str) -> Target:
-    """The target ``name`` names (one object a process for each name); InputError (one line with
-    the known names) if no kind claims it."""
+    """The target ``name`` names; InputError (one line with the known names) if no kind claims it.
+    A few microseconds, and asked of today's registries each time (a plugin installed or a model
+    registered since is seen); what is costly to build, an OpenCOOD model, its kind keeps."""
     if not isinstance(name, str):
         raise InputError(f"--fusion takes a name, got {type(name).__name__}")
-    if name not in _RESOLVED:
-        kind = next((k for k in sorted(TARGET_KINDS.entries(), key=lambda k: k.order) if k.claims(name)), None)
-        if kind is None:
-            from ...registry import safe_name
+    kind = next((k for k in sorted(TARGET_KINDS.entries(), key=lambda k: k.order) if k.claims(name)), None)
+    if kind is None:
+        from ...registry import safe_name
 
-            raise InputError(f"unknown fusion {safe_name(name)}; known: {', '.join(detector_names())}")
-        _RESOLVED[name] = kind(name)
-    return _RESOLVED[name]
+        raise InputError(f"unknown fusion {safe_name(name)}; known: {', '.join(detector_names())}")
+    return kind(name)
 
 
 def detector_names() -> list[str]:
