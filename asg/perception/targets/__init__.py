@@ -1,4 +1,4 @@
-"""Targets: what ``--fusion`` names, resolved once (:func:`resolve_target`) into an object of one of
+"""Targets: what ``--fusion`` names, resolved (:func:`resolve_target`) into an object of one of
 the kinds registered in ``TARGET_KINDS`` (one module of this package each: a shipped model, a
 detector plugin, an OpenCOOD model folder). Callers ask the object; the functions here are the
 questions every command asks, put to it."""

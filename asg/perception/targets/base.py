@@ -1,4 +1,4 @@
-"""What is attacked: a target, resolved once from ``--fusion`` into an object that answers what
+"""What is attacked: a target, resolved from ``--fusion`` into an object that answers what
 callers ask (its label and digests, its detector, its attention, how it is trained, what it cannot
 do), so that nothing below the command line tells the kinds apart by their names.
 
