@@ -317,7 +317,10 @@ def test_a_bad_recording_is_one_line_and_writes_nothing(case, recorded, capsys, 
 
 
 def test_import_every_and_limit(recorded, capsys, tmp_path):
+    from asg.scene.from_opv2v import planned_count
+
     _, export_dir, _, _ = recorded
+    assert planned_count(export_dir) == 1 == planned_count(export_dir, ImportParams(limit=5))
     code, err = run(capsys, "scenes", "import", str(export_dir), "--out", str(tmp_path / "o"), "--limit", "1")
     assert code == 0 and len(list((tmp_path / "o").glob("*.yaml"))) == 1
     code, err = run(capsys, "scenes", "import", str(export_dir), "--out", str(tmp_path / "p"), "--every", "0")

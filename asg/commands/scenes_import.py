@@ -8,8 +8,8 @@ from pathlib import Path
 from sumo_scenarios.checks import inside, safe_id
 
 from ..cli_args import COUNT
-from ..progress import console
-from ..scene.from_opv2v import ImportParams, import_scenes
+from ..progress import console, progress_bar
+from ..scene.from_opv2v import ImportParams, import_scenes, planned_count
 from ..scene.recording import RecordingFormat
 from ..scene.scene import save_scene
 
@@ -30,7 +30,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Every scene is read (and refused in one line) before the first file is written."""
-    scenes = list(import_scenes(args.source, ImportParams(every=args.every, limit=args.limit, map=args.map)))
+    params = ImportParams(every=args.every, limit=args.limit, map=args.map)
+    scenes = []
+    with progress_bar() as bar:
+        task = bar.add_task("reading the recording", total=planned_count(args.source, params))
+        for scene in import_scenes(args.source, params):
+            scenes.append(scene)
+            bar.update(task, completed=len(scenes))
     out = Path(args.out)
     paths = [inside(out, out / f"{safe_id(s.scene_id, 'scene id')}.yaml") for s in scenes]
     out.mkdir(parents=True, exist_ok=True)

@@ -146,6 +146,14 @@ def import_scenes(source: Path, params: ImportParams = ImportParams()) -> Iterat
             made += 1
 
 
+def planned_count(source: Path, params: ImportParams = ImportParams()) -> int:
+    """How many scenes :func:`import_scenes` will yield (its folders listed, no file read)."""
+    params.validate()
+    source = Path(source).resolve()
+    total = sum(len(_timestamps(s, source)[::params.every]) for s in scenario_folders(source))
+    return total if params.limit is None else min(total, params.limit)
+
+
 def _timestamps(scenario: Path, root: Path) -> list[str]:
     """The timestamps every agent folder of ``scenario`` holds (yaml and pcd); InputError where the
     folders disagree (OpenCOOD reads the same timestamps from each) or a file is missing."""
