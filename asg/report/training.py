@@ -23,6 +23,7 @@ from sumo_scenarios.errors import InputError  # noqa: E402
 
 from ..io.curves import LOSS_CURVE, read_loss_curve  # noqa: E402
 from ..io.json_file import read_json  # noqa: E402
+from ..objective.ap import Yardstick  # noqa: E402
 
 #: the files that make a folder a training run
 HARDEN_CARD = "card.json"
@@ -64,7 +65,7 @@ def _harden_opencood(folder: Path, table: Callable) -> str:
     for s, v in sorted(card["evaluation"].items()):
         pair = pooled_pair(v, FINETUNE_PAIR)
         gaps = [f"{100 * float(g['gap']):+.1f} [{100 * float(g['low']):+.1f}, {100 * float(g['high']):+.1f}]"
-                for g in (v["gap"][k] for k in ("global", "per-frame"))]
+                for g in (v["gap"][y.value] for y in Yardstick)]
         rows.append([s, str(int(v["frames"])), pair["before"].text(), pair["after"].text(), *gaps])
     re_ = card.get("reattack")
     if re_:

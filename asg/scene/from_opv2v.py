@@ -71,9 +71,9 @@ class FrameLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignor
             for key_node, _ in node.value:
                 if isinstance(key_node, yaml.ScalarNode):
                     if key_node.value in seen:
+                        line = key_node.start_mark.line + 1
                         raise yaml.constructor.ConstructorError(
-                            None, None, f"id or key {key_node.value[:40]!r} written twice (line {key_node.start_mark.line + 1})",
-                            key_node.start_mark)
+                            None, None, f"id or key {key_node.value[:40]!r} written twice (line {line})", key_node.start_mark)
                     seen.add(key_node.value)
         return super().construct_mapping(node, deep)
 
@@ -119,7 +119,8 @@ def _agent_dirs(folder: Path, root: Path) -> list[Path]:
     numbers = [int(p.name) for p in dirs]
     twice = next((p.name for p, n in zip(dirs, numbers) if numbers.count(n) > 1), None)
     if twice is not None:
-        raise InputError(f"{folder}: two agent folders name agent {int(twice)} ({twice} and another); OpenCOOD reads one")
+        raise InputError(f"{folder}: two agent folders name agent {int(twice)} ({twice} and another); "
+                         "OpenCOOD reads one")
     return dirs
 
 

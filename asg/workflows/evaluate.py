@@ -6,6 +6,7 @@ import argparse
 
 from ..cli_args import COUNT, executor_args, fusion_arg, weights_arg
 from ..evaluation import GroundTruth, check_ground_truth, evaluate
+from ..objective.pooled import PooledAP
 
 
 # ``asg evaluate``: this workflow's command (asg.cli's COMMAND_MODULES)
@@ -51,11 +52,12 @@ def run(args: argparse.Namespace) -> int:
                       "collaborator, so cooperation is off there (every model scores as single-agent); "
                       "extract scenes with 'asg scenes extract --collaborators K'")
     if args.json:
-        print(json.dumps({"ap": result["ap"], "ap_per_frame": result["ap_per_frame"], "frames": result["frames"],
+        print(json.dumps({**PooledAP.from_result(result).to_json(), "frames": result["frames"],
                           "without_collaborators": result["without_collaborators"], "ground_truth": truth.value}))
     else:
+        pooled = PooledAP.from_result(result)
         print_result(f"asg evaluate --fusion {args.fusion} --set {args.set} --ground-truth {truth.value}",
-                     {**{f"AP@{k}": round(v, 4) for k, v in result["ap"].items()},
-                      **{f"AP@{k} per frame (paper)": round(v, 4) for k, v in result["ap_per_frame"].items()},
+                     {**{f"AP@{k}": round(v, 4) for k, v in pooled.ap.items()},
+                      **{f"AP@{k} per frame (paper)": round(v, 4) for k, v in pooled.ap_per_frame.items()},
                       "frames": result["frames"]}, False)
     return 0

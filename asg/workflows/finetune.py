@@ -212,7 +212,7 @@ def evaluate_before_after(fusion: str, start: Path, ft_weights: Path, fcfg: Fine
         for when, path in zip(FINETUNE_PAIR, (start, ft_weights)):
             hit = cache / f"{when}-{set_name_}.json"
             result = json.loads(hit.read_text()) if hit.is_file() else {}
-            if "ap_per_frame" not in result:
+            if not result or PooledAP.from_result(result).ap_per_frame is None:
                 result = evaluate(fusion, set_name_, weights_file=str(path), executor=executor)
                 result = PooledAP.from_result(result).to_json() | {"frames": result["frames"]}
                 cache.mkdir(parents=True, exist_ok=True)
