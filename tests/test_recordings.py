@@ -439,3 +439,42 @@ def test_every_space_a_recording_takes_runs_on_it(space, recorded, capsys, tmp_p
         assert code == 0, err
     results = [json.loads(next((tmp_path / f"g{w}" / "scenes").glob("*/result.json")).read_text()) for w in "12"]
     assert results[0]["ap_final"] == results[1]["ap_final"] and results[0]["evaluations"] >= 3
+
+
+def test_a_v2v4real_frame_reads_its_matrix_poses_and_numpy_tags(tmp_path):
+    """V2V4Real's layout: lidar_pose a 4 x 4 matrix to its map, written by PyYAML's full dumper with
+    numpy's tags (read as data, nothing constructed), right-handed clouds (not mirrored), obj_type."""
+    import math as m
+
+    from asg.io.pcd import write_pcd_rgb_intensity
+
+    scenario = tmp_path / "v2v4real" / "testoutput_CAV_data_2022-03-15-09-54-40_0"
+    yaw = 0.3
+    pose = np.eye(4)
+    pose[:2, :2] = [[m.cos(yaw), -m.sin(yaw)], [m.sin(yaw), m.cos(yaw)]]
+    pose[:3, 3] = [10.0, 20.0, 1.8]
+    rng = np.random.default_rng(1)
+    cloud = np.column_stack([rng.uniform(-30, 30, (400, 2)), np.full(400, -1.8), rng.uniform(0, 1, 400)]).astype(np.float32)
+    for agent, shift_m in (("0", 0.0), ("1", 5.0)):  # the second car 5 m further along x
+        folder = scenario / agent
+        folder.mkdir(parents=True)
+        write_pcd_rgb_intensity(folder / "000000.pcd", cloud)
+        agent_pose = pose.copy()
+        agent_pose[0, 3] += shift_m
+        meta = {"lidar_pose": agent_pose,
+                "vehicles": {np.int64(7): {"location": np.array([15.0, 22.0, 0.0]), "center": [0.0, 0.0, 0.8],
+                                            "extent": [2.3, 1.0, 0.8], "angle": [0.0, np.float64(45.0), 0.0],
+                                            "obj_type": "Truck", "ass_id": 3}}}
+        (folder / "000000.yaml").write_text(yaml.dump(meta))
+    assert "!!python/object/apply:numpy" in (scenario / "0" / "000000.yaml").read_text()
+    (scene,) = import_scenes(scenario)
+    x, y, z, yaw_read = scene.recording.views["0"].sensor
+    assert scene.recording.handed.value == "right" and np.allclose([x, y, z, yaw_read], [10.0, 20.0, 1.8, yaw])
+    truck = scene.agent("7")
+    assert truck.type_id == "truck" and np.allclose([truck.x_m, truck.y_m, truck.yaw_rad], [15.0, 22.0, m.radians(45)])
+    frame = simulate_frame(scene, SPEC)
+    assert np.array_equal(frame.clouds["0"][:, :3], cloud[:, :3])  # right-handed: as recorded, not mirrored
+    evil = scenario / "1" / "000000.yaml"
+    evil.write_text(evil.read_text() + "hook: !!python/object/apply:os.system ['true']\n")
+    with pytest.raises(InputError, match="numpy"):
+        list(import_scenes(scenario))

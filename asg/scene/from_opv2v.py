@@ -213,7 +213,7 @@ def _scene(scenario: Path, stamp: str, root: Path, lanes: LaneMap | None = None,
     ego = opencood_ego(agents)
     scene_id = checks.safe_id(f"{_safe_stem(scenario.name)}-{stamp}", "scene id")
     recording = Recording(RecordingFormat.OPV2V, handed, str(scenario), stamp, _lidar_of(scenario, root), views,
-                          tuple(vehicles.values()))
+                          tuple(a for a in all_agents if a.is_vehicle))  # as recorded: the unlabelled sensing cars too
     scene = Scene(scene_id=scene_id, town=_safe_stem(scenario.name), source=RECORDING_SOURCE,
                   time_s=int(stamp) * 0.05, ego_id=ego, agents=all_agents, buildings=(), lane_map=LaneMap([]),
                   collaborators=tuple(a for a in agents if a != ego), log=str(scenario), recording=recording)
