@@ -31,7 +31,7 @@ from sumo_scenarios.lanes import LaneMap
 from sumo_scenarios.numpy_yaml import add_numpy_data
 
 from .agent import SIZE_LIMITS_M, Agent
-from .recorded_pcd import file_sha256, in_scene_frame, read_recorded_pcd
+from .recorded_pcd import in_scene_frame, read_recorded_pcd_with_digest
 from .recording import (MAX_LOWERED_M, RECORDING_SOURCE, Handedness, RecordedLidar, RecordedView, Recording,
                         RecordingFormat, opencood_ego)
 from .scan_area import scan_area
@@ -204,8 +204,8 @@ def _scene(scenario: Path, stamp: str, root: Path, lanes: LaneMap | None = None,
         pcd = _within(root, scenario / a / f"{stamp}.pcd").resolve()
         where = scenario / a / f"{stamp}.yaml"
         pose, roll, pitch = _lidar_pose(metas[a].get("lidar_pose"), handed, where)
-        raw = read_recorded_pcd(pcd)
-        views[a] = RecordedView(str(pcd), file_sha256(pcd), len(raw), pose, roll, pitch, lowered.get(a, 0.0))
+        raw, sha256 = read_recorded_pcd_with_digest(pcd)
+        views[a] = RecordedView(str(pcd), sha256, len(raw), pose, roll, pitch, lowered.get(a, 0.0))
         clouds[a] = in_scene_frame(raw, handed)
     vehicles = _labelled(metas, handed, scenario, stamp)
     sensing = _sensing_agents(agents, metas, vehicles, views, clouds)

@@ -24,14 +24,6 @@ MAX_HEADER_BYTES = 4096
 _NUMPY_TYPE = {("F", 4): "<f4", ("F", 8): "<f8", ("U", 4): "<u4", ("U", 1): "u1", ("I", 4): "<i4"}
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def recorded_cloud(view: RecordedView, handed: Handedness) -> np.ndarray:
     """(N, 4) float32 x, y, z, intensity of a recorded view in the scene's sensor frame (x forward,
     y left: y mirrored from a left-handed file, a sign flip that keeps every value exact);
@@ -54,6 +46,14 @@ def in_scene_frame(cloud: np.ndarray, handed: Handedness) -> np.ndarray:
 def read_recorded_pcd(path: Path, sha256: str | None = None) -> np.ndarray:
     """(N, 4) float32 x, y, z, intensity in [0, 1] of a recorded scan, in the file's own frame;
     with ``sha256``, InputError unless the file's digest is that one."""
+    cloud, digest = read_recorded_pcd_with_digest(path)
+    if sha256 is not None and digest != sha256:
+        raise InputError(f"{path}: not the scan the scene was imported from (its sha256 changed); re-import the recording")
+    return cloud
+
+
+def read_recorded_pcd_with_digest(path: Path) -> tuple[np.ndarray, str]:
+    """(:func:`read_recorded_pcd`'s cloud, the sha256 of the file's bytes), the file read once."""
     path = Path(path)
     try:
         data = path.read_bytes() if path.stat().st_size <= MAX_CLOUD_POINTS * 64 + MAX_HEADER_BYTES else None
@@ -61,8 +61,10 @@ def read_recorded_pcd(path: Path, sha256: str | None = None) -> np.ndarray:
         raise InputError(f"{path}: cannot be read ({exc.strerror}); check the recording") from None
     if data is None:
         raise InputError(f"{path}: larger than a scan of {MAX_CLOUD_POINTS} points can be; not a recorded scan")
-    if sha256 is not None and hashlib.sha256(data).hexdigest() != sha256:
-        raise InputError(f"{path}: not the scan the scene was imported from (its sha256 changed); re-import the recording")
+    return _parsed(data, path), hashlib.sha256(data).hexdigest()
+
+
+def _parsed(data: bytes, path: Path) -> np.ndarray:
     header, body = _header(data, path)
     fields = header["FIELDS"]
     if not {"x", "y", "z"} <= set(fields):

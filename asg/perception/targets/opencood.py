@@ -2,11 +2,10 @@
 model and post-processing (asg.perception.opencood), trained by OpenCOOD's own trainer."""
 from __future__ import annotations
 
-import hashlib
 import re
 from pathlib import Path
 
-from sumo_scenarios.digest import file_digest
+from sumo_scenarios.digest import file_digest, files_digest
 from sumo_scenarios.errors import InputError
 
 from ...registry import TARGET_PREFIXES, prefixed_kind
@@ -49,13 +48,8 @@ class OpenCOODTarget(Target):
     def label(self) -> str:
         """The folder's name and the first 8 hex digits of the sha256 of its config and checkpoint,
         so that another model, or the same folder retrained, gets its own."""
-        h = hashlib.sha256()
-        for path in self.model_files().values():
-            with open(path, "rb") as f:
-                for block in iter(lambda: f.read(1 << 20), b""):
-                    h.update(block)
         stem = re.sub(r"[^A-Za-z0-9_-]+", "_", self.model_dir.resolve().name)[:40].strip("_-") or "model"
-        return f"opencood-{stem}-{h.hexdigest()[:8]}"
+        return f"opencood-{stem}-{files_digest(self.model_files().values())[:8]}"
 
     def model_files(self) -> dict[str, Path]:
         """{"config": config.yaml, "checkpoint": the checkpoint OpenCOOD loads}."""
