@@ -88,6 +88,11 @@ class LidarSpec:
         d = np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), axis=-1)
         return d.reshape(-1, 3)
 
+    def carla_protocol(self) -> dict:
+        """The sensor in CARLA's attribute names (an OPV2V scenario's data_protocol.yaml)."""
+        return {"channels": self.channels, "upper_fov": self.fov_up_deg, "lower_fov": self.fov_down_deg,
+                "range": self.range_m, "points_per_second": self.points_per_s, "rotation_frequency": self.rotation_hz}
+
     def with_overrides(self, **kw) -> "LidarSpec":
         return replace(self, **kw).validate()
 

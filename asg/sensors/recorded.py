@@ -26,6 +26,7 @@ shape; sensor frames keep the recorded yaw only (roll and pitch are recorded but
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Iterable, Mapping
 
 import numpy as np
@@ -58,6 +59,11 @@ class RecordedWorld:
         self.spec = spec
         self.movable_ids = frozenset(movable_ids)
         self.recording = scene.recording
+        recorded = self.recording.lidar
+        #: the recorded LiDAR as a spec: its beam pattern and range (the casting backend is ``spec``'s)
+        self.lidar = replace(spec, name="recorded", channels=recorded.channels, fov_up_deg=recorded.upper_deg,
+                             fov_down_deg=recorded.lower_deg, points_per_s=recorded.points_per_s,
+                             rotation_hz=recorded.rotation_hz, range_m=recorded.range_m).validate()
         self._clouds: dict[str, np.ndarray] = {}
         self._planes: dict[str, GroundPlane | None] = {}
         self._beams: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
@@ -70,9 +76,7 @@ class RecordedWorld:
     # ---- the interface -------------------------------------------------------------------
     def lidar_protocol(self) -> dict:
         """The recorded LiDAR in CARLA's attribute names (an OPV2V scenario's data_protocol.yaml)."""
-        d = self.recording.lidar
-        return {"channels": d.channels, "upper_fov": d.upper_deg, "lower_fov": d.lower_deg, "range": d.range_m,
-                "points_per_second": d.points_per_s, "rotation_frequency": d.rotation_hz}
+        return self.lidar.carla_protocol()
 
     def sensor_pose(self, agent_id: str) -> SensorPose:
         return SensorPose(*self.recording.views[agent_id].sensor)
@@ -276,12 +280,10 @@ class RecordedWorld:
         """(beam directions (C * A, 3) of the recorded LiDAR, their azimuths (C * A,), (C * A,) bool:
         no recorded point in its cell), in the sensor frame."""
         if sid not in self._beams:
-            lidar = self.recording.lidar
-            steps = max(int(lidar.points_per_s / lidar.rotation_hz / lidar.channels), 1)
-            el = np.radians(np.linspace(lidar.upper_deg, lidar.lower_deg, lidar.channels))
-            az = -math.pi + np.arange(steps) * (2 * math.pi / steps)  # LidarSpec.azimuths_rad's columns
-            ee, aa = np.meshgrid(el, az, indexing="ij")
-            beams = np.stack([np.cos(ee) * np.cos(aa), np.cos(ee) * np.sin(aa), np.sin(ee)], axis=-1).reshape(-1, 3)
+            lidar, steps = self.lidar, self.lidar.azimuth_steps
+            el = lidar.elevations_rad()
+            beams = lidar.directions()
+            beam_az = np.tile(lidar.azimuths_rad(), lidar.channels)  # row-major (channel, azimuth), as directions()
             xyz = self._cloud(sid)[:, :3].astype(np.float64) - self._origin(sid)
             r = np.linalg.norm(xyz, axis=1)
             ok = r > 1e-6
@@ -292,7 +294,7 @@ class RecordedWorld:
             col = np.rint((p_az + math.pi) / (2 * math.pi / steps)).astype(np.int64) % steps
             empty = np.ones(lidar.channels * steps, dtype=bool)
             empty[ch * steps + col] = False
-            self._beams[sid] = (beams, aa.reshape(-1), empty)
+            self._beams[sid] = (beams, beam_az, empty)
         return self._beams[sid]
 
     def _template(self, agent: Agent):
@@ -304,7 +306,7 @@ class RecordedWorld:
         return self._templates[key]
 
     def _range_m(self) -> float:
-        return float(self.recording.lidar.range_m)
+        return float(self.lidar.range_m)
 
 
 def _same_pose(a: Agent | None, b: Agent | None) -> bool:

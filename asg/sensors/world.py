@@ -229,9 +229,7 @@ class World:
     def lidar_protocol(self) -> dict:
         """The LiDAR the clouds are cast with, in CARLA's attribute names (an OPV2V scenario's
         data_protocol.yaml)."""
-        s = self.spec
-        return {"channels": s.channels, "upper_fov": s.fov_up_deg, "lower_fov": s.fov_down_deg, "range": s.range_m,
-                "points_per_second": s.points_per_s, "rotation_frequency": s.rotation_hz}
+        return self.spec.carla_protocol()
 
     def sensor_pose(self, agent_id: str) -> SensorPose:
         return sensor_pose(self.scene.agent(agent_id), self.spec)
