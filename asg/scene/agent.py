@@ -95,6 +95,20 @@ MAX_SPEED_MPS = 150.0
 _CORNER_SIGNS = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
 
 
+def in_any_box(points: np.ndarray, boxes: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+    """(N,) bool: points (N, >=3) inside any box (M, 7: x, y, z centre, l, w, h, yaw, one frame)
+    grown by ``margin_m`` on every side."""
+    p = np.asarray(points, dtype=np.float64)
+    out = np.zeros(len(p), dtype=bool)
+    for x, y, z, length, width, height, yaw in np.asarray(boxes, dtype=np.float64).reshape(-1, 7):
+        d = p[:, :3] - (x, y, z)
+        c, s = math.cos(yaw), math.sin(yaw)
+        out |= ((np.abs(c * d[:, 0] + s * d[:, 1]) <= length / 2 + margin_m)
+                & (np.abs(-s * d[:, 0] + c * d[:, 1]) <= width / 2 + margin_m)
+                & (np.abs(d[:, 2]) <= height / 2 + margin_m))
+    return out
+
+
 def footprints_xy(x_m, y_m, yaw_rad, length_m, width_m) -> np.ndarray:
     """Corners (M, 4, 2) of M rectangles given as arrays (M,) of centre, heading and size,
     counter-clockwise from front-left."""

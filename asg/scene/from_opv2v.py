@@ -35,6 +35,7 @@ from .recorded_pcd import in_scene_frame, read_recorded_pcd_with_digest
 from .recording import (MAX_LOWERED_M, RECORDING_SOURCE, Handedness, RecordedLidar, RecordedView, Recording,
                         RecordingFormat, opencood_ego)
 from .scan_area import scan_area
+from .scan_ground import GroundPlane, ground_or_none
 from .scene import Scene
 
 #: an agent folder's name: OPV2V's vehicle ids, V2XSet's negative RSU ids
@@ -208,7 +209,8 @@ def _scene(scenario: Path, stamp: str, root: Path, lanes: LaneMap | None = None,
         views[a] = RecordedView(str(pcd), sha256, len(raw), pose, roll, pitch, lowered.get(a, 0.0))
         clouds[a] = in_scene_frame(raw, handed)
     vehicles = _labelled(metas, handed, scenario, stamp)
-    sensing = _sensing_agents(agents, metas, vehicles, views, clouds)
+    planes = {a: ground_or_none(clouds[a]) for a in agents}  # fitted once: the agents' ground, the area
+    sensing = _sensing_agents(agents, metas, vehicles, views, planes)
     all_agents = tuple(vehicles.values()) + tuple(a for a in sensing if a.agent_id not in vehicles)
     ego = opencood_ego(agents)
     scene_id = checks.safe_id(f"{_safe_stem(scenario.name)}-{stamp}", "scene id")
@@ -218,7 +220,7 @@ def _scene(scenario: Path, stamp: str, root: Path, lanes: LaneMap | None = None,
                   time_s=int(stamp) * 0.05, ego_id=ego, agents=all_agents, buildings=(), lane_map=LaneMap([]),
                   collaborators=tuple(a for a in agents if a != ego), log=str(scenario), recording=recording)
     if lanes is None:
-        return replace(scene, lane_map=scan_area(scene, clouds))
+        return replace(scene, lane_map=scan_area(scene, clouds, planes))
     x, y = views[ego].sensor[:2]
     town = map_path.name.split(".")[0]  # the map's town (a bundled or imported town's net: what exports read)
     return replace(scene, town=_safe_stem(town),
@@ -324,21 +326,17 @@ def _vehicle(vid: str, box, handed: Handedness, where: str) -> Agent:
 
 
 def _sensing_agents(agents: list[str], metas: dict, vehicles: dict[str, Agent], views: dict,
-                    clouds: dict) -> list[Agent]:
+                    planes: dict[str, GroundPlane | None]) -> list[Agent]:
     """Each agent folder as an agent: the labelled vehicle of its id, else an RSU (a negative id or
-    ``RSU: true``) or a vehicle of UNLABELLED_CAR_M below its LiDAR, on the ground its scan shows."""
-    from .scan_ground import fit_ground
-
+    ``RSU: true``) or a vehicle of UNLABELLED_CAR_M below its LiDAR, on the ground its scan shows
+    (``planes``: each agent's, None where its scan shows no road)."""
     out = []
     for a in agents:
         if a in vehicles:
             out.append(vehicles[a])
             continue
         x, y, z, yaw = views[a].sensor
-        try:
-            ground_z = z + fit_ground(clouds[a]).c
-        except InputError:
-            ground_z = None
+        ground_z = None if planes[a] is None else z + planes[a].c
         if int(a) < 0 or metas[a].get("RSU") is True:
             ground = z - RSU_POLE_M if ground_z is None else ground_z
             out.append(Agent(a, "rsu", "rsu", x, y, ground, yaw, 0.4, 0.4, max(z - ground, 0.5)))

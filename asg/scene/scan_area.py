@@ -22,12 +22,11 @@ import math
 
 import numpy as np
 
-from sumo_scenarios.errors import InputError
 from sumo_scenarios.lanes import Junction, LaneMap
 from sumo_scenarios.log import NEAR_RADIUS_M
 
-from .agent import footprints_xy
-from .scan_ground import GROUND_TOLERANCE_M, fit_ground
+from .agent import footprints_xy, in_any_box
+from .scan_ground import GROUND_TOLERANCE_M, GroundPlane, ground_or_none
 
 #: the grid's cell (m)
 CELL_M = 1.0
@@ -43,9 +42,10 @@ BOX_MARGIN_M = 0.3
 SCAN_KIND = "scan"
 
 
-def scan_area(scene, clouds: dict[str, np.ndarray]) -> LaneMap:
+def scan_area(scene, clouds: dict[str, np.ndarray], planes: dict[str, GroundPlane | None] | None = None) -> LaneMap:
     """The drivable area of a recorded ``scene`` from its sensing agents' ``clouds`` ({id: (N, 4)
-    in that agent's sensor frame, the scene's handedness}) as a lane map of rectangles."""
+    in that agent's sensor frame, the scene's handedness}) as a lane map of rectangles; ``planes``:
+    each cloud's ground (asg.scene.scan_ground; fitted here where not given)."""
     from scipy import ndimage
 
     rec = scene.recording
@@ -56,16 +56,15 @@ def scan_area(scene, clouds: dict[str, np.ndarray]) -> LaneMap:
     blocked = np.zeros((n, n), dtype=bool)
     boxes = np.array([a.box7() for a in scene.agents if a.is_vehicle]).reshape(-1, 7)
     for agent_id, cloud in clouds.items():
-        try:
-            plane = fit_ground(cloud)
-        except InputError:
+        plane = planes[agent_id] if planes is not None else ground_or_none(cloud)
+        if plane is None:
             continue  # a scan without a road (a high RSU's narrow view) adds nothing
         height = plane.height_m(cloud)
         world = _to_scene(cloud[:, :3], rec.views[agent_id].sensor)
         _mark(ground, world[np.abs(height) <= GROUND_TOLERANCE_M], origin, n)
         tall = (height > OBSTACLE_HEIGHTS_M[0]) & (height < OBSTACLE_HEIGHTS_M[1])
         obstacles = world[tall]
-        _mark(blocked, obstacles[~_inside_any(obstacles, boxes, BOX_MARGIN_M)], origin, n)
+        _mark(blocked, obstacles[~in_any_box(obstacles, boxes, BOX_MARGIN_M)], origin, n)
     for corners in footprints_xy(boxes[:, 0], boxes[:, 1], boxes[:, 6], boxes[:, 3], boxes[:, 4]) if len(boxes) else ():
         _fill_polygon(ground, corners, origin, n)
     if CLOSE_CELLS:
@@ -106,18 +105,6 @@ def _fill_polygon(grid: np.ndarray, corners: np.ndarray, origin: np.ndarray, n: 
         a, b = corners[k], corners[(k + 1) % len(corners)]
         inside &= (b[0] - a[0]) * (centres[..., 1] - a[1]) - (b[1] - a[1]) * (centres[..., 0] - a[0]) >= -CELL_M / 2
     grid[ii[inside], jj[inside]] = True
-
-
-def _inside_any(points: np.ndarray, boxes: np.ndarray, margin_m: float) -> np.ndarray:
-    """(N,) bool: inside any box (M, 7: x, y, z centre, l, w, h, yaw) grown by ``margin_m``."""
-    out = np.zeros(len(points), dtype=bool)
-    for x, y, z, length, width, height, yaw in boxes:
-        d = points - (x, y, z)
-        c, s = math.cos(yaw), math.sin(yaw)
-        out |= ((np.abs(c * d[:, 0] + s * d[:, 1]) <= length / 2 + margin_m)
-                & (np.abs(-s * d[:, 0] + c * d[:, 1]) <= width / 2 + margin_m)
-                & (np.abs(d[:, 2]) <= height / 2 + margin_m))
-    return out
 
 
 def _rectangles(free: np.ndarray, origin: np.ndarray) -> list[Junction]:

@@ -62,3 +62,11 @@ def fit_ground(points: np.ndarray, seed: int = 0) -> GroundPlane:
                           random_state=seed).fit(cand[:, :2], cand[:, 2])
     a, b = (float(v) for v in fit.estimator_.coef_)
     return GroundPlane(a, b, float(fit.estimator_.intercept_), int(fit.inlier_mask_.sum()))
+
+
+def ground_or_none(points: np.ndarray) -> GroundPlane | None:
+    """:func:`fit_ground`, or None for a scan that shows no road (a high RSU's narrow view)."""
+    try:
+        return fit_ground(points)
+    except InputError:
+        return None

@@ -34,9 +34,9 @@ import numpy as np
 from sumo_scenarios.geometry import wrap_rad
 
 from ..scene import Agent, Scene
-from ..scene.agent import footprint_xy
+from ..scene.agent import footprint_xy, in_any_box
 from ..scene.recorded_pcd import recorded_cloud
-from ..scene.scan_ground import GROUND_TOLERANCE_M, GroundPlane, fit_ground
+from ..scene.scan_ground import GROUND_TOLERANCE_M, GroundPlane, ground_or_none
 from .lidar_spec import LidarSpec
 from .meshes import REFLECTIVITY, SURFACES, agent_template
 from .raycast import make_caster
@@ -167,11 +167,7 @@ class RecordedWorld:
         sorted_az = self._sorted_az(sid)
         for a in vehicles:
             idx = sorted_az.within(_window(pose, a, self._range_m(), REMOVE_MARGIN_M))
-            d = xyz[idx] @ pose.rotation().T + pose.origin - (a.x_m, a.y_m, a.z_m + a.height_m / 2)
-            c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
-            inside[idx] |= ((np.abs(c * d[:, 0] + s * d[:, 1]) <= a.length_m / 2 + REMOVE_MARGIN_M)
-                            & (np.abs(-s * d[:, 0] + c * d[:, 1]) <= a.width_m / 2 + REMOVE_MARGIN_M)
-                            & (np.abs(d[:, 2]) <= a.height_m / 2 + REMOVE_MARGIN_M))
+            inside[idx] |= in_any_box(xyz[idx] @ pose.rotation().T + pose.origin, a.box7(), REMOVE_MARGIN_M)
         plane = self._plane(sid)
         if plane is not None:
             inside &= plane.height_m(xyz) > GROUND_TOLERANCE_M
@@ -267,13 +263,8 @@ class RecordedWorld:
         return self._clouds[sid]
 
     def _plane(self, sid: str) -> GroundPlane | None:
-        if sid not in self._planes:
-            from sumo_scenarios.errors import InputError
-
-            try:
-                self._planes[sid] = fit_ground(self._cloud(sid))
-            except InputError:
-                self._planes[sid] = None  # no road in view: removed rays hit only vehicles, or nothing
+        if sid not in self._planes:  # None: no road in view (removed rays hit only vehicles, or nothing)
+            self._planes[sid] = ground_or_none(self._cloud(sid))
         return self._planes[sid]
 
     def _beam_pattern(self, sid: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
