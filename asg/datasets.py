@@ -26,7 +26,7 @@ from sumo_scenarios.log import NEAR_RADIUS_M
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
 from .dataset_spec import DatasetSpec, data_root, load_spec  # noqa: F401  (this module's API too)
-from .schemas import CURRENT, SCHEMA_KEY, SchemaFile, schema_of
+from .schemas import SchemaFile, schema_of, stamped
 from .scene import Scene, load_scene
 from .scene.from_log import ExtractParams, extract_scenes
 from .scene.neighbours import random_collaborators, vehicles_within
@@ -112,10 +112,9 @@ def build_dataset(name: str, progress: Callable[[int, int], None] | None = None,
                 for s in scenes:
                     if any(s.scene_id in ids for ids in splits.values()):
                         fh.write(json.dumps(s.to_dict(), separators=(",", ":")) + "\n")
-        index = {SCHEMA_KEY: CURRENT[SchemaFile.INDEX], "name": name, "frames": sum(len(v) for v in splits.values()),
-                 "splits": splits,
-                 "logs": {k: [s.scene_id for s in v] for k, v in logs},
-                 "frames_passing_filters": sum(len(v) for _, v in candidates)}
+        index = stamped(SchemaFile.INDEX, {"name": name, "frames": sum(len(v) for v in splits.values()),
+                                           "splits": splits, "logs": {k: [s.scene_id for s in v] for k, v in logs},
+                                           "frames_passing_filters": sum(len(v) for _, v in candidates)})
         (work / "index.json").write_text(json.dumps(index, indent=1))
     return out
 

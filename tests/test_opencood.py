@@ -46,10 +46,9 @@ def scenes(tmp_path_factory):
     return out
 
 
-def opencood_own_boxes(model_dir: Path, export_dir: Path, kind: str) -> dict[str, np.ndarray]:
-    """{scene id: boxes (K, 7)} of OpenCOOD's own inference over an OPV2V export, converted to asg's
-    ego frame here by the export's documented rule (y and yaw mirrored, the ego frame lowered by
-    ids.yaml's ego_frame_lowered_m)."""
+def opencood_pipeline(model_dir: Path, export_dir: Path, kind: str, checkpoint: str = "net_epoch1.pth"):
+    """(dataset, model, infer) of OpenCOOD's own inference (its ``tools/inference.py``) over an OPV2V
+    export, with ``model_dir``'s config and ``checkpoint``."""
     import torch
 
     from asg.perception.opencood.folder import read_hypes
@@ -59,9 +58,20 @@ def opencood_own_boxes(model_dir: Path, export_dir: Path, kind: str) -> dict[str
     hypes.update(root_dir=str(export_dir), validate_dir=str(export_dir))
     dataset = module("data_utils.datasets").build_dataset(hypes, visualize=False, train=False)
     model = module("tools.train_utils").create_model(hypes)
-    model.load_state_dict(torch.load(model_dir / "net_epoch1.pth", weights_only=True))
+    model.load_state_dict(torch.load(model_dir / checkpoint, weights_only=True))
     model.eval()
-    infer = getattr(module("tools.inference_utils"), f"inference_{kind}_fusion")
+    return dataset, model, getattr(module("tools.inference_utils"), f"inference_{kind}_fusion")
+
+
+def opencood_own_boxes(model_dir: Path, export_dir: Path, kind: str) -> dict[str, np.ndarray]:
+    """{scene id: boxes (K, 7)} of OpenCOOD's own inference over an OPV2V export, converted to asg's
+    ego frame here by the export's documented rule (y and yaw mirrored, the ego frame lowered by
+    ids.yaml's ego_frame_lowered_m)."""
+    import torch
+
+    from asg.perception.opencood.runtime import module
+
+    dataset, model, infer = opencood_pipeline(model_dir, export_dir, kind)
     to_center = module("utils.box_utils").corner_to_center
     scenarios = sorted(p.name for p in export_dir.iterdir() if p.is_dir())
     out = {}
@@ -564,7 +574,6 @@ def test_evaluate_by_opencoods_rule_equals_opencoods_own_inference_on_the_export
 
     from asg.evaluation import GroundTruth, evaluate_detector
     from asg.io.export.opv2v import ScenarioWriter
-    from asg.perception.opencood.folder import read_hypes
     from asg.perception.opencood.runtime import module
 
     chosen = [replace(s, scene_id=f"{s.scene_id}-{ego}{k}") for (ego, k) in (("rsu", 2), ("vehicle", 2), ("vehicle", 1))
@@ -574,13 +583,7 @@ def test_evaluate_by_opencoods_rule_equals_opencoods_own_inference_on_the_export
     writer = ScenarioWriter(export_dir)
     for s in chosen:
         writer.write(s)
-    hypes = read_hypes(model_dir)
-    hypes.update(root_dir=str(export_dir), validate_dir=str(export_dir))
-    dataset = module("data_utils.datasets").build_dataset(hypes, visualize=False, train=False)
-    model = module("tools.train_utils").create_model(hypes)
-    model.load_state_dict(torch.load(model_dir / "net_epoch4.pth", weights_only=True))
-    model.eval()
-    infer = getattr(module("tools.inference_utils"), f"inference_{kind}_fusion")
+    dataset, model, infer = opencood_pipeline(model_dir, export_dir, kind, "net_epoch4.pth")
     eval_utils = module("utils.eval_utils")
     stat = {t: {"tp": [], "fp": [], "gt": 0} for t in (0.3, 0.5, 0.7)}
     order = {name: i for i, name in enumerate(sorted(p.name for p in export_dir.iterdir() if p.is_dir()))}

@@ -125,7 +125,10 @@ def load_generate_config(path: Path | None = None, protocol: str | None = None, 
         if str(path) in text or text.startswith("--"):
             raise
         raise InputError(f"{path}: {text}") from None
-    return cfg.validate()  # the target's refusal names its own source (a model folder), not this file
+    from ..perception.targets import check_fusion
+
+    check_fusion(cfg.fusion)  # outside the try: its refusal names its own source (a model folder), not this file
+    return cfg
 
 
 def with_space_flags(cfg: GenerateConfig, plausibility: str | None, spaces: str | None) -> GenerateConfig:

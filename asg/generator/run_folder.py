@@ -36,7 +36,7 @@ from ..objective.ap import (AP_METHODS, DEFAULT_AP_METHOD, Yardstick, FrameMatch
 from .pipeline import SceneResult
 from .stages import Stage
 from ..scene import save_scene
-from ..schemas import CURRENT, SCHEMA_KEY, SchemaFile, schema_of
+from ..schemas import SchemaFile, schema_of, stamped
 from ..io.figures import bev_figure
 from ..sensors.agreement import cloud_changes
 from ..io.pcd import write_pcd
@@ -207,8 +207,7 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
     per_scene = [matches[e["scene_id"]] for e in entries]
     pooled = {stage.ap_key: _pooled_from_matches(per_scene, stage) for stage in Stage}
     by_method = {m: {k: (None if v is None else v[m]) for k, v in pooled.items()} for m in AP_METHODS}
-    summary = {
-        SCHEMA_KEY: CURRENT[SchemaFile.SUMMARY],
+    summary = stamped(SchemaFile.SUMMARY, {
         "config": config,
         "scenes": entries,
         "aggregate": {
@@ -220,7 +219,7 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
             "scenes_per_hour": round(3600.0 * len(entries) / sum(seconds), 1) if seconds and sum(seconds) > 0 else None,
             "wall_s": round(wall_s, 1),
         },
-    }
+    })
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=1))
     return summary
 

@@ -35,7 +35,7 @@ from typing import Mapping
 from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 
-from .agent import Agent
+from .agent import MAX_ABS_YAW_RAD, Agent
 
 #: a scene's source when its frame is a recording (beside the traffic sources of sumo_scenarios.log)
 RECORDING_SOURCE = "recording"
@@ -131,7 +131,7 @@ class RecordedView:
             raise InputError(f"{where}: sensor must be [x_m, y_m, z_m, yaw_rad]")
         x, y = (checks.coordinate(v, f"{where} sensor") for v in sensor[:2])
         z = checks.number(sensor[2], f"{where} sensor z", -10_000.0, 10_000.0)
-        yaw = checks.number(sensor[3], f"{where} sensor yaw", -8 * 3.1416, 8 * 3.1416)
+        yaw = checks.number(sensor[3], f"{where} sensor yaw", -MAX_ABS_YAW_RAD, MAX_ABS_YAW_RAD)
         return RecordedView(cloud, sha, int(checks.number(d["points"], f"{where} points", 0, MAX_CLOUD_POINTS)),
                             (x, y, z, yaw), checks.number(d.get("roll_deg", 0.0), f"{where} roll_deg", -180, 180),
                             checks.number(d.get("pitch_deg", 0.0), f"{where} pitch_deg", -180, 180),

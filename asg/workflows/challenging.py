@@ -22,7 +22,7 @@ from sumo_scenarios.errors import InputError
 from ..datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
 from ..objective.ap import DEFAULT_AP_METHOD
 from ..objective.pooled import pair_json
-from ..schemas import CURRENT, SCHEMA_KEY, SchemaFile
+from ..schemas import SchemaFile, stamped
 from ..scene import load_scene
 
 #: the split of the normal set each challenging set is generated from
@@ -86,10 +86,10 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     agg = run.summary["aggregate"]
     # the attacked detector: the shipped FUSION, its WEIGHTS, or a detector factory's target
     attacked = {"fusion": fusion, "weights": cfg.weights, **({"detector": detector_factory} if detector_factory else {})}
-    index = {SCHEMA_KEY: CURRENT[SchemaFile.INDEX], "name": out.name, "frames": len(ids), "splits": {split: ids},
-             "source": {"set": "normal", "split": split, **attacked, "seed": SEED,
-                        "skipped": [sid for sid, _ in run.skipped]},
-             **pair_json({"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)})}
+    source = {"set": "normal", "split": split, **attacked, "seed": SEED, "skipped": [sid for sid, _ in run.skipped]}
+    pooled = {"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)}
+    index = stamped(SchemaFile.INDEX, {"name": out.name, "frames": len(ids), "splits": {split: ids}, "source": source,
+                                       **pair_json(pooled)})
     write_text_atomic(out / "index.json", json.dumps(index, indent=1))
     return out
 

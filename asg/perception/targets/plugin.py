@@ -23,10 +23,8 @@ class PluginTarget(Target):
 
     def detector(self, weights_file: str | None = None, **options):
         self._no_options(options)
-        plugin = load_plugin(self.name)
-        if weights_file:
-            raise InputError(f"--weights applies to the shipped models; the plugin '{self.name}' loads its own")
-        return plugin
+        self.check(weights_file)
+        return load_plugin(self.name)
 
     def check(self, weights_file: str | None = None) -> "PluginTarget":
         """Its name only (a plugin is built where it runs); a ``weights_file`` is refused."""
