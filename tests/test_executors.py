@@ -288,3 +288,28 @@ def test_a_sigterm_taken_inside_a_finaliser_still_ends_the_busy_worker_silently(
                           env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert proc.returncode == 143, proc.stderr
     assert proc.stdout == "" and proc.stderr == ""
+
+
+def test_a_rerun_after_the_search_settings_changed_is_refused(tmp_path, monkeypatch):
+    """configs/search/NAME.yaml changes what a search finds (BO's batch): run.json records it."""
+    from asg.generator import config
+    from asg.generator.run import open_run
+    from sumo_scenarios.errors import InputError
+
+    open_run(CFG, tmp_path / "run", scenes=_scenes()[:1], seed=3).run(detector_factory="fakes:oracle_factory")
+    real = config.search_params
+    monkeypatch.setattr(config, "search_params", lambda name: real(name) | {"batch": 4})
+    with pytest.raises(InputError, match="other settings \\(search_settings.batch: 1 -> 4\\)"):
+        open_run(CFG, tmp_path / "run", scenes=_scenes()[:1], seed=3)
+
+
+def test_local_workers_share_the_cores_for_their_candidates(monkeypatch):
+    from asg.executors import base, local
+
+    monkeypatch.setattr(local, "usable_cores", lambda: 8)
+    assert local.LocalExecutor(workers=1).spare_threads(30) == 8
+    assert local.LocalExecutor(workers=4).spare_threads(30) == 2
+    assert local.LocalExecutor(workers=4).spare_threads(1) == 8  # one scene runs on one worker
+    assert local.LocalExecutor(workers=2, threads=4).spare_threads(30) == 1
+    assert local.LocalExecutor(workers=16).spare_threads(30) == 1
+    assert base.Executor.spare_threads(local.LocalExecutor(), 3) == 1  # an executor that cannot tell: none

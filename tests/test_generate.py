@@ -1,4 +1,5 @@
 """The generator end to end with a fake detector (ground truth for well-seen boxes): fast."""
+import dataclasses
 import math
 
 import numpy as np
@@ -152,6 +153,21 @@ def test_blas_runs_on_one_thread_while_a_scene_is_generated(busy_scene):
     assert after == {2}
 
 
+def test_a_scene_leaves_torchs_thread_count_as_it_found_it(busy_scene):
+    """Putting a BLAS library back to its own thread count after a scene set OpenMP's, which torch
+    reads: a worker of one thread ran its next scenes on two (their numbers then depended on the
+    scenes before)."""
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        make_gen(GenerateConfig(fusion="none", search="rs", acs="off", budget=3, space=SpaceConfig(n_q=50))).attack(busy_scene, seed=1)
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_acs_that_ends_easier_than_the_start_says_so(busy_scene, monkeypatch):
     """The paper's ACS samples combinations among the candidates and may miss the scene's own pair:
     when the scene after ACS is easier than the scene as given, the scene's notes say so."""
@@ -162,7 +178,7 @@ def test_acs_that_ends_easier_than_the_start_says_so(busy_scene, monkeypatch):
 
     def easier(scene, rng, notes):
         scored = gen.evaluate_scene(scene)
-        return AcsOutcome(type(scored)(scene, scored.loss + 0.5, scored.ap, scored.frame), {}, 3)
+        return AcsOutcome(dataclasses.replace(scored, loss=scored.loss + 0.5), {}, 3)
 
     monkeypatch.setattr(gen, "collaborator_search", easier)
     result = gen.attack(start, seed=4)
@@ -195,3 +211,38 @@ def test_a_new_collaborator_search_is_one_class_and_one_registry_line(busy_scene
         assert build_parser().parse_args(["generate", "--acs", "first-two"]).acs == "first-two"
     finally:
         ACS_STRATEGIES.unregister("first-two")
+
+
+@pytest.mark.parametrize("search", ["rs", "ga"])
+def test_candidates_scored_side_by_side_give_the_scene_one_thread_gives(busy_scene, search):
+    """The shipped AttFuse scoring a search's batches on two threads (one torch thread each) finds
+    the same members, losses and final scene as one thread scoring them one by one."""
+    import torch
+
+    from asg.perception import build_detector
+
+    det = build_detector("attfuse")
+    cfg = GenerateConfig(fusion="attfuse", search=search, acs="off", budget=12, space=SpaceConfig(n_q=100))
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        results = [Generator(cfg, det, det, candidate_threads=n).attack(busy_scene, seed=3) for n in (1, 2)]
+        assert torch.get_num_threads() == 1  # the scoring threads leave the caller's count as it was
+    finally:
+        torch.set_num_threads(before)
+    one, two = results
+    assert [(e.x.tolist(), e.loss, e.ap) for e in one.history] == [(e.x.tolist(), e.loss, e.ap) for e in two.history]
+    assert one.final.to_dict() == two.final.to_dict() and one.ap_final == two.ap_final
+    for stage in one.detections:
+        for a, b in zip(one.detections[stage], two.detections[stage]):
+            assert np.array_equal(a, b)
+
+
+def test_the_final_scene_keeps_the_detections_its_search_scored(busy_scene):
+    """The final stage's detections are the ones scored during the search (not detected again),
+    and they are what the detector gives on the final frame."""
+    gen = make_gen(dataclasses.replace(FAST, budget=10))
+    r = gen.attack(busy_scene, seed=2)
+    again = gen._detections(r.frames["final"])
+    for a, b in zip(r.detections["final"], again):
+        assert np.array_equal(a, b)

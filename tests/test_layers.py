@@ -22,7 +22,7 @@ LAYERS = {
     "training.__init__": 3.5, "training.checkpoint": 3.5, "training.branch_fit": 3.5, "training.config": 3.6,
     "datasets": 4, "generator.config": 4, "generator.stages": 4, "generator.__init__": 4, "cli_args": 4,
     "training.loop": 4.5,
-    "generator.pipeline": 5,
+    "generator.candidates": 4, "generator.pipeline": 5,
     "io": 6, "generator.run_folder": 6.5,
     "generator.run": 7, "report": 7,
     "evaluation": 7.5,

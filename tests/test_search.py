@@ -19,8 +19,14 @@ class PlantedQ:
         return self.members[int(np.argmin(((self.members - x) ** 2).sum(axis=1)))]
 
 
-def planted(target):
-    return lambda x: (float(((x - target) ** 2).sum()), {})
+def planted(target, batches=None):
+    """The squared distance to ``target`` of each member of a batch; ``batches`` collects the
+    batch sizes asked."""
+    def objective(xs):
+        if batches is not None:
+            batches.append(len(xs))
+        return [(float(((x - target) ** 2).sum()), {}) for x in xs]
+    return objective
 
 
 @pytest.mark.slow
@@ -98,7 +104,7 @@ def test_optimizers_are_seeded():
 
 
 def test_unknown_setting_is_named():
-    with pytest.raises(InputError, match="configs/search/bo.yaml: unknown setting 'n_points' for bo; known: kappa, n_initial, refit_every"):
+    with pytest.raises(InputError, match="configs/search/bo.yaml: unknown setting 'n_points' for bo; known: batch, kappa, n_initial, refit_every"):
         build_optimizer("bo", 9, 10, np.random.default_rng(0), n_points=500)
     with pytest.raises(InputError, match="unknown setting 'kappa' for ga"):
         build_optimizer("ga", 9, 10, np.random.default_rng(0), kappa=1.0)
@@ -141,3 +147,50 @@ def test_random_combinations_and_fewer_candidates_than_needed():
     assert random_combinations(["a"], 2, 3, rng) == [("a",)]
     assert random_combinations([], 2, 3, rng) == []
 
+
+
+@pytest.mark.parametrize("name, params", [("rs", {}), ("ga", {"population": 8, "elites": 2}), ("bo", {"n_initial": 10})])
+def test_a_batched_search_finds_what_one_at_a_time_finds(name, params):
+    """Random search, a GA's generations and BO's random start propose the same members, and so
+    find the same, whether their proposals are evaluated in batches or one by one."""
+    runs, sizes = [], []
+    for batched in (True, False):
+        batches = []
+        q = PlantedQ(np.random.default_rng(0), n=200)
+        opt = build_optimizer(name, 9, 30, np.random.default_rng(4), **params)
+        hist = run_search(opt, q, planted(np.full(9, 0.3), batches), 30, batched=batched)
+        runs.append([(e.step, e.x.tolist(), e.loss) for e in hist])
+        sizes.append(batches)
+    assert runs[0] == runs[1]
+    assert sizes[1] == [1] * 30
+    expected = {"rs": [30], "ga": [8, 6, 6, 6, 4], "bo": [10] + [1] * 20}[name]
+    assert sizes[0] == expected
+
+
+def test_batched_bo_proposes_its_batch_by_the_constant_liar():
+    q = PlantedQ(np.random.default_rng(0), n=300)
+    batches = []
+    opt = build_optimizer("bo", 9, 30, np.random.default_rng(4), n_initial=10, batch=5)
+    hist = run_search(opt, q, planted(np.full(9, 0.3), batches), 30)
+    assert batches == [10, 5, 5, 5, 5]
+    rows = [int(np.flatnonzero(np.all(q.members == e.x, axis=1))[0]) for e in hist]
+    assert len(set(rows)) == 30  # a batch's members are distinct
+    # the lies spread a batch: its members are not all the GP's one favourite's neighbours
+    first_batch = np.array([e.x for e in hist[10:15]])
+    assert np.ptp(first_batch, axis=0).max() > 0.2
+    assert best_of(hist).loss < min(e.loss for e in hist[:10])
+
+
+@pytest.mark.parametrize("name", ["bo", "ng"])
+@pytest.mark.parametrize("batch", [0, -1, 65, 2.5, True, "4"])
+def test_a_batch_out_of_range_is_refused(name, batch):
+    with pytest.raises(InputError, match=f"configs/search/{name}.yaml: batch must be a whole number in \\[1, 64\\]"):
+        build_optimizer(name, 9, 10, np.random.default_rng(0), batch=batch)
+
+
+def test_nevergrad_takes_a_batch():
+    q = PlantedQ(np.random.default_rng(0), n=200)
+    batches = []
+    opt = build_optimizer("ng", 9, 20, np.random.default_rng(1), batch=4)
+    hist = run_search(opt, q, planted(np.zeros(9), batches), 20)
+    assert batches == [4] * 5 and len(hist) == 20

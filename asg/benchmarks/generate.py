@@ -1,5 +1,5 @@
-"""``asg bench generate``: per-scene wall time of AttFuse + ACS-A + BO (50 evaluations), the
-evaluation rate, and BO's own overhead per suggestion (ask + tell)."""
+"""``asg bench generate``: per-scene wall time of AttFuse + ACS-A + a search (BO, 50 evaluations),
+the evaluation rate, and the search's own overhead per suggestion (ask + tell)."""
 from __future__ import annotations
 
 import itertools
@@ -14,13 +14,16 @@ from ..generator.config import GenerateConfig, load_generate_config
 from ..generator.pipeline import Generator
 
 
-def bench_generate(scenes: int = 5, budget: int = GenerateConfig.budget, seed: int = 1) -> dict:
+def bench_generate(scenes: int = 5, budget: int = GenerateConfig.budget, seed: int = 1,
+                   search: str = GenerateConfig.search) -> dict:
+    """One process on two threads: the scenes' normal and ACS frames detected on two torch
+    threads, the search's batches of candidates on two threads of one (asg.generator.candidates)."""
     import torch
 
     torch.set_num_threads(2)
-    cfg = load_generate_config(fusion="attfuse", search="bo", acs="attention", budget=budget)
+    cfg = load_generate_config(fusion="attfuse", search=search, acs="attention", budget=budget)
     det = build_detector("attfuse")
-    gen = Generator(cfg, det, det)
+    gen = Generator(cfg, det, det, candidate_threads=torch.get_num_threads())
     seconds, evals, overhead = [], [], []
     for scene in itertools.islice(scenes_of("normal"), scenes):
         t = time.perf_counter()
@@ -29,7 +32,7 @@ def bench_generate(scenes: int = 5, budget: int = GenerateConfig.budget, seed: i
         evals.append(r.evaluations)
         overhead += r.bo_overhead_s
     return {
-        "scenes": len(seconds), "budget": budget,
+        "scenes": len(seconds), "budget": budget, "search": search,
         "seconds_per_scene_median": round(statistics.median(seconds), 2),
         "evaluations_per_second": round(sum(evals) / sum(seconds), 2),
         "bo_overhead_s_median": round(float(np.median(overhead)), 4) if overhead else None,

@@ -61,6 +61,11 @@ class Executor(ABC):
         retried on a fresh worker (at most MAX_ATTEMPTS times, then WorkerLost); an exception
         raised by ``run`` propagates."""
 
+    def spare_threads(self, items: int) -> int:
+        """The threads each worker may score a search's candidates on (asg.generator.candidates)
+        when ``items`` items run: 1 unless it knows the cores its workers leave idle."""
+        return 1
+
     @property
     def in_process(self) -> bool:
         """Does the job run in this process (so that its setup may take callables that do not
@@ -110,17 +115,32 @@ def apply_threads(threads: int) -> None:
     threadpool_limits(limits={"openmp": threads, "blas": 1})
 
 
-def blas_on_one_thread():
+@contextlib.contextmanager
+def blas_on_one_thread() -> Iterator[None]:
     """A context in which the loaded BLAS libraries (OpenBLAS under numpy and scipy) use one
     thread. Their matrices here are small (the GP of BO holds at most a budget of points), and
     OpenBLAS's spinning threads fight torch's OpenMP threads for the cores: a scene of AttFuse +
     ACS-A + BO took 4.3 s in one process on two threads, 2.5-2.7 s with BLAS on one (measured with
-    ``asg bench generate``)."""
+    ``asg bench generate``). torch's thread count is the same after it as before."""
+    import torch
     from threadpoolctl import threadpool_limits
 
     import scipy.linalg  # noqa: F401  (load scipy's own OpenBLAS, so that the limit reaches it)
 
-    return threadpool_limits(limits=1, user_api="blas")
+    torch_threads = torch.get_num_threads()
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            yield
+    finally:
+        # putting a BLAS library back to its own count sets OpenMP's, which torch reads as its own:
+        # the process left on two threads after a scene ran on one (a later scene's numbers then
+        # depended on what ran before it)
+        torch.set_num_threads(torch_threads)
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system says)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def default_workers(items: int) -> int:

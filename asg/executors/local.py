@@ -26,7 +26,7 @@ from typing import Any, Iterator, Sequence
 from sumo_scenarios.errors import InputError
 
 from .. import interrupts
-from .base import EXECUTORS, MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, quiet_third_party_warnings, signals_deferred
+from .base import EXECUTORS, MAX_ATTEMPTS, Executor, Job, WorkerLost, apply_threads, usable_cores, quiet_third_party_warnings, signals_deferred
 from .launcher import spawned_ignoring_sigint
 
 _STATE: Any = None
@@ -105,6 +105,11 @@ class LocalExecutor(Executor):
     @property
     def in_process(self) -> bool:
         return self.workers == 1
+
+    def spare_threads(self, items: int) -> int:
+        """The cores of this machine shared among the workers that run: a single scene on two
+        cores scores its candidates on two threads; two workers on two cores, on one each."""
+        return max(1, usable_cores() // (max(1, min(self.workers, items)) * self.threads))
 
     def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
         if self.in_process:

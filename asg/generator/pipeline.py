@@ -14,6 +14,7 @@ import numpy as np
 from sumo_scenarios.errors import InputError
 
 from .config import ACS_OFF, MAX_BUDGET, GenerateConfig, load_generate_config, search_params, with_space_flags  # noqa: F401  (re-exported)
+from .candidates import CandidateThreads
 from .stages import Stage
 from ..objective import adversarial_loss, ap_at
 from ..scene import Scene
@@ -73,13 +74,18 @@ class SceneResult:
 class Generator:
     """Holds the target detector, the AttFuse model for ACS-A and the LiDAR spec across scenes."""
 
-    def __init__(self, cfg: GenerateConfig, target, acs_model=None, spec: LidarSpec | None = None):
+    def __init__(self, cfg: GenerateConfig, target, acs_model=None, spec: LidarSpec | None = None,
+                 candidate_threads: int = 1):
+        """``candidate_threads``: the threads a search's batch of candidates is scored on, one torch
+        thread each (:mod:`.candidates`; only for a detector whose target kind detects frames on
+        several threads at once); the result does not depend on it."""
         self.cfg = cfg.validate()
         self.target = target
         self.acs_model = acs_model
         self.spec = spec or load_lidar_spec(cfg.lidar)
         self.params = search_params(cfg.search)
         check_settings(cfg.search, self.params)
+        self.candidates = CandidateThreads(candidate_threads)
 
     # ---- evaluation ------------------------------------------------------------------------
     def _detections(self, frame: CooperativeFrame) -> Detections:
@@ -87,14 +93,15 @@ class Generator:
         gt = frame.ego_boxes
         return boxes, scores, gt[in_range(gt)]
 
-    def _score(self, frame: CooperativeFrame) -> tuple[float, dict[str, float]]:
-        ap = ap_at([self._detections(frame)], self.cfg.objective.thresholds)
-        return adversarial_loss(ap, self.cfg.objective), ap
+    def _judged(self, frame: CooperativeFrame) -> "Judged":
+        detections = self._detections(frame)
+        ap = ap_at([detections], self.cfg.objective.thresholds)
+        return Judged(adversarial_loss(ap, self.cfg.objective), ap, detections)
 
     def evaluate_scene(self, scene: Scene) -> "Scored":
         frame = render_frame(world_for(scene, self.spec))
-        loss, ap = self._score(frame)
-        return Scored(scene, loss, ap, frame)
+        judged = self._judged(frame)
+        return Scored(scene, judged.loss, judged.ap, frame, judged.detections)
 
     # ---- the two stages ----------------------------------------------------------------------
     def normal_collaborators(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> Scene:
@@ -192,7 +199,7 @@ class Generator:
             seconds=time.perf_counter() - t0, perturbed=aps.perturbed, delta=aps.delta, plausibility=plaus,
             history=aps.history, frames={k: v.frame for k, v in stages.items()}, notes=notes,
             acs_probabilities=acs.probabilities, bo_overhead_s=[e.optimizer_s for e in aps.history],
-            detections={k: self._detections(v.frame) for k, v in stages.items()}, history_columns=aps.columns,
+            detections={k: v.detections for k, v in stages.items()}, history_columns=aps.columns,
             history_values=aps.values, space=aps.space, inserted=aps.inserted)
 
     def _perturb(self, start_at: "Scored", perturbed: list[str], rng: np.random.Generator, on_step) -> "ApsOutcome":
@@ -218,8 +225,15 @@ class Generator:
             frame = render_frame(world, scene.sensing_ids, moved=p.moved)
             return apply_link(frame, p.link, view) if p.link else frame
 
-        def objective(x: np.ndarray) -> tuple[float, dict[str, float]]:
-            return self._score(frame_of(x))
+        lowest: list = [start_at.loss, None, None]  # the lowest loss scored, its frame and detections
+
+        def objective(xs: list[np.ndarray]) -> list[tuple[float, dict[str, float]]]:
+            frames = [frame_of(x) for x in xs]  # rendered here: the world moves its vehicles in place
+            judged = self.candidates.map(self._judged, frames)
+            for frame, j in zip(frames, judged):
+                if j.loss < lowest[0]:  # best_of's pick: the first of the lowest, the start if none beats it
+                    lowest[:] = [j.loss, frame, j.detections]
+            return [(j.loss, j.ap) for j in judged]
 
         optimizer = build_optimizer(self.cfg.search, space.dim, self.cfg.budget, rng, **self.params)
         start = Evaluation(0, space.identity(), start_at.loss, start_at.ap, 0.0)
@@ -239,7 +253,7 @@ class Generator:
         record["link"] = {cid: {k: v for k, v in st.to_dict().items() if k != "earlier_agents"}
                           for cid, st in final.link.items()}
         record["inserted"] = list(inserted)
-        return ApsOutcome(Scored(final, best.loss, best.ap, frame_of(best.x)), history, delta, tuple(perturbed),
+        return ApsOutcome(Scored(final, best.loss, best.ap, lowest[1], lowest[2]), history, delta, tuple(perturbed),
                           columns, values, record, inserted)
 
 
@@ -251,6 +265,17 @@ class Scored:
     loss: float
     ap: dict[str, float]
     frame: CooperativeFrame
+    #: the target model's (boxes, scores, ground truth) on ``frame``
+    detections: Detections
+
+
+@dataclass(frozen=True)
+class Judged:
+    """A frame as the target model sees it: its adversarial loss, AP by threshold and detections."""
+
+    loss: float
+    ap: dict[str, float]
+    detections: Detections
 
 
 @dataclass(frozen=True)

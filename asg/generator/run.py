@@ -170,7 +170,8 @@ def run_scenes(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed:
     skipped: list[tuple[str, str]] = []
     # the evaluation callback reaches the generator only where it runs in this process
     job = Job(_worker_setup, _worker_run,
-              (cfg, detector_factory, str(out), seed, artifacts, on_step if executor.in_process else None))
+              (cfg, detector_factory, str(out), seed, artifacts, on_step if executor.in_process else None,
+               candidate_threads(cfg, detector_factory, executor, len(todo))))
     try:
         for n, (item, (status, value)) in enumerate(executor.map_unordered(job, todo), start=1):
             if status == "skipped":
@@ -192,12 +193,23 @@ def run_scenes(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed:
 
 
 # ---- one worker ------------------------------------------------------------------------------------
+def candidate_threads(cfg: GenerateConfig, detector_factory: str | None, executor: Executor, items: int) -> int:
+    """The threads each worker scores a search's candidates on: the cores its executor leaves idle,
+    for a target whose kind detects frames on several threads at once (a factory's detector: 1)."""
+    from ..perception.targets import resolve_target
+
+    if detector_factory or not resolve_target(cfg.fusion).concurrent_frames:
+        return 1
+    return executor.spare_threads(items)
+
+
 def _worker_setup(cfg: GenerateConfig, detector_factory: str | None, out: str, seed: int, artifacts: bool,
-                  on_step: StepProgress | None):
-    """A worker's state: the generator with its detectors, where to write, the seed, what to write,
-    the evaluation callback (a worker in this process only)."""
+                  on_step: StepProgress | None, threads: int = 1):
+    """A worker's state: the generator with its detectors (scoring candidates on ``threads``
+    threads), where to write, the seed, what to write, the evaluation callback (a worker in this
+    process only)."""
     target, acs_model = factory_models(detector_factory, cfg) if detector_factory else _shipped_models(cfg)
-    return Generator(cfg, target, acs_model), Path(out), seed, artifacts, on_step
+    return Generator(cfg, target, acs_model, candidate_threads=threads), Path(out), seed, artifacts, on_step
 
 
 def _worker_run(state, scene_dict: dict) -> tuple[str, object]:
@@ -276,7 +288,10 @@ def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> di
     """What run.json records: every setting that changes the run's scenes or numbers (with the
     digest of the target's weights file, so that other weights at the same path are noticed, and
     of the shipped weights the run loads, so that a run resumed after they changed is noticed)."""
-    settings = {"config": asdict(cfg), "seed": seed, "count": count, "source": source}
+    from .config import search_params
+
+    settings = {"config": asdict(cfg), "seed": seed, "count": count, "source": source,
+                "search_settings": search_params(cfg.search)}  # configs/search/NAME.yaml (BO's batch, ...)
     if cfg.weights:
         settings["weights_sha256"] = file_digest(Path(cfg.weights))
     shipped = shipped_digests(cfg.fusion, cfg.weights, cfg.acs_needs_attention)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .optimizer import SEARCHES, Optimizer
+from .optimizer import SEARCHES, Optimizer, checked_batch
 
 
 @SEARCHES.register("bo")
@@ -19,11 +19,19 @@ class BayesianOptimization(Optimizer):
 
     Cost: skopt refits the GP's kernel hyperparameters (L-BFGS) at every tell, which dominates its
     overhead; here they are refitted every ``refit_every`` tells and held fixed in between (the GP
-    itself is still updated with every observation)."""
+    itself is still updated with every observation).
+
+    Batches (``batch`` > 1): after the random start, ``batch`` candidates are proposed before their
+    losses are told, by the constant liar (``cl_min``, as skopt's ``ask(n_points)``): each point
+    proposed is told to a copy of the latest GP (its kernel held) with the lowest loss seen so far,
+    and the next is that copy's lowest LCB; the real losses replace the lies when they are told. The
+    random start is proposed at once whatever ``batch`` is (a tell does not change it)."""
 
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, n_initial: int = 20, kappa: float = 2.5,
-                 refit_every: int = 5):
+                 refit_every: int = 5, batch: int = 1):
         super().__init__(dim, budget, rng)
+        self.batch = checked_batch("bo", batch)
+        self._pending: list[np.ndarray] = []  # asked in this batch, not told yet
         n_initial = min(int(n_initial), max(1, budget - 1))  # a small budget still gets a guided step
         self.n_initial = n_initial
         self.kappa = kappa
@@ -44,15 +52,34 @@ class BayesianOptimization(Optimizer):
                                acq_func_kwargs={"kappa": kappa}, acq_optimizer_kwargs={"n_points": 1},
                                random_state=seed)
 
+    def ready(self) -> int:
+        if not self.opt.models:
+            return max(1, self.n_initial - self.told)
+        return self.batch
+
     def ask(self, candidates: np.ndarray) -> np.ndarray:
         if not self.opt.models:
             return self._uniform_pick(candidates)
         from skopt.acquisition import gaussian_lcb
 
-        lcb = gaussian_lcb(self.opt.space.transform(candidates.tolist()), self.opt.models[-1], kappa=self.kappa)
-        return candidates[int(np.argmin(lcb))]
+        model = self._lying_model() if self._pending else self.opt.models[-1]
+        lcb = gaussian_lcb(self.opt.space.transform(candidates.tolist()), model, kappa=self.kappa)
+        x = candidates[int(np.argmin(lcb))]
+        self._pending.append(np.asarray(x, dtype=float))
+        return x
+
+    def _lying_model(self):
+        """The latest GP, its kernel held, refitted with the points asked in this batch told the
+        lowest loss seen so far (the constant liar, cl_min)."""
+        from sklearn.base import clone
+
+        xs = self.opt.space.transform(self.opt.Xi + [[float(v) for v in np.clip(p, -1.0, 1.0)] for p in self._pending])
+        ys = list(self.opt.yi) + [min(self.opt.yi)] * len(self._pending)
+        gp = clone(self.opt.models[-1]).set_params(kernel=self.opt.models[-1].kernel_, optimizer=None)
+        return gp.fit(xs, ys)
 
     def tell(self, x: np.ndarray, loss: float) -> None:
+        self._pending = [p for p in self._pending if not np.array_equal(p, x)]
         self.told += 1
         fitting = self.told - self.n_initial
         refit = fitting <= 0 or fitting % self.refit_every == 0

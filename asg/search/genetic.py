@@ -53,6 +53,12 @@ class GeneticAlgorithm(Optimizer):
     def tell(self, x: np.ndarray, loss: float) -> None:
         self.generation.append((np.asarray(x, dtype=float), float(loss)))
 
+    def ready(self) -> int:
+        """The rest of the current generation (the next one bred once this one is told)."""
+        if not self.queue:
+            self._breed()
+        return len(self.queue)
+
     def _breed(self) -> None:
         pop = sorted(self.elites + self.generation, key=lambda t: t[1])[: self.p.population] or [(np.zeros(self.dim), 0.0)]
         gen_best = pop[0][1]

@@ -4,7 +4,9 @@ registered by name (``asg.search.SEARCHES``).
 
 All work in normalised units x in [-1, 1]^D and minimise the loss. ``ask`` gets the candidates, the
 members of the feasible set Q not evaluated yet (K, D), and returns a point; the search loop
-evaluates the candidate nearest to it, and ``tell`` receives that point.
+evaluates the candidate nearest to it, and ``tell`` receives that point. ``ready`` says how many
+asks may come in a row before a tell: the search loop asks that many, has them evaluated as one
+batch, then tells each (an optimiser that proposes one point at a time says 1).
 """
 from __future__ import annotations
 
@@ -16,6 +18,17 @@ import numpy as np
 from sumo_scenarios.errors import InputError
 
 from ..registry import Registry
+
+
+#: the most points a batched optimiser proposes before their losses are told (its ``batch`` setting)
+MAX_BATCH = 64
+
+
+def checked_batch(name: str, batch) -> int:
+    """``batch`` of configs/search/NAME.yaml, a whole number in [1, MAX_BATCH]; InputError otherwise."""
+    if not isinstance(batch, int) or isinstance(batch, bool) or not 1 <= batch <= MAX_BATCH:
+        raise InputError(f"configs/search/{name}.yaml: batch must be a whole number in [1, {MAX_BATCH}], got {batch!r}")
+    return batch
 
 
 class Optimizer(ABC):
@@ -39,6 +52,12 @@ class Optimizer(ABC):
 
     @abstractmethod
     def tell(self, x: np.ndarray, loss: float) -> None: ...
+
+    def ready(self) -> int:
+        """How many asks may come before the next tell (at least 1): the points it would propose
+        one at a time with a tell after each, proposed before the tells (random search, a GA's
+        generation, BO's random start), or the batch a batched optimiser proposes by design."""
+        return 1
 
     def _uniform_pick(self, candidates: np.ndarray) -> np.ndarray:
         """One of the candidates (K, D), uniformly."""

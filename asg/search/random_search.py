@@ -15,3 +15,6 @@ class RandomSearch(Optimizer):
 
     def tell(self, x: np.ndarray, loss: float) -> None:
         pass
+
+    def ready(self) -> int:
+        return self.budget  # a tell changes nothing it proposes

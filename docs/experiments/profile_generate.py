@@ -18,10 +18,13 @@ STAGES = {
     "  of which pillar features": ("perception/pillars.py", "encode"),
     "  of which the first convolution (from the pillars)": ("perception/pillars.py", "strided_conv_of_pillars"),
     "post-processing (decode, NMS, voting)": ("perception/model.py", "postprocess"),
+    "  of which NMS and voting": ("perception/nms.py", "select_boxes"),
+    "point stage": ("perception/point_stage.py", "refine"),
     "render (LiDAR)": ("sensors/frame.py", "render_frame"),
     "AP": ("objective/ap.py", "ap_at"),
     "optimiser ask + tell": (None, None),
     "feasible set Q": ("search/space.py", "__init__"),
+    "the scene's world (built once a scene)": ("sensors/renderers.py", "world_for"),
 }
 
 
@@ -44,7 +47,7 @@ def main(count: int) -> None:
         gen.attack(scene, 1)
     prof.disable()
     stats = pstats.Stats(prof).stats
-    total = max(v[3] for (f, _, n), v in stats.items() if f.endswith("asg/pipeline.py") and n == "generate")
+    total = max(v[3] for (f, _, n), v in stats.items() if f.endswith("generator/pipeline.py") and n == "_generate")
     print(f"{count} scenes, {total:.1f} s: {total / count:.2f} s a scene")
     for stage, (suffix, name) in STAGES.items():
         if suffix is None:

@@ -43,6 +43,9 @@ class Target:
     #: can its detector score a frame by its framework's own test-time ground truth
     #: (``opencood_frame``: ``asg evaluate --ground-truth opencood``)?
     own_ground_truth: ClassVar[bool] = False
+    #: may its detector detect frames on several threads at once, each frame's detections the same
+    #: bits on any thread (a search's candidates are then scored side by side: asg.generator.candidates)?
+    concurrent_frames: ClassVar[bool] = False
 
     def __init__(self, name: str):
         self.name = name
