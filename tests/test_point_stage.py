@@ -173,3 +173,28 @@ def test_point_stage_settings_are_checked():
     assert load_point_stage_config().epochs >= 1  # the shipped block loads
     with pytest.raises(InputError, match="jitter_yaw_deg"):
         PointStageFitConfig(jitter_yaw_deg=90.0)
+
+
+def test_box_points_from_the_grid_are_every_point_inside():
+    """The BEV grid only narrows which points each box tests: the same points as testing the whole
+    cloud, for boxes anywhere (cells' edges, turned boxes, far from every point), NaN points left out."""
+    from asg.perception.point_stage import GROW_M
+
+    rng = np.random.default_rng(5)
+    cloud = np.column_stack([rng.uniform(-30, 30, (4000, 2)), rng.uniform(-2, 1, 4000), rng.random(4000)]).astype(np.float32)
+    cloud[::97, 0] = np.nan
+    boxes = np.column_stack([np.concatenate([rng.uniform(-32, 32, (60, 2)), [[4.0, -8.0], [100.0, 100.0]]]),
+                             rng.uniform(-1.5, 0.5, 62), rng.uniform(3, 6, 62), rng.uniform(1.5, 2.5, 62),
+                             rng.uniform(1.4, 2, 62), rng.uniform(-3.2, 3.2, 62)])
+    feats, mask = box_points(boxes, cloud)
+    for k, b in enumerate(boxes):
+        d = cloud[:, :3] - b[:3].astype(np.float32)
+        c, s = np.cos(np.float32(b[6])), np.sin(np.float32(b[6]))
+        along, across = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
+        inside = np.flatnonzero((np.abs(along) <= np.float32(b[3]) / 2 + GROW_M) & (np.abs(across) <= np.float32(b[4]) / 2 + GROW_M)
+                                & (np.abs(d[:, 2]) <= np.float32(b[5]) / 2 + GROW_M))
+        if len(inside) > POINTS:
+            inside = inside[np.linspace(0, len(inside) - 1, POINTS).astype(int)]
+        assert mask[k].sum() == len(inside)
+        assert np.array_equal(feats[k, :len(inside), 0], along[inside]) and np.array_equal(feats[k, :len(inside), 6], cloud[inside, 3])
+    assert mask.any(axis=1).sum() > 40 and not mask[-1].any()

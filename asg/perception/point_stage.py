@@ -40,8 +40,6 @@ BOX_FEATURES = 5
 MIN_IOU = 0.3
 #: typical size of each residual: the stage predicts in these units and its loss weighs the seven alike
 RES_SCALE = (0.3, 0.15, 0.1, 0.08, 0.06, 0.06, 0.1)
-#: boxes whose points are gathered at once (bounds the (chunk, N, 3) offsets held in memory)
-_CHUNK = 16
 
 
 class PointStage(nn.Module):
@@ -66,28 +64,74 @@ class PointStage(nn.Module):
 def box_points(boxes: np.ndarray, cloud: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The points of ``cloud`` (N, 4) inside each of ``boxes`` (K, 7) grown by GROW_M: features
     (K, POINTS, POINT_FEATURES) float32 in the box's frame and the mask (K, POINTS) of real points.
-    Deterministic: with more than POINTS inside, evenly spaced ones in the cloud's order."""
+    Deterministic: with more than POINTS inside, evenly spaced ones in the cloud's order.
+
+    Each box tests only the points of the grid cells (``_CELL_M``) its grown footprint's circle
+    reaches (:class:`_BevGrid`), in the cloud's order: the same points, the same float32 sums."""
     feats = np.zeros((len(boxes), POINTS, POINT_FEATURES), dtype=np.float32)
     mask = np.zeros((len(boxes), POINTS), dtype=bool)
+    if not len(boxes):
+        return feats, mask
     xyz = np.ascontiguousarray(cloud[:, :3], dtype=np.float32)
-    for start in range(0, len(boxes), _CHUNK):
-        part = boxes[start:start + _CHUNK].astype(np.float32)
-        d = xyz[None] - part[:, None, :3]  # (k, N, 3)
-        c, s = np.cos(part[:, 6])[:, None], np.sin(part[:, 6])[:, None]
-        along, across = c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]
-        inside = ((np.abs(along) <= part[:, 3:4] / 2 + GROW_M) & (np.abs(across) <= part[:, 4:5] / 2 + GROW_M)
-                  & (np.abs(d[..., 2]) <= part[:, 5:6] / 2 + GROW_M))
-        for j in range(len(part)):
-            idx = np.flatnonzero(inside[j])
-            if len(idx) > POINTS:
-                idx = idx[np.linspace(0, len(idx) - 1, POINTS).astype(int)]
-            n, k = len(idx), start + j
-            local = np.stack([along[j, idx], across[j, idx], d[j, idx, 2]], axis=1)
-            feats[k, :n, :3] = local
-            feats[k, :n, 3:6] = local / (part[j, 3:6] / 2)
-            feats[k, :n, 6] = cloud[idx, 3]
-            mask[k, :n] = True
+    part = boxes.astype(np.float32)
+    reach_m = np.hypot(boxes[:, 3] / 2 + GROW_M, boxes[:, 4] / 2 + GROW_M) + _CELL_SLACK_M
+    near = _BevGrid(xyz).near(boxes[:, :2], reach_m)
+    for k, cand in enumerate(near):
+        d = xyz[cand] - part[k, :3]  # (n, 3)
+        c, s = np.cos(part[k, 6]), np.sin(part[k, 6])
+        along, across = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
+        inside = ((np.abs(along) <= part[k, 3] / 2 + GROW_M) & (np.abs(across) <= part[k, 4] / 2 + GROW_M)
+                  & (np.abs(d[:, 2]) <= part[k, 5] / 2 + GROW_M))
+        sel = np.flatnonzero(inside)
+        if len(sel) > POINTS:
+            sel = sel[np.linspace(0, len(sel) - 1, POINTS).astype(int)]
+        n = len(sel)
+        local = np.stack([along[sel], across[sel], d[sel, 2]], axis=1)
+        feats[k, :n, :3] = local
+        feats[k, :n, 3:6] = local / (part[k, 3:6] / 2)
+        feats[k, :n, 6] = cloud[cand[sel], 3]
+        mask[k, :n] = True
     return feats, mask
+
+
+#: the side (m) of the cells :func:`box_points` sorts a cloud's points into, and the margin (m)
+#: added to a box's reach so that float32 rounding at its edge cannot leave a point out
+_CELL_M = 4.0
+_CELL_SLACK_M = 0.05
+
+
+class _BevGrid:
+    """A cloud's points (N, 3) sorted by the BEV cell (``_CELL_M`` square) they fall in."""
+
+    def __init__(self, xyz: np.ndarray):
+        finite = np.flatnonzero(np.isfinite(xyz[:, :2]).all(axis=1))  # no other point is inside a box
+        cx, cy = self._cells(xyz[finite, 0]), self._cells(xyz[finite, 1])
+        self.y0 = int(cy.min()) if len(cy) else 0
+        self.rows = int(cy.max()) - self.y0 + 1 if len(cy) else 1
+        key = cx * self.rows + (cy - self.y0)
+        order = np.argsort(key, kind="stable")
+        self.order, self.keys = finite[order], key[order]
+
+    @staticmethod
+    def _cells(v) -> np.ndarray:
+        return np.floor(np.asarray(v, dtype=np.float64) / _CELL_M).astype(np.int64)
+
+    def near(self, centres_xy: np.ndarray, reach_m: np.ndarray) -> list[np.ndarray]:
+        """Per centre (K, 2), the indices (ascending: the cloud's order) of the points in the cells
+        the square of half-side ``reach_m`` (K,) around it touches."""
+        out = []
+        for (x, y), r in zip(np.asarray(centres_xy, dtype=np.float64), reach_m):
+            x0, x1 = self._cells(x - r), self._cells(x + r)
+            y0 = max(int(self._cells(y - r)), self.y0)
+            y1 = min(int(self._cells(y + r)), self.y0 + self.rows - 1)
+            if y1 < y0:
+                out.append(np.zeros(0, dtype=np.int64))
+                continue
+            cols = np.arange(x0, x1 + 1)
+            lo = np.searchsorted(self.keys, cols * self.rows + (y0 - self.y0), side="left")
+            hi = np.searchsorted(self.keys, cols * self.rows + (y1 - self.y0), side="right")
+            out.append(np.sort(np.concatenate([self.order[a:b] for a, b in zip(lo, hi)])))
+        return out
 
 
 def box_features(boxes: np.ndarray, scores: np.ndarray, mask: np.ndarray) -> np.ndarray:
