@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-import shapely
 
 from ..scene.agent import footprints_xy
 
@@ -13,37 +12,68 @@ def bev_footprints(boxes: np.ndarray) -> np.ndarray:
     return footprints_xy(boxes[:, 0], boxes[:, 1], boxes[:, 6], boxes[:, 3], boxes[:, 4])
 
 
-def bev_polygons(boxes: np.ndarray) -> np.ndarray:
-    """(M, 7) boxes → (M,) shapely polygons of their footprints."""
-    if not len(boxes):
-        return np.empty(0, dtype=object)
-    return shapely.polygons(bev_footprints(boxes))
-
-
-def bev_iou_matrix(a: np.ndarray, b: np.ndarray, polys_a: np.ndarray | None = None,
-                   polys_b: np.ndarray | None = None) -> np.ndarray:
-    """(Ma, Mb) rotated BEV IoU; pairs whose circumscribed circles do not meet are 0 without clipping.
-
-    ``polys_a`` / ``polys_b``: the boxes' footprint polygons (bev_polygons) when already built.
-    """
+def bev_iou_matrix(a: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
+    """(Ma, Mb) rotated BEV IoU of boxes ``a`` (Ma, 7) with ``b`` (Mb, 7) (None: ``a`` with itself,
+    each pair computed once); pairs whose circumscribed circles do not meet are 0 without clipping."""
     a = np.asarray(a, dtype=float).reshape(-1, 7)
-    b = np.asarray(b, dtype=float).reshape(-1, 7)
+    itself = b is None
+    b = a if itself else np.asarray(b, dtype=float).reshape(-1, 7)
     out = np.zeros((len(a), len(b)))
     if not len(a) or not len(b):
         return out
     ra = np.hypot(a[:, 3], a[:, 4]) / 2
     rb = np.hypot(b[:, 3], b[:, 4]) / 2
-    d = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
-    ii, jj = np.nonzero(d < ra[:, None] + rb[None, :])
-    if not len(ii):
-        return out
-    pa = bev_polygons(a) if polys_a is None else polys_a
-    pb = bev_polygons(b) if polys_b is None else polys_b
-    out[ii, jj] = polygon_iou(pa[ii], a[ii, 3] * a[ii, 4], pb[jj], b[jj, 3] * b[jj, 4])
+    near = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) < ra[:, None] + rb[None, :]
+    if itself:
+        near = np.triu(near, 1)
+    ii, jj = np.nonzero(near)
+    if len(ii):
+        fa = bev_footprints(a)
+        fb = fa if itself else bev_footprints(b)
+        inter = rectangle_overlap_m2(fa[ii], fb[jj])
+        area_a, area_b = a[:, 3] * a[:, 4], b[:, 3] * b[:, 4]
+        out[ii, jj] = inter / np.maximum(area_a[ii] + area_b[jj] - inter, 1e-9)
+    if itself:
+        out += out.T
+        out[np.diag_indices(len(a))] = 1.0
     return out
 
 
-def polygon_iou(pa, area_a, pb, area_b) -> np.ndarray:
-    """Element-wise (broadcast) IoU of footprint polygons whose areas (m^2) are given."""
-    inter = shapely.area(shapely.intersection(pa, pb))
-    return inter / np.maximum(area_a + area_b - inter, 1e-9)
+#: the most corners the overlap of two rectangles has (each of the eight edges adds at most one)
+_MAX_CORNERS = 8
+
+
+def rectangle_overlap_m2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Area (P,) of the overlap of rectangles ``a`` (P, 4, 2) and ``b`` (P, 4, 2), pair by pair,
+    both counter-clockwise: ``a`` clipped by each edge of ``b`` in turn (Sutherland-Hodgman), every
+    pair at once on fixed arrays of ``_MAX_CORNERS`` corners and a count, then the shoelace formula.
+    In numpy, without a polygon object a pair (agrees with shapely's overlay to ~1e-12 m^2)."""
+    p = len(a)
+    poly = np.zeros((p, _MAX_CORNERS, 2))
+    poly[:, :4] = a
+    count = np.full(p, 4)
+    slot = np.arange(_MAX_CORNERS)
+    rows = np.arange(p)[:, None]
+    for e in range(4):
+        start, edge = b[:, e], b[:, (e + 1) % 4] - b[:, e]  # (P, 2)
+        valid = slot < count[:, None]  # (P, C)
+        side = edge[:, None, 0] * (poly[..., 1] - start[:, None, 1]) - edge[:, None, 1] * (poly[..., 0] - start[:, None, 0])
+        nxt = np.where(slot + 1 < count[:, None], slot + 1, 0)  # the next corner, cyclically
+        side_next, poly_next = side[rows, nxt], poly[rows, nxt]
+        inside = (side >= 0) & valid
+        crosses = valid & ((side >= 0) != (side_next >= 0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(crosses, side / (side - side_next), 0.0)
+        # each corner gives itself (if inside) then the crossing (if its edge crosses), in order
+        keep = np.stack([inside, crosses], axis=2).reshape(p, 2 * _MAX_CORNERS)
+        cand = np.stack([poly, poly + t[..., None] * (poly_next - poly)], axis=2).reshape(p, 2 * _MAX_CORNERS, 2)
+        r, c = np.nonzero(keep)
+        at = np.cumsum(keep, axis=1)[r, c] - 1
+        fits = at < _MAX_CORNERS
+        poly = np.zeros((p, _MAX_CORNERS, 2))
+        poly[r[fits], at[fits]] = cand[r[fits], c[fits]]
+        count = np.minimum(keep.sum(axis=1), _MAX_CORNERS)
+    nxt = np.where(slot + 1 < count[:, None], slot + 1, 0)
+    poly_next = poly[rows, nxt]
+    cross = (poly[..., 0] * poly_next[..., 1] - poly_next[..., 0] * poly[..., 1]) * (slot < count[:, None])
+    return np.maximum(cross.sum(axis=1) / 2, 0.0)
