@@ -313,3 +313,4 @@ def test_local_workers_share_the_cores_for_their_candidates(monkeypatch):
     assert local.LocalExecutor(workers=2, threads=4).spare_threads(30) == 1
     assert local.LocalExecutor(workers=16).spare_threads(30) == 1
     assert base.Executor.spare_threads(local.LocalExecutor(), 3) == 1  # an executor that cannot tell: none
+    assert local.LocalExecutor(workers=1, idle_cores=False).spare_threads(1) == 1

@@ -589,3 +589,21 @@ def test_start_weights_trained_for_another_lidar_are_named_in_one_line(tmp_path,
         named = [line for line in lines if "LiDAR" in line]
         assert named == ([f"{other}: trained for the 'vlp16' LiDAR; every round casts its frames with 'v2xp', so round 0 "
                           "scores them on another sensor and the rounds tune them to it"] if weights else [])
+
+
+def test_a_refused_run_builds_no_point_stage_set(tmp_path, data_root, monkeypatch):
+    """The point stage's data set (minutes of traffic simulation) is built only once the run's
+    settings pass and its folder is claimed: too many rounds, or a folder of other settings, are
+    refused without it."""
+    import asg.datasets
+
+    monkeypatch.setattr(asg.datasets, "build_dataset", lambda *a, **k: pytest.fail("the stage's set was built"))
+    staged = replace(TINY, fit_stage=True)
+    with pytest.raises(InputError, match="fresh scenes"):
+        harden("attfuse", 50, tmp_path / "a", config=staged, detector_factory=ORACLE, log=_quiet)
+    out = tmp_path / "b"
+    out.mkdir()
+    (out / "run.json").write_text(json.dumps({"schema": 1, "fusion": "attfuse"}))
+    (out / "card.json").write_text("{}")
+    with pytest.raises(InputError, match="other settings"):
+        harden("attfuse", 1, out, config=staged, detector_factory=ORACLE, log=_quiet)

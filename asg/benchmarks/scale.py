@@ -1,7 +1,8 @@
 """``asg bench scale``: scenes per hour of the generator benchmark (AttFuse + ACS-A + BO) run four
 ways in one run, and the speedups between them:
 
-- ``local_1``: one worker, one thread;
+- ``local_1``: one worker, one thread (the other core left idle: its search's candidates are
+  not scored beside it);
 - ``local_1_all``: one worker using every core's thread (one process, as ``asg generate`` ran
   before executors);
 - ``local_2``: two worker processes, one thread each;
@@ -46,7 +47,8 @@ def bench_scale(out: Path, scenes: int = 8, budget: int = GenerateConfig.budget,
     for name, executor_name, workers, threads in ways:
         run_dir = out / name
         run_folder = open_run(cfg, run_dir, source=source, count=scenes, seed=seed, force=True)
-        with build_executor(executor_name, workers, threads or (os.cpu_count() or 1)) as executor:
+        with build_executor(executor_name, workers, threads or (os.cpu_count() or 1),
+                            idle_cores=name != "local_1") as executor:
             if executor_name == "ray":
                 executor.connect()  # Ray's own start-up is not the generator's cost
             first: list = []

@@ -46,7 +46,9 @@ class Executor(ABC):
     #: does it connect to a cluster at an ``--address``?
     takes_address: bool = False
 
-    def __init__(self, workers: int = 1, threads: int = 1, address: str | None = None):
+    def __init__(self, workers: int = 1, threads: int = 1, address: str | None = None, idle_cores: bool = True):
+        """``idle_cores``: may a worker score a search's candidates on the cores the workers leave
+        idle (:meth:`spare_threads`)? Off, each worker keeps to its ``threads``."""
         if not isinstance(workers, int) or workers < 1:
             raise InputError(f"--workers must be at least 1, got {workers}")
         if not isinstance(threads, int) or threads < 1:
@@ -54,6 +56,7 @@ class Executor(ABC):
         self.workers = workers
         self.threads = threads
         self.address = address
+        self.idle_cores = idle_cores
 
     @abstractmethod
     def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:
@@ -148,13 +151,14 @@ def default_workers(items: int) -> int:
     return max(1, min(os.cpu_count() or 1, items))
 
 
-def build_executor(name: str, workers: int, threads: int = 1, address: str | None = None) -> Executor:
+def build_executor(name: str, workers: int, threads: int = 1, address: str | None = None,
+                   idle_cores: bool = True) -> Executor:
     """The executor registered as ``name``; InputError naming the known ones on a miss."""
     entry = EXECUTORS.entry(name)
     if address is not None and not entry.takes_address:
         clusters = " or ".join(n for n in EXECUTORS.names() if EXECUTORS.entry(n).takes_address)
         raise InputError(f"--address applies to --executor {clusters} only")
-    return entry(workers=workers, threads=threads, address=address)
+    return entry(workers=workers, threads=threads, address=address, idle_cores=idle_cores)
 
 
 @contextlib.contextmanager

@@ -108,7 +108,10 @@ class LocalExecutor(Executor):
 
     def spare_threads(self, items: int) -> int:
         """The cores of this machine shared among the workers that run: a single scene on two
-        cores scores its candidates on two threads; two workers on two cores, on one each."""
+        cores scores its candidates on two threads; two workers on two cores, on one each (and
+        every worker on its own ``threads`` when built with ``idle_cores`` off)."""
+        if not self.idle_cores:
+            return 1
         return max(1, usable_cores() // (max(1, min(self.workers, items)) * self.threads))
 
     def map_unordered(self, job: Job, items: Sequence[Any]) -> Iterator[tuple[Any, Any]]:

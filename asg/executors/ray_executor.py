@@ -95,8 +95,8 @@ class RayExecutor(Executor):
 
     takes_address = True
 
-    def __init__(self, workers: int = 1, threads: int = 1, address: str | None = None):
-        super().__init__(workers, threads, address)
+    def __init__(self, workers: int = 1, threads: int = 1, address: str | None = None, idle_cores: bool = True):
+        super().__init__(workers, threads, address, idle_cores)
         self.ray = _import_ray()
         self._started = False
         self._fatal_handlers: dict = {}

@@ -140,10 +140,10 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     from ..generator.run import file_digest
 
     pool = _pool(cfg)
-    stage_cfg = _stage_config(cfg)
     if rounds * cfg.scenes_per_round > len(pool):
         raise InputError(f"{rounds} rounds of {cfg.scenes_per_round} fresh scenes need {rounds * cfg.scenes_per_round}; "
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
+    stage_cfg = _stage_config(cfg)
     settings = {"fusion": fusion, "start_weights": str(start), "start_sha256": file_digest(start),
                 "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory,
                 "point_stage": asdict(stage_cfg) if stage_cfg else None}
@@ -152,6 +152,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     claim(out, settings, force, what="a hardening run",
           as_today=lambda record: with_defaults(record, {"config": asdict(HardenConfig()) | {"fit_stage": False},
                                                          "point_stage": None}))
+    _build_stage_set(stage_cfg)
     card_path = out / "card.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
@@ -343,18 +344,33 @@ def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
 
 
 def _stage_config(cfg: HardenConfig) -> PointStageFitConfig | None:
-    """train.yaml's ``point_stage`` block when rounds fit their own stage (else None), its data set
-    built now if it is a known set not built yet, as the pool's are: a round would otherwise find it
-    missing only after its training (a set that is neither built nor known is one InputError)."""
-    from ..datasets import build_dataset, dataset_path
+    """train.yaml's ``point_stage`` block when rounds fit their own stage (else None); its data set
+    must be built or known (one InputError otherwise: a round would find it missing only after its
+    training). :func:`_build_stage_set` builds it."""
+    from ..dataset_spec import load_spec
 
     if not cfg.fit_stage:
         return None
     stage_cfg = load_point_stage_config()
-    name = stage_cfg.dataset
-    if not ((Path(name) / "index.json").is_file() or (dataset_path(name) / "index.json").is_file()):
-        build_dataset(name)
+    if not _stage_set_built(stage_cfg):
+        load_spec(stage_cfg.dataset)  # known, or one InputError
     return stage_cfg
+
+
+def _stage_set_built(stage_cfg: PointStageFitConfig) -> bool:
+    from ..datasets import dataset_path
+
+    name = stage_cfg.dataset
+    return (Path(name) / "index.json").is_file() or (dataset_path(name) / "index.json").is_file()
+
+
+def _build_stage_set(stage_cfg: PointStageFitConfig | None) -> None:
+    """The point stage's data set built if it is not yet (minutes of traffic simulation: after the
+    run's settings are checked and its folder claimed, before the first round)."""
+    from ..datasets import build_dataset
+
+    if stage_cfg is not None and not _stage_set_built(stage_cfg):
+        build_dataset(stage_cfg.dataset)
 
 
 def _pool(cfg: HardenConfig) -> list[Scene]:
