@@ -246,3 +246,26 @@ def test_the_final_scene_keeps_the_detections_its_search_scored(busy_scene):
     again = gen._detections(r.frames["final"])
     for a, b in zip(r.detections["final"], again):
         assert np.array_equal(a, b)
+
+
+def test_candidate_threads_map_in_order_on_one_torch_thread_and_give_back_the_callers_count():
+    import threading
+
+    import torch
+
+    from asg.generator.candidates import CandidateThreads
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        pool = CandidateThreads(2)
+        seen = pool.map(lambda i: (i, torch.get_num_threads(), threading.current_thread().name), list(range(8)))
+        assert [s[0] for s in seen] == list(range(8))
+        assert {s[1] for s in seen} == {1} and all(s[2].startswith("asg-candidate") for s in seen)
+        assert torch.get_num_threads() == 2
+        assert CandidateThreads(1).map(lambda i: threading.current_thread().name, [1, 2]) == [threading.current_thread().name] * 2
+        pool.close()
+    finally:
+        torch.set_num_threads(before)
+    with pytest.raises(ValueError):
+        CandidateThreads(0)

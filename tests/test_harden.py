@@ -247,6 +247,7 @@ def test_round_zeros_cache_is_not_reused_by_other_scoring_code(tmp_path, monkeyp
     import shutil
 
     import asg.workflows.harden as harden_mod
+    import asg.workflows.harden_stage as harden_stage
     from sumo_scenarios import paths
 
     weights = WEIGHTS_DIR / "attfuse.pt"
@@ -350,6 +351,7 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
     whose interval lies below zero is not kept: the next round starts from the weights before it,
     and the card (as --weights) gives them."""
     import asg.workflows.harden as harden_mod
+    import asg.workflows.harden_stage as harden_stage
     from asg.workflows.harden import _start_weights
     from asg.perception.weights_io import weights_path
     from test_tables import write_set
@@ -411,6 +413,7 @@ def test_a_round_the_guard_drops_is_averaged_with_its_start_and_kept_if_that_pas
     import torch
 
     import asg.workflows.harden as harden_mod
+    import asg.workflows.harden_stage as harden_stage
     from asg.perception.weights_io import weights_path
 
     write_set(data_root, "holdout", {"test": ["g0", "g1"]})
@@ -443,11 +446,12 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
     resumed round fits nothing again; a start given with a stage beside it is cached apart from the
     same weights without it."""
     import asg.workflows.harden as harden_mod
+    import asg.workflows.harden_stage as harden_stage
     from asg.perception.weights_io import stage_path_of
     from asg.training.point_stage_fit import PointStageFitConfig
 
     write_set(data_root, "holdout", {"test": ["g0", "g1"]})
-    monkeypatch.setattr(harden_mod, "load_point_stage_config",
+    monkeypatch.setattr(harden_stage, "load_point_stage_config",
                         lambda: PointStageFitConfig(dataset="normal", jitters=0, epochs=1, batch_size=16))
     monkeypatch.setattr(harden_mod, "guard", lambda before, after, guard_set: {
         "set": guard_set, "threshold": 0.7, "gap": -0.1, "low": -0.2, "high": -0.05, "frames": 2,
@@ -481,9 +485,10 @@ def test_a_point_stage_data_set_that_cannot_be_had_is_refused_before_the_run_sta
     """The stage's data set is checked (and a known set built) before the folder is claimed, not
     found missing after a round's training."""
     import asg.workflows.harden as harden_mod
+    import asg.workflows.harden_stage as harden_stage
     from asg.training.point_stage_fit import PointStageFitConfig
 
-    monkeypatch.setattr(harden_mod, "load_point_stage_config", lambda: PointStageFitConfig(dataset="nosuchset"))
+    monkeypatch.setattr(harden_stage, "load_point_stage_config", lambda: PointStageFitConfig(dataset="nosuchset"))
     with pytest.raises(InputError, match="nosuchset"):
         harden("attfuse", 1, tmp_path / "h", config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
     assert not (tmp_path / "h").exists()

@@ -184,3 +184,45 @@ def test_no_import_cycle_even_inside_a_folder():
 
 def test_the_cycle_finder_finds_a_cycle():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def _floor_diagram() -> list[list[str]]:
+    """docs/architecture.md's floor diagram, top floor first: the parts of asg each line names (a
+    folder ``io/``, a module ``cli``, a wing ``generator/`` for all its parts)."""
+    import re
+
+    text = (ROOT.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
+    block = text.split("## The floors", 1)[1].split("```", 2)[1]
+    floors = []
+    for line in block.strip("\n").splitlines():
+        if not line.strip() or line.startswith(" "):  # a floor's description continued
+            continue
+        names = re.split(r"\s{2,}", line.strip(), maxsplit=1)[0]
+        floors.append([n.strip().rstrip("/") for n in re.split(r"[,\s]+", names) if n.strip()])
+    return floors
+
+
+def _layers_of(name: str) -> list[float]:
+    """The layers of a part the diagram names: a wing's are all its modules'."""
+    if name in WINGS:
+        return [v for k, v in LAYERS.items() if k.startswith(f"{name}.")]
+    return [LAYERS[name]] if name in LAYERS else []
+
+
+def test_the_floor_diagram_agrees_with_the_layers():
+    """Every part of LAYERS is on a floor of docs/architecture.md's diagram, and no floor is drawn
+    above one that holds a part wholly above it (a wing spans the layers of its modules)."""
+    floors = _floor_diagram()
+    named = {n for floor in floors for n in floor}
+    top_level = {p.split(".")[0] for p in LAYERS} - {"__init__", "__main__", "entry", "cli_args", "schemas", "interrupts",
+                                                     "progress", "dataset_spec", "metrics", "evaluation", "datasets"}
+    assert top_level <= named | {"registry"}, f"parts missing from the diagram: {sorted(top_level - named)}"
+    wrong = []
+    for i, upper in enumerate(floors):
+        for lower in floors[i + 1:]:
+            for a in upper:
+                for b in lower:
+                    la, lb = _layers_of(a), _layers_of(b)
+                    if la and lb and max(la) < min(lb):
+                        wrong.append(f"{a} (layers {min(la)}-{max(la)}) drawn above {b} ({min(lb)}-{max(lb)})")
+    assert not wrong, "\n".join(wrong)

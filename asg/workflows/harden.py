@@ -26,7 +26,6 @@ settings: a rerun with other settings is refused (``force`` starts over).
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Literal, get_args
@@ -40,6 +39,7 @@ from sumo_scenarios.strict import from_mapping
 
 from . import MAX_ROUNDS
 from .finetune import fit_chunk, mixed_sources
+from .harden_stage import build_stage_set, stage_config, stage_of_round
 from .harden_rounds import (NOISY_SET, REATTACK_EVAL, STARTED_FROM, evaluate_round, evaluated_set,  # noqa: F401
                             load_scenes, noisy_val_set, reattack_round, round_data, save_scenes,
                             started_from_on_reattack, upgraded_rounds)  # (this module's API too: scripts, tests)
@@ -48,7 +48,7 @@ from ..io.run_record import claim, with_defaults
 from ..sensors.lidar_spec import DEFAULT_LIDAR
 from ..training.cards import lidar_of_weights
 from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
-from ..training.point_stage_fit import PointStageFitConfig, load_point_stage_config
+from ..training.point_stage_fit import PointStageFitConfig
 from ..perception.weights_io import weights_path
 from ..scene import Scene
 
@@ -143,7 +143,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     if rounds * cfg.scenes_per_round > len(pool):
         raise InputError(f"{rounds} rounds of {cfg.scenes_per_round} fresh scenes need {rounds * cfg.scenes_per_round}; "
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
-    stage_cfg = _stage_config(cfg)
+    stage_cfg = stage_config(cfg)
     settings = {"fusion": fusion, "start_weights": str(start), "start_sha256": file_digest(start),
                 "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory,
                 "point_stage": asdict(stage_cfg) if stage_cfg else None}
@@ -152,7 +152,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     claim(out, settings, force, what="a hardening run",
           as_today=lambda record: with_defaults(record, {"config": asdict(HardenConfig()) | {"fit_stage": False},
                                                          "point_stage": None}))
-    _build_stage_set(stage_cfg)
+    build_stage_set(stage_cfg)
     card_path = out / "card.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
         "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
@@ -260,26 +260,6 @@ def _averaged_round(fusion: str, row: dict, current: Path, current_round: int, w
     return averaged
 
 
-def stage_of_round(fusion: str, weights: Path, round_dir: Path, stage_cfg: PointStageFitConfig,
-                   log: Callable[[str], None]) -> dict:
-    """The point stage fitted to a round's ``weights`` (asg.training.point_stage_fit.fit_stage_beside
-    with ``stage_cfg``, train.yaml's ``point_stage`` block, on the frozen weights), written beside
-    them, where every detector built from the file finds it; the fit's record, kept in the round's
-    folder (``STEM.stage.json``) so that a resumed round neither fits it again nor loses the record.
-    The fit resumes from its checkpoint in ``round_dir/stage-fit-STEM``."""
-    from ..perception.weights_io import stage_path_of
-    from ..training.point_stage_fit import fit_stage_beside
-
-    record = round_dir / f"{weights.stem}.stage.json"
-    if stage_path_of(weights).is_file() and record.is_file():
-        return json.loads(record.read_text())
-    log(f"fitting a point stage to {weights} ...")
-    _, fitted = fit_stage_beside(fusion, weights, round_dir / f"stage-fit-{weights.stem}", log, fit_config=stage_cfg)
-    write_text_atomic(record, json.dumps(fitted, indent=1))
-    shutil.rmtree(round_dir / f"stage-fit-{weights.stem}", ignore_errors=True)
-    return fitted
-
-
 def _eval_cache(out: Path, k: int, weights: Path) -> Path:
     """Where round ``k``'s evaluations are cached: the round's folder (``eval``, or ``eval-averaged``
     for its averaged weights), but for round 0 (the start weights) a folder of the data root named by
@@ -341,36 +321,6 @@ def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
         raise InputError(f"--weights {path}: no such file; give a .pt written by asg train, finetune or harden")
     check_weights_file(fusion, path)  # one clear line for a corrupt or foreign file
     return path
-
-
-def _stage_config(cfg: HardenConfig) -> PointStageFitConfig | None:
-    """train.yaml's ``point_stage`` block when rounds fit their own stage (else None); its data set
-    must be built or known (one InputError otherwise: a round would find it missing only after its
-    training). :func:`_build_stage_set` builds it."""
-    from ..dataset_spec import load_spec
-
-    if not cfg.fit_stage:
-        return None
-    stage_cfg = load_point_stage_config()
-    if not _stage_set_built(stage_cfg):
-        load_spec(stage_cfg.dataset)  # known, or one InputError
-    return stage_cfg
-
-
-def _stage_set_built(stage_cfg: PointStageFitConfig) -> bool:
-    from ..datasets import dataset_path
-
-    name = stage_cfg.dataset
-    return (Path(name) / "index.json").is_file() or (dataset_path(name) / "index.json").is_file()
-
-
-def _build_stage_set(stage_cfg: PointStageFitConfig | None) -> None:
-    """The point stage's data set built if it is not yet (minutes of traffic simulation: after the
-    run's settings are checked and its folder claimed, before the first round)."""
-    from ..datasets import build_dataset
-
-    if stage_cfg is not None and not _stage_set_built(stage_cfg):
-        build_dataset(stage_cfg.dataset)
 
 
 def _pool(cfg: HardenConfig) -> list[Scene]:

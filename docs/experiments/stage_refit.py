@@ -4,7 +4,7 @@ and give the round an edge under a new attack?
 Every shipped model refines its boxes with the single-agent detector's point stage
 (``single.stage.pt``), and `asg harden` fine-tunes the detector but not the stage. For each
 ``LABEL=WEIGHTS`` this copies the weights to ``WORK_DIR/LABEL/weights.pt``, fits a stage to them
-there (asg.workflows.harden.stage_of_round, as `asg harden` fits a round's: train.yaml's
+there (asg.workflows.harden_stage.stage_of_round, as `asg harden` fits a round's: train.yaml's
 ``point_stage`` block, on its data set's train split), and scores on each SET the
 start (its shipped stage), the weights with the shipped stage ("LABEL") and with their own
 ("LABEL+stage"): AP@0.7 by both yardsticks and each gap over the start with its 95 % paired
@@ -34,7 +34,7 @@ from asg.objective.ap import Yardstick
 from asg.perception.weights_io import stage_path_of
 from asg.training.point_stage_fit import load_point_stage_config
 from asg.workflows.challenging import build_challenging
-from asg.workflows.harden import stage_of_round
+from asg.workflows.harden_stage import stage_of_round
 
 
 def refit(fusion: str, label: str, weights: Path, work: Path) -> tuple[Path, dict]:
