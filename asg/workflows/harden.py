@@ -143,7 +143,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     if rounds * cfg.scenes_per_round > len(pool):
         raise InputError(f"{rounds} rounds of {cfg.scenes_per_round} fresh scenes need {rounds * cfg.scenes_per_round}; "
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
-    stage_cfg = stage_config(cfg)
+    stage_cfg = stage_config(cfg.fit_stage)
     settings = {"fusion": fusion, "start_weights": str(start), "start_sha256": file_digest(start),
                 "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory,
                 "point_stage": asdict(stage_cfg) if stage_cfg else None}

@@ -5,23 +5,20 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 from sumo_scenarios.atomic import write_text_atomic
 
 from ..training.point_stage_fit import PointStageFitConfig, load_point_stage_config
 
-if TYPE_CHECKING:
-    from .harden import HardenConfig
 
-
-def stage_config(cfg: "HardenConfig") -> PointStageFitConfig | None:
-    """train.yaml's ``point_stage`` block when rounds fit their own stage (else None); its data set
+def stage_config(fit_stage: bool) -> PointStageFitConfig | None:
+    """train.yaml's ``point_stage`` block when rounds fit their own stage (``fit_stage``; else None); its data set
     must be built or known (one InputError otherwise: a round would find it missing only after its
     training). :func:`build_stage_set` builds it."""
     from ..dataset_spec import load_spec
 
-    if not cfg.fit_stage:
+    if not fit_stage:
         return None
     stage_cfg = load_point_stage_config()
     if not stage_set_built(stage_cfg):
