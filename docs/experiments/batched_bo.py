@@ -12,13 +12,16 @@ from pathlib import Path
 from asg.benchmarks.paper import pick_scenes
 from asg.executors import build_executor
 from asg.generator import config as generate_config
+from asg.generator import pipeline
 from asg.generator.config import load_generate_config
 from asg.generator.run import SceneSource, open_run
 
 
 def run(out: Path, batch: int) -> dict:
     real = generate_config.search_params
-    generate_config.search_params = lambda name: real(name) | ({"batch": batch} if name == "bo" else {})
+    patched = lambda name: real(name) | ({"batch": batch} if name == "bo" else {})  # noqa: E731
+    # configs/search/bo.yaml as if it said ``batch: N``: where the generator and run.json read it
+    generate_config.search_params = pipeline.search_params = patched
     try:
         cfg = load_generate_config(fusion="attfuse", search="bo", acs="attention", budget=50)
         source = SceneSource(scenes=pick_scenes(out / "scenes-30", 30))
@@ -28,11 +31,12 @@ def run(out: Path, batch: int) -> dict:
             summary = folder.run(executor=executor).summary
             wall_s = time.perf_counter() - t
     finally:
-        generate_config.search_params = real
+        generate_config.search_params = pipeline.search_params = real
     agg = summary["aggregate"]
     return {"batch": batch, "wall_s": round(wall_s, 1), "seconds_per_scene": round(wall_s / 30, 2),
             "ap_normal": agg["ap_normal"], "ap_final": agg["ap_final"],
-            "drop_at_0.7": round(agg["ap_normal"]["0.7"] - agg["ap_final"]["0.7"], 4)}
+            "drop_at_0.7": round(agg["ap_normal"]["0.7"] - agg["ap_final"]["0.7"], 4),
+            "search_settings": json.loads((out / f"bo-batch-{batch}" / "run.json").read_text())["search_settings"]}
 
 
 def main(out: Path, batches: list[int]) -> None:
