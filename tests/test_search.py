@@ -194,3 +194,10 @@ def test_nevergrad_takes_a_batch():
     opt = build_optimizer("ng", 9, 20, np.random.default_rng(1), batch=4)
     hist = run_search(opt, q, planted(np.zeros(9), batches), 20)
     assert batches == [4] * 5 and len(hist) == 20
+
+
+def test_bo_puts_candidates_in_the_gps_units_as_skopt_does():
+    opt = build_optimizer("bo", 9, 50, np.random.default_rng(0))
+    pts = np.random.default_rng(1).uniform(-1, 1, (500, 9))
+    pts[0], pts[1] = -1.0, 1.0
+    assert np.array_equal(opt._unit(pts), np.asarray(opt.opt.space.transform(pts.tolist())))

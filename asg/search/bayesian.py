@@ -63,17 +63,22 @@ class BayesianOptimization(Optimizer):
         from skopt.acquisition import gaussian_lcb
 
         model = self._lying_model() if self._pending else self.opt.models[-1]
-        lcb = gaussian_lcb(self.opt.space.transform(candidates.tolist()), model, kappa=self.kappa)
+        lcb = gaussian_lcb(self._unit(candidates), model, kappa=self.kappa)
         x = candidates[int(np.argmin(lcb))]
         self._pending.append(np.asarray(x, dtype=float))
         return x
+
+    def _unit(self, points: np.ndarray) -> np.ndarray:
+        """``points`` (K, D) in the GP's units: skopt normalises each [-1, 1] dimension to [0, 1]
+        (``space.transform``, the same floats, without its loop over every value in Python)."""
+        return (np.asarray(points, dtype=float) - -1.0) / (1.0 - -1.0)
 
     def _lying_model(self):
         """The latest GP, its kernel held, refitted with the points asked in this batch told the
         lowest loss seen so far (the constant liar, cl_min)."""
         from sklearn.base import clone
 
-        xs = self.opt.space.transform(self.opt.Xi + [[float(v) for v in np.clip(p, -1.0, 1.0)] for p in self._pending])
+        xs = np.vstack([self.opt.space.transform(self.opt.Xi), self._unit(np.clip(self._pending, -1.0, 1.0))])
         ys = list(self.opt.yi) + [min(self.opt.yi)] * len(self._pending)
         gp = clone(self.opt.models[-1]).set_params(kernel=self.opt.models[-1].kernel_, optimizer=None)
         return gp.fit(xs, ys)
