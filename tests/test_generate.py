@@ -215,14 +215,15 @@ def test_a_new_collaborator_search_is_one_class_and_one_registry_line(busy_scene
 
 @pytest.mark.parametrize("search", ["rs", "ga"])
 def test_candidates_scored_side_by_side_give_the_scene_one_thread_gives(busy_scene, search):
-    """The shipped AttFuse scoring a search's batches on two threads (one torch thread each) finds
-    the same members, losses and final scene as one thread scoring them one by one."""
+    """The shipped AttFuse scoring a search's batches (the collaborator search's combinations, the
+    perturbation search's candidates) on two threads, one torch thread each, finds the same
+    collaborators, members, losses and final scene as one thread scoring them one by one."""
     import torch
 
     from asg.perception import build_detector
 
     det = build_detector("attfuse")
-    cfg = GenerateConfig(fusion="attfuse", search=search, acs="off", budget=12, space=SpaceConfig(n_q=100))
+    cfg = GenerateConfig(fusion="attfuse", search=search, acs="random", budget=12, space=SpaceConfig(n_q=100))
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -232,6 +233,7 @@ def test_candidates_scored_side_by_side_give_the_scene_one_thread_gives(busy_sce
         torch.set_num_threads(before)
     one, two = results
     assert [(e.x.tolist(), e.loss, e.ap) for e in one.history] == [(e.x.tolist(), e.loss, e.ap) for e in two.history]
+    assert one.after_acs.collaborators == two.after_acs.collaborators and one.ap_after_acs == two.ap_after_acs
     assert one.final.to_dict() == two.final.to_dict() and one.ap_final == two.ap_final
     for stage in one.detections:
         for a, b in zip(one.detections[stage], two.detections[stage]):

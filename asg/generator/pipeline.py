@@ -130,12 +130,13 @@ class Generator:
                 raise InputError(f"ACS-{self.cfg.acs} needs an attention model (AttFuse); pass --acs random or off")
             attention_of = self._attention_of
         combos, probs = strategy.propose(scene, cands, size, rng, attention_of)
-        best: Scored | None = None
         combos = combos or [tuple()]
-        for combo in combos:
-            scored = self.evaluate_scene(scene.with_collaborators(combo))
-            if best is None or scored.loss < best.loss:
-                best = scored
+        scenes = [scene.with_collaborators(combo) for combo in combos]
+        frames = [render_frame(world_for(s, self.spec)) for s in scenes]
+        best: Scored | None = None
+        for s, frame, judged in zip(scenes, frames, self.candidates.map(self._judged, frames)):  # one batch
+            if best is None or judged.loss < best.loss:
+                best = Scored(s, judged.loss, judged.ap, frame, judged.detections)
         return AcsOutcome(best, probs, len(combos))
 
     def _attention_of(self, scene: Scene) -> dict[str, float]:
