@@ -478,3 +478,28 @@ def test_a_v2v4real_frame_reads_its_matrix_poses_and_numpy_tags(tmp_path):
     evil.write_text(evil.read_text() + "hook: !!python/object/apply:os.system ['true']\n")
     with pytest.raises(InputError, match="numpy"):
         list(import_scenes(scenario))
+
+
+def test_a_recording_attacked_in_batches_finds_what_one_at_a_time_finds(recorded):
+    """A recorded scene's candidates edited in turn and detected side by side (two threads, one
+    torch thread each): the same members, losses and final scene as one thread; the final frame is
+    the edit of the final scene (the batch's frames do not share a buffer)."""
+    import torch
+
+    from asg.generator.pipeline import GenerateConfig, Generator
+    from asg.perception import build_detector
+    from asg.search import SpaceConfig
+
+    _, _, imported, _ = recorded
+    det = build_detector("attfuse")
+    cfg = GenerateConfig(fusion="attfuse", search="rs", acs="off", budget=10, space=SpaceConfig(n_q=60))
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        one, two = (Generator(cfg, det, det, candidate_threads=n).attack(imported, seed=2) for n in (1, 2))
+    finally:
+        torch.set_num_threads(before)
+    assert [(e.x.tolist(), e.loss) for e in one.history] == [(e.x.tolist(), e.loss) for e in two.history]
+    assert one.final.to_dict() == two.final.to_dict() and two.moved  # the search moved vehicles
+    fresh = render_frame(world_for(two.final, SPEC))
+    assert all(np.array_equal(fresh.clouds[a], two.frames["final"].clouds[a]) for a in fresh.sensing_ids)
