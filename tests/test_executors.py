@@ -297,6 +297,10 @@ def test_a_rerun_after_the_search_settings_changed_is_refused(tmp_path, monkeypa
     from sumo_scenarios.errors import InputError
 
     open_run(CFG, tmp_path / "run", scenes=_scenes()[:1], seed=3).run(detector_factory="fakes:oracle_factory")
+    record = json.loads((tmp_path / "run" / "run.json").read_text())
+    del record["search_settings"]  # a folder from before the settings were recorded resumes
+    (tmp_path / "run" / "run.json").write_text(json.dumps(record))
+    open_run(CFG, tmp_path / "run", scenes=_scenes()[:1], seed=3)
     real = config.search_params
     monkeypatch.setattr(config, "search_params", lambda name: real(name) | {"batch": 4})
     with pytest.raises(InputError, match="other settings \\(search_settings.batch: 1 -> 4\\)"):

@@ -340,9 +340,14 @@ def with_new_defaults(record: dict) -> dict:
     """``record`` with every setting it lacks filled in with today's default: a setting added to
     the generator after the record was written has a default that reproduces the earlier
     behaviour, so a folder written before it resumes instead of being refused. A record from before
-    the shipped weights' digests were recorded is taken as made with today's."""
+    the shipped weights' digests, or the search's settings, were recorded is taken as made with
+    today's."""
+    from .config import search_params
+
     filled = with_defaults(record, {"config": asdict(GenerateConfig())})
     cfg = filled.get("config")
+    if "search_settings" not in filled and isinstance(cfg, dict) and isinstance(cfg.get("search"), str):
+        filled["search_settings"] = search_params(cfg["search"])
     if "shipped_weights_sha256" not in filled and isinstance(cfg, dict):
         shipped = shipped_digests(str(cfg.get("fusion")), cfg.get("weights"), _reads_attention(cfg.get("acs")))
         if shipped:
