@@ -196,3 +196,11 @@ def test_a_summary_aggregate_reads_under_one_key_per_stage_and_in_its_older_form
     for agg in (new, old):
         assert aggregate_pooled(agg, Stage.FINAL) == PooledAP(paper, ours)
         assert aggregate_ap(agg, Stage.NORMAL, "per-frame") == paper and aggregate_ap(agg, Stage.AFTER_ACS) is None
+
+
+def test_the_iou_of_boxes_with_themselves_is_their_iou_with_a_copy():
+    """bev_iou_matrix(a) (each pair once, the diagonal set) equals bev_iou_matrix(a, a), a box of
+    no area included (0 with itself, as clipping gives)."""
+    a = np.stack([box(), box(1.0, 0.5, 0.3), box(0.5, 0.2, 1.0, l=0.0), box(20, 0), box(2.0)])
+    assert np.allclose(bev_iou_matrix(a), bev_iou_matrix(a, a), rtol=0, atol=1e-12)
+    assert bev_iou_matrix(a)[2, 2] == 0.0 and bev_iou_matrix(a)[0, 0] == 1.0

@@ -35,7 +35,8 @@ def bev_iou_matrix(a: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
         out[ii, jj] = inter / np.maximum(area_a[ii] + area_b[jj] - inter, 1e-9)
     if itself:
         out += out.T
-        out[np.diag_indices(len(a))] = 1.0
+        area = a[:, 3] * a[:, 4]
+        out[np.diag_indices(len(a))] = area / np.maximum(area, 1e-9)  # 1, or 0 for a box of no area, as clipped
     return out
 
 
@@ -54,11 +55,13 @@ def rectangle_overlap_m2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     count = np.full(p, 4)
     slot = np.arange(_MAX_CORNERS)
     rows = np.arange(p)[:, None]
+    # each slot's next corner, cyclically within the polygon's count: (P, C)
+    following = lambda count: np.where(slot + 1 < count[:, None], slot + 1, 0)  # noqa: E731
     for e in range(4):
         start, edge = b[:, e], b[:, (e + 1) % 4] - b[:, e]  # (P, 2)
         valid = slot < count[:, None]  # (P, C)
         side = edge[:, None, 0] * (poly[..., 1] - start[:, None, 1]) - edge[:, None, 1] * (poly[..., 0] - start[:, None, 0])
-        nxt = np.where(slot + 1 < count[:, None], slot + 1, 0)  # the next corner, cyclically
+        nxt = following(count)
         side_next, poly_next = side[rows, nxt], poly[rows, nxt]
         inside = (side >= 0) & valid
         crosses = valid & ((side >= 0) != (side_next >= 0))
@@ -73,7 +76,6 @@ def rectangle_overlap_m2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         poly = np.zeros((p, _MAX_CORNERS, 2))
         poly[r[fits], at[fits]] = cand[r[fits], c[fits]]
         count = np.minimum(keep.sum(axis=1), _MAX_CORNERS)
-    nxt = np.where(slot + 1 < count[:, None], slot + 1, 0)
-    poly_next = poly[rows, nxt]
+    poly_next = poly[rows, following(count)]
     cross = (poly[..., 0] * poly_next[..., 1] - poly_next[..., 0] * poly[..., 1]) * (slot < count[:, None])
     return np.maximum(cross.sum(axis=1) / 2, 0.0)

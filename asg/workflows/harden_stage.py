@@ -13,9 +13,9 @@ from ..training.point_stage_fit import PointStageFitConfig, load_point_stage_con
 
 
 def stage_config(fit_stage: bool) -> PointStageFitConfig | None:
-    """train.yaml's ``point_stage`` block when rounds fit their own stage (``fit_stage``; else None); its data set
-    must be built or known (one InputError otherwise: a round would find it missing only after its
-    training). :func:`build_stage_set` builds it."""
+    """train.yaml's ``point_stage`` block when rounds fit their own stage (``fit_stage``; else
+    None); its data set must be built or known (one InputError otherwise: a round would find it
+    missing only after its training). :func:`build_stage_set` builds it."""
     from ..dataset_spec import load_spec
 
     if not fit_stage:
