@@ -10,6 +10,7 @@ from asg.workflows.challenging import build_challenging
 from asg.scene.recheck import recheck
 from asg.perception.weights_io import WEIGHTS_DIR
 from asg.workflows.harden import harden, load_harden_config
+from asg.workflows.trainers import shipped as shipped_trainer
 from sumo_scenarios.errors import InputError
 
 from test_cli import assert_one_line_error, run
@@ -30,6 +31,20 @@ def data_root(tmp_path, monkeypatch):
     monkeypatch.setenv("ASG_DATA", str(root))
     build_challenging("attfuse", "val", detector_factory=ORACLE)
     return root
+
+
+def _trainer(fusion: str = "attfuse"):
+    """asg's round trainer of ``fusion`` with the tiny settings."""
+    from asg.perception.targets import resolve_target
+    from asg.workflows.trainers import round_trainer
+
+    return round_trainer(resolve_target(fusion), replace(TINY, fit_stage=False))
+
+
+def _start_cache(weights):
+    """Where a run starting from ``weights`` caches round 0's evaluations."""
+    trainer = _trainer()
+    return trainer.start_cache(trainer.model_at(weights))
 
 
 def _quiet(*_):
@@ -251,16 +266,17 @@ def test_round_zeros_cache_is_not_reused_by_other_scoring_code(tmp_path, monkeyp
     from sumo_scenarios import paths
 
     weights = WEIGHTS_DIR / "attfuse.pt"
-    before = harden_mod._eval_cache(tmp_path, 0, weights)
-    assert harden_mod._eval_cache(tmp_path, 0, weights) == before  # stable
+    before = _start_cache(weights)
+    assert _start_cache(weights) == before  # stable
     configs = tmp_path / "configs"
     shutil.copytree(paths.configs_dir(), configs)
     (configs / "detectors" / "pointpillars.yaml").write_text(
         (configs / "detectors" / "pointpillars.yaml").read_text().replace("nms_iou: 0.15", "nms_iou: 0.2"))
     monkeypatch.setattr(paths, "configs_dir", lambda: configs)
-    after = harden_mod._eval_cache(tmp_path, 0, weights)
+    after = _start_cache(weights)
     assert after.parent == before.parent and after != before
-    assert harden_mod._eval_cache(tmp_path, 1, weights) == tmp_path / "round-1" / "eval"
+    trainer = _trainer()
+    assert harden_mod._eval_cache(trainer, tmp_path, 1, trainer.model_at(weights)) == tmp_path / "round-1" / "eval"
 
 
 def test_round_zeros_reattack_is_scored_by_todays_code(data_root):
@@ -352,7 +368,6 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
     and the card (as --weights) gives them."""
     import asg.workflows.harden as harden_mod
     import asg.workflows.harden_stage as harden_stage
-    from asg.workflows.harden import _start_weights
     from asg.perception.weights_io import weights_path
     from test_tables import write_set
 
@@ -368,8 +383,8 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
 
     # a round worse beyond its interval: not kept
     starts = []
-    real_fit = harden_mod.fit_chunk
-    monkeypatch.setattr(harden_mod, "fit_chunk", lambda name, start, *a, **k: (starts.append(start), real_fit(name, start, *a, **k))[1])
+    real_fit = shipped_trainer.fit_chunk
+    monkeypatch.setattr(shipped_trainer, "fit_chunk", lambda name, start, *a, **k: (starts.append(start), real_fit(name, start, *a, **k))[1])
     monkeypatch.setattr(harden_mod, "guard", lambda before, after, guard_set: {
         "set": guard_set, "threshold": 0.7, "gap": -0.1, "low": -0.2, "high": -0.05, "frames": 3, "kept": False})
     lines = []
@@ -379,7 +394,7 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
     assert [r["guard"]["kept"] for r in card["rounds"][1:]] == [False, False]
     assert starts == [start, start]  # round 2 trained from the start weights, not round 1's
     assert card["weights"] == str(start)
-    assert _start_weights(out2 / "card.json", "attfuse", "attfuse") == start
+    assert _trainer().start(out2 / "card.json").path == start
     assert any("not kept" in l and "fell by 10.0 points" in l for l in lines)
 
 
@@ -421,8 +436,8 @@ def test_a_round_the_guard_drops_is_averaged_with_its_start_and_kept_if_that_pas
         "set": guard_set, "threshold": 0.7, "gap": -0.1, "low": -0.2, "high": -0.05, "frames": 2,
         "kept": after.name == "eval-averaged"})
     starts = []
-    real_fit = harden_mod.fit_chunk
-    monkeypatch.setattr(harden_mod, "fit_chunk", lambda name, start, *a, **k: (starts.append(start), real_fit(name, start, *a, **k))[1])
+    real_fit = shipped_trainer.fit_chunk
+    monkeypatch.setattr(shipped_trainer, "fit_chunk", lambda name, start, *a, **k: (starts.append(start), real_fit(name, start, *a, **k))[1])
     out = tmp_path / "h"
     card = harden("attfuse", 2, out, config=replace(TINY, guard_set="holdout", guard_average=0.25),
                   detector_factory=ORACLE, log=_quiet)
@@ -458,8 +473,8 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
         "kept": after.name == "eval-averaged"})
     staged_when_scored = []
     real_evaluate = harden_mod.evaluate_round
-    monkeypatch.setattr(harden_mod, "evaluate_round", lambda fusion, weights, *a: (
-        staged_when_scored.append((weights.name, stage_path_of(weights).is_file())), real_evaluate(fusion, weights, *a))[1])
+    monkeypatch.setattr(harden_mod, "evaluate_round", lambda fusion, model, *a: (
+        staged_when_scored.append((model.path.name, stage_path_of(model.path).is_file())), real_evaluate(fusion, model, *a))[1])
     out = tmp_path / "h"
     cfg = replace(TINY, guard_set="holdout", fit_stage=True)
     card = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
@@ -478,7 +493,7 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
     alone = tmp_path / "alone" / "weights.pt"
     alone.parent.mkdir()
     alone.write_bytes((out / "round-1" / "weights.pt").read_bytes())
-    assert harden_mod._eval_cache(out, 0, out / "round-1" / "weights.pt") != harden_mod._eval_cache(out, 0, alone)
+    assert _start_cache(out / "round-1" / "weights.pt") != _start_cache(alone)
 
 
 def test_a_point_stage_data_set_that_cannot_be_had_is_refused_before_the_run_starts(tmp_path, data_root, monkeypatch):

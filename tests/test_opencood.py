@@ -200,19 +200,26 @@ def test_opencood_is_refused_where_asg_would_train_it(capsys, tmp_path):
 def test_a_harden_config_setting_an_opencood_round_would_ignore_is_refused(capsys, tmp_path):
     """``asg harden --fusion opencood:DIR --config F``: a setting of asg's own trainer changed in F
     (it would be ignored) is one line naming it, before anything is written; the settings a round
-    reads, or a copy of train.yaml's block, pass."""
+    reads, a copy of train.yaml's block and the ``opencood`` block's epochs pass."""
+    from asg.perception.targets import resolve_target
     from asg.training.config import train_block
-    from asg.workflows.harden import HARDEN_BLOCK
-    from asg.workflows.harden_opencood import check_opencood_settings
+    from asg.workflows.harden import HARDEN_BLOCK, load_harden_config
+    from asg.workflows.trainers import round_trainer
 
     model = make_model_dir(tmp_path / "m", "early")
     config, out = tmp_path / "harden.yaml", tmp_path / "out"
-    config.write_text(yaml.safe_dump({"harden": {"opencood_epochs": 2, "steps": 5, "mix_with": ["normal"]}}))
+    config.write_text(yaml.safe_dump({"harden": {"steps": 5, "lr": 0.01, "mix_with": ["normal"]},
+                                      "opencood": {"epochs": 2}}))
     err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--config", str(config),
                    "--out", str(out))
-    assert "mix_with, steps set asg's own trainer" in err and "opencood_epochs" in err and not out.exists()
+    assert "lr, steps set asg's own trainer" in err and "mix_with" not in err.split(";")[0] and not out.exists()
+    trainer = round_trainer(resolve_target(f"opencood:{model}"), load_harden_config(), config_path=config)
+    assert trainer.train_cfg.epochs == 2
     shipped = train_block(HARDEN_BLOCK, None)
-    check_opencood_settings(config, shipped | {"opencood_epochs": 2, "data": "random", "guard_set": None}, shipped)
+    trainer.check(None, shipped | {"mix_with": ["normal"], "data": "random", "guard_set": None}, shipped)
+    config.write_text(yaml.safe_dump({"opencood": {"epochs": 0}}))
+    with pytest.raises(InputError, match="epochs"):
+        round_trainer(resolve_target(f"opencood:{model}"), load_harden_config(), config_path=config)
 
 
 def _set(key: str, value):
@@ -680,62 +687,98 @@ def test_bench_paper_refuses_an_opencood_folder_that_cannot_run(capsys, tmp_path
 
 @pytest.mark.slow
 def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_path, monkeypatch):
-    """``asg harden --fusion opencood:DIR --rounds 1 --data random``: the round's scenes and normal
-    ones exported in the OPV2V layout, OpenCOOD's trainer one epoch further from DIR's checkpoint, the
-    new model scored beside DIR with paired intervals and attacked again; a rerun resumes without
-    training again, other settings are refused, and asg's own options are refused in one line."""
+    """``asg harden --fusion opencood:DIR --rounds 2 --data random``: the rounds of an asg model, each
+    trained by OpenCOOD's trainer: the round's scenes (and the earlier round's) and the train split
+    of mix_with exported in the OPV2V layout, one epoch further from the model the round started
+    from; every round evaluated, guarded and re-attacked by the shared loop; a rerun resumes without
+    training again, other settings are refused, and --weights is refused in one line."""
     from test_tables import write_set
 
     import asg.generator.config as generator_config
 
     root = tmp_path / "data"
     # OpenCOOD's trainer drops a last incomplete batch (2 frames): normal-val needs two for a validation loss
-    write_set(root, "normal", {"train": ["t0"], "val": ["v0", "v1"]})
+    write_set(root, "normal", {"train": ["t0", "t1"], "val": ["v0", "v1"]})
     monkeypatch.setenv("ASG_DATA", str(root))
     load = generator_config.load_generate_config  # the protocol's 50 evaluations would take minutes here
     monkeypatch.setattr(generator_config, "load_generate_config", lambda *a, **k: load(*a, **{**k, "budget": 2}))
     model = make_model_dir(tmp_path / "m", "intermediate", score_threshold=THRESHOLD)
     config = tmp_path / "harden.yaml"
-    config.write_text(yaml.safe_dump({"harden": {"eval_sets": ["normal-val"], "guard_set": None, "opencood_epochs": 1}}))
+    config.write_text(yaml.safe_dump({"harden": {"eval_sets": ["normal-val"], "guard_set": None, "pool": ["normal"],
+                                                 "mix_with": ["normal"], "scenes_per_round": 1, "noisy": False},
+                                      "opencood": {"epochs": 1}}))
     out = tmp_path / "hard"
-    argv = ["harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--data", "random", "--config", str(config),
+    argv = ["harden", "--fusion", f"opencood:{model}", "--rounds", "2", "--data", "random", "--config", str(config),
             "--out", str(out), "--workers", "1"]
     assert main(argv) == 0
     card = json.loads((out / "card.json").read_text())
-    assert card["data"] == "random" and card["epochs"] == 1 and card["scenes"] == 1
-    assert sorted(p.name for p in (out / "train").iterdir() if p.is_dir()) == ["normal-t0", "round-t0"]
-    trained = out / "model" / "net_epoch2.pth"  # DIR's epoch 1, then one more
-    assert trained.is_file() and (out / "model" / "net_epoch1.pth").is_file()
-    own = next(s for s in card["evaluation"] if s.startswith("challenging-opencood-m-"))
-    for row in card["evaluation"].values():
-        assert row["frames"] == 2 and set(row["before"]) == set(row["after"]) == {"ap", "ap_per_frame"}
-        assert set(row["gap"]) == {"global", "per-frame"} and row["gap"]["global"]["low"] <= row["gap"]["global"]["high"]
-    assert {"normal-val", own} == set(card["evaluation"])
-    assert card["reattack"]["frames"] == 2 and set(card["reattack"]["after"]) == {"normal", "challenging"}
+    assert card["data"] == "random" and [r["round"] for r in card["rounds"]] == [0, 1, 2]
+    r1, r2 = card["rounds"][1], card["rounds"][2]
+    assert r1["trained"]["epochs"] == 1 and r1["trained"]["examples"] == {"round-1": 1, "normal": 2}
+    assert r2["trained"]["examples"] == {"round-1": 1, "round-2": 1, "normal": 2}  # keep_previous
+    folders = sorted(p.name.rsplit("-", 1)[0] for p in (out / "round-2" / "train").iterdir() if p.is_dir())
+    assert folders == ["normal", "normal", "round-1", "round-2"]
+    assert r1["weights"] == "round-1/model" and r2["weights"] == "round-2/model" and card["weights"] == "round-2/model"
+    assert (out / "round-1" / "model" / "net_epoch2.pth").is_file()  # DIR's epoch 1, then one more
+    trained = out / "round-2" / "model" / "net_epoch3.pth"  # round 2 from round 1's model
+    assert trained.is_file()
+    own = next(s for s in card["rounds"][0]["evaluation"] if s.startswith("challenging-opencood-m-"))
+    for row in card["rounds"]:
+        assert set(row["evaluation"]) == {"normal-val", own}
+        assert all(ev["frames"] == 2 and {"ap", "ap_per_frame"} <= set(ev) for ev in row["evaluation"].values())
+    assert r1["reattack"]["frames"] == 2 and set(r1["reattack"]["started_from"]["gap"]) == {"global", "per-frame"}
     assert main(["report", str(out)]) == 0  # the report reads the card
     page = (out / "report.html").read_text()
-    assert "OpenCOOD's trainer" in page and "gap (per frame)" in page and "own attack on normal-val" in page
+    assert "1 epochs of OpenCOOD&#x27;s trainer" in page or "1 epochs of OpenCOOD's trainer" in page
     stamp = trained.stat().st_mtime_ns
     assert main(argv) == 0 and trained.stat().st_mtime_ns == stamp  # resumed: nothing trained again
     capsys.readouterr()
     _refusal(capsys, *[a if a != "random" else "normal" for a in argv])  # other settings, same folder
-    from asg.workflows import harden_opencood
+    from asg.perception.targets import resolve_target
+    from asg.workflows.harden import load_harden_config
+    from asg.workflows.trainers import round_trainer
 
-    shared = harden_opencood.start_cache(f"opencood:{model}")
-    assert json.loads((shared / "normal-val.json").read_text())["ap"] == card["evaluation"]["normal-val"]["before"]["ap"]
+    trainer = round_trainer(resolve_target(f"opencood:{model}"), load_harden_config(config))
+    shared = trainer.start_cache(trainer.start(None))
+    assert json.loads((shared / "normal-val.json").read_text())["ap"] == card["rounds"][0]["evaluation"]["normal-val"]["ap"]
     import asg.evaluation
 
     evaluated, real = [], asg.evaluation.evaluate
-    monkeypatch.setattr(asg.evaluation, "evaluate", lambda fusion, *a, **k: evaluated.append(fusion) or real(fusion, *a, **k))
+    monkeypatch.setattr(asg.evaluation, "evaluate",
+                        lambda fusion, set_name, *a, **k: evaluated.append((fusion, set_name)) or real(fusion, set_name, *a, **k))
     control = [a if a != "random" else "normal" for a in argv[:-4]] + ["--out", str(tmp_path / "control"), "--workers", "1"]
+    control[control.index("2")] = "1"
     assert main(control) == 0  # the control at equal compute: the start's evaluations are not made again
-    assert evaluated and f"opencood:{model}" not in evaluated
+    start_sets = {s for f, s in evaluated if f == f"opencood:{model}"}
+    assert evaluated and start_sets == {str(tmp_path / "control" / "round-1" / "reattack")}  # only the round's new scenes
     capsys.readouterr()
-    err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "2", "--out", str(tmp_path / "x"))
-    assert "--rounds 1" in err and not (tmp_path / "x").exists()
     err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--weights", str(trained),
                    "--out", str(tmp_path / "x"))
     assert "--weights" in err and not (tmp_path / "x").exists()
+
+
+def test_the_guards_average_of_two_opencood_models_is_a_model_folder(tmp_path):
+    """An OpenCOOD round the guard would drop is averaged with its start: a folder with the trained
+    model's config and a checkpoint (named by its epoch) whose tensors are the share's mix of the two;
+    the adapter loads it."""
+    import torch
+
+    from asg.perception.targets import resolve_target
+    from asg.workflows.harden import load_harden_config
+    from asg.workflows.trainers import round_trainer
+
+    start = make_model_dir(tmp_path / "a", "early", seed=0)
+    trained = make_model_dir(tmp_path / "b", "early", seed=1)
+    (trained / "net_epoch1.pth").rename(trained / "net_epoch2.pth")
+    trainer = round_trainer(resolve_target(f"opencood:{start}"), load_harden_config())
+    averaged = trainer.average(trainer.start(None), trainer.model_at(trained), 0.25, tmp_path / "round-1")
+    assert averaged.path == tmp_path / "round-1" / "averaged" and averaged.fusion == f"opencood:{averaged.path}"
+    assert sorted(p.name for p in averaged.path.iterdir()) == [".complete", "config.yaml", "net_epoch2.pth"]
+    a, b, mix = (torch.load(p, weights_only=True) for p in (start / "net_epoch1.pth", trained / "net_epoch2.pth",
+                                                              averaged.path / "net_epoch2.pth"))
+    key = next(k for k, v in a.items() if v.is_floating_point() and not torch.equal(v, b[k]))
+    assert torch.allclose(mix[key], 0.75 * a[key] + 0.25 * b[key])
+    resolve_target(averaged.fusion).check()  # the adapter builds it
 
 
 def test_ego_row_attention_is_opencoods_attfusion(monkeypatch, tmp_path):

@@ -9,20 +9,41 @@ from asg.io.export import EXPORT_FORMATS
 from asg.perception.fusion import FUSIONS
 from asg.search import SEARCHES
 from asg.search.spaces import SPACES
+from asg.workflows.trainers import ROUND_TRAINERS
 
 #: the shipped set of each registry, pinned (every other test walks the registries themselves)
 SHIPPED = {"fusion": ["attfuse", "attfuse-ft", "attfuse-wide", "early", "fcooper", "late", "none", "v2vnet", "v2xvit",
                       "v2xvit-noisy", "where2comm"],
            "search": ["bo", "ga", "ls", "ng", "rs"], "space": ["dropout", "insert", "latency", "pose-error", "poses"],
            "acs": ["attention", "random"], "executor": ["local", "ray"],
-           "export": ["kitti", "openscenario", "opv2v", "rosbag2", "sumo"]}
+           "export": ["kitti", "openscenario", "opv2v", "rosbag2", "sumo"], "round trainer": ["asg", "opencood"]}
 REGISTRIES = {"fusion": FUSIONS, "search": SEARCHES, "space": SPACES, "acs": ACS_STRATEGIES, "executor": EXECUTORS,
-              "export": EXPORT_FORMATS}
+              "export": EXPORT_FORMATS, "round trainer": ROUND_TRAINERS}
 
 
 @pytest.mark.parametrize("kind", sorted(SHIPPED))
 def test_each_registry_holds_the_shipped_set_once_its_package_is_imported(kind):
     assert REGISTRIES[kind].names() == SHIPPED[kind]
+
+
+def test_every_target_kind_that_is_trained_here_has_a_round_trainer():
+    """A target kind whose ``training`` is not NONE has the round trainer of that training kind (so
+    ``asg harden`` takes it); one that brings its own weights is refused in its one line."""
+    from asg.perception.targets import TARGET_KINDS, Training
+    from asg.workflows.trainers import round_trainer
+    from sumo_scenarios.errors import InputError
+
+    trained = {k.training.value for k in TARGET_KINDS.entries() if k.training is not Training.NONE}
+    assert trained == set(ROUND_TRAINERS.names())
+
+    class Brought:
+        training, name = Training.NONE, "x"
+
+        def check_trainable(self):
+            raise InputError("brings its own weights")
+
+    with pytest.raises(InputError, match="brings its own weights"):
+        round_trainer(Brought(), None)
 
 
 #: a flag's choices as the docs write them, ``--flag a|b|c``; the words a list may add to its

@@ -22,6 +22,12 @@ def test_lidar_preset_mirrors_lidar_spec():
     assert load_lidar_spec("v2xp") == LidarSpec()
 
 
+def test_the_opencood_training_block_mirrors_its_config():
+    from asg.workflows.trainers.opencood import OpenCOODTrainConfig, load_opencood_train_config
+
+    assert load_opencood_train_config() == OpenCOODTrainConfig()
+
+
 def _optimizer_defaults(name: str) -> dict:
     """The optimiser's own default for each of its settings (GA keeps them in GAParams)."""
     from asg.search.genetic import GAParams

@@ -1,6 +1,6 @@
 """The report's sections for training runs: ``asg harden`` (one row a round, AP@0.7 by round,
-each round's training loss), ``asg harden --fusion opencood:DIR`` (before / after on each set with
-the gap's interval) and ``asg finetune`` (before / after on each set, the training loss).
+each round's training loss: asg's steps, or OpenCOOD's trainer's epochs) and ``asg finetune``
+(before / after on each set, the training loss).
 
 Every value comes from the run's own files (card.json, the fine-tuning card, loss.csv) and is
 escaped; a file that is not what asg wrote ends in one InputError (asg.report.page's guard).
@@ -23,7 +23,6 @@ from sumo_scenarios.errors import InputError  # noqa: E402
 
 from ..io.curves import LOSS_CURVE, read_loss_curve  # noqa: E402
 from ..io.json_file import read_json  # noqa: E402
-from ..objective.ap import Yardstick  # noqa: E402
 
 #: the files that make a folder a training run
 HARDEN_CARD = "card.json"
@@ -34,8 +33,6 @@ def training_kind(folder: Path) -> str | None:
     card = _json(folder / HARDEN_CARD)
     if isinstance(card, dict) and "rounds" in card:
         return "harden"
-    if isinstance(card, dict) and {"model", "epochs", "evaluation"} <= set(card):  # harden_opencood's card
-        return "harden-opencood"
     return "finetune" if _finetune_card(folder) is not None else None
 
 
@@ -52,33 +49,7 @@ def training_section(folder: Path, img: Callable, table: Callable) -> str:
     kind = training_kind(folder)
     if kind == "harden":
         return _harden(folder, img, table)
-    if kind == "harden-opencood":
-        return _harden_opencood(folder, table)
     return _finetune(folder, img, table)
-
-
-def _harden_opencood(folder: Path, table: Callable) -> str:
-    """A round of ``asg harden --fusion opencood:DIR``: each set before and after, AP@0.7 ours / per
-    frame, and the gap with its 95 % paired interval under both yardsticks."""
-    card = read_json(folder / HARDEN_CARD, "the hardening run")
-    rows = []
-    for s, v in sorted(card["evaluation"].items()):
-        pair = pooled_pair(v, FINETUNE_PAIR)
-        gaps = [f"{100 * float(g['gap']):+.1f} [{100 * float(g['low']):+.1f}, {100 * float(g['high']):+.1f}]"
-                for g in (v["gap"][y.value] for y in Yardstick)]
-        rows.append([s, str(int(v["frames"])), pair["before"].text(), pair["after"].text(), *gaps])
-    re_ = card.get("reattack")
-    if re_:
-        before, after = (pooled_pair(re_[w], REATTACK_PAIR)["challenging"] for w in FINETUNE_PAIR)
-        rows.append(["own attack on normal-val", str(int(re_["frames"])), before.text(), after.text(), "", ""])
-    guard = card.get("guard")
-    verdict = "" if not guard else (" The guard set's gap keeps the round." if guard["kept"] else
-                                    f" Worse on {html.escape(str(guard['set']))} beyond its interval: not kept.")
-    return (f"<section><h2>{html.escape(folder.name)}: asg harden --fusion {html.escape(str(card['fusion']))} "
-            f"({html.escape(str(card.get('data')))} scenes, {int(card.get('epochs', 0))} epochs of OpenCOOD's trainer)</h2>"
-            f"<p>AP@0.7 (%) ours / ranked per frame (the paper's yardstick), the folder before and "
-            f"{html.escape(str(card.get('model')))} after, and the gap with its 95 % paired interval.{verdict}</p>"
-            + table(["set", "frames", "before", "after", "gap (ours)", "gap (per frame)"], rows) + "</section>")
 
 
 def _harden(folder: Path, img: Callable, table: Callable) -> str:
@@ -92,9 +63,8 @@ def _harden(folder: Path, img: Callable, table: Callable) -> str:
         if re_:
             pair = pooled_pair(re_, REATTACK_PAIR)
             reattacked = f"{pair['normal'].text()} -> {pair['challenging'].text()}"
-        trained = r.get("trained") or {}
         rows.append([str(int(r["round"])), str((r.get("data") or {}).get("kind", "start weights")),
-                     str(trained.get("steps", "-")), *[_both(ev.get(s)) for s in sets], reattacked])
+                     _training_length(r.get("trained") or {}), *[_both(ev.get(s)) for s in sets], reattacked])
     fig, (ax_ap, ax_loss) = plt.subplots(1, 2, figsize=(12, 3.6), dpi=80)
     ks = [int(r["round"]) for r in rounds]
     for s in sets:
@@ -119,7 +89,14 @@ def _harden(folder: Path, img: Callable, table: Callable) -> str:
             f"ours (one sort across frames) / ranked per frame (the paper's yardstick; '-' where a card predates it); "
             f"round 0 is the start weights; re-attacked: normal-val -> the paper's attack against the round's weights. "
             f"The chart shows ours.</p>"
-            + table(["round", "data", "steps", *sets, "re-attacked"], rows) + img(fig) + "</section>")
+            + table(["round", "data", "trained", *sets, "re-attacked"], rows) + img(fig) + "</section>")
+
+
+def _training_length(trained: dict) -> str:
+    """How long a round trained: asg's trainer's steps, or OpenCOOD's trainer's epochs ('-': round 0)."""
+    if "epochs" in trained:
+        return f"{int(trained['epochs'])} epochs of OpenCOOD's trainer"
+    return f"{int(trained['steps'])} steps" if "steps" in trained else "-"
 
 
 def _finetune(folder: Path, img: Callable, table: Callable) -> str:

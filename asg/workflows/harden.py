@@ -38,18 +38,15 @@ from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
 
 from . import MAX_ROUNDS
-from .finetune import fit_chunk, mixed_sources
-from .harden_stage import build_stage_set, stage_config, stage_of_round
 from .harden_rounds import (NOISY_SET, REATTACK_EVAL, STARTED_FROM, evaluate_round, evaluated_set,  # noqa: F401
                             load_scenes, noisy_val_set, reattack_round, round_data, save_scenes,
                             started_from_on_reattack, upgraded_rounds)  # (this module's API too: scripts, tests)
 from .random_control import ATTACK_SEED  # noqa: F401  (this module's API too)
+from .trainers import Model, round_trainer
+from .trainers.base import AVERAGED, is_kept  # (is_kept: this module's API too)
 from ..io.run_record import claim, with_defaults
-from ..sensors.lidar_spec import DEFAULT_LIDAR
-from ..training.cards import lidar_of_weights
-from ..training.config import FinetuneConfig, train_block, check_train_config, weights_for
-from ..training.point_stage_fit import PointStageFitConfig
-from ..perception.weights_io import weights_path
+from ..perception.targets import resolve_target
+from ..training.config import FinetuneConfig, train_block, check_train_config
 from ..scene import Scene
 
 #: the train.yaml block of ``asg harden``
@@ -57,8 +54,6 @@ HARDEN_BLOCK = "harden"
 #: what a round trains on (``--data``, the harden block's ``data``)
 DataKind = Literal["adversarial", "random", "normal"]
 DATA_KINDS: tuple[str, ...] = get_args(DataKind)
-#: a round's weights averaged with its start's (the guard's cure), in its folder
-AVERAGED_WEIGHTS = "averaged.pt"
 
 
 @dataclass(frozen=True)
@@ -89,10 +84,6 @@ class HardenConfig(FinetuneConfig):
     #: round refines its own boxes rather than with the stage of the model it started from
     #: (docs/harden.md, the point stage); False: every round uses its start's stage
     fit_stage: bool = True
-    #: an OpenCOOD model (--fusion opencood:DIR): the epochs OpenCOOD's trainer fine-tunes it a round
-    #: (one gained on its challenging set and holdout where three lost per frame on normal-val:
-    #: docs/results/README.md, OpenCOOD)
-    opencood_epochs: int = 1
 
 
 def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
@@ -104,7 +95,6 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
     where = f"train.yaml:{HARDEN_BLOCK}"
     cfg = check_train_config(from_mapping(HardenConfig, data, where), where)
     checks.number(cfg.scenes_per_round, f"{where}.scenes_per_round", 1, 100_000)
-    checks.number(cfg.opencood_epochs, f"{where}.opencood_epochs", 1, 1000)
     if cfg.guard_average is not None and not (isinstance(cfg.guard_average, (int, float)) and 0.0 < cfg.guard_average < 1.0):
         raise InputError(f"{where}.guard_average must be a share between 0 and 1 (0.5: half the round's weights) "
                          f"or null, got {cfg.guard_average!r}")
@@ -124,92 +114,99 @@ def default_out(fusion: str, data: str) -> Path:
 def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path | None = None,
            config: HardenConfig | None = None, space: tuple[str, ...] | None = None, executor=None,
            threads: int = 2, force: bool = False, detector_factory: str | None = None,
-           log: Callable[[str], None] = print, progress: Callable[[int, int, float], None] | None = None) -> dict:
-    """Run (or resume) ``rounds`` rounds of hardening ``fusion``; returns the card.
+           config_path: Path | None = None, log: Callable[[str], None] = print,
+           progress: Callable[[int, int, float], None] | None = None) -> dict:
+    """Run (or resume) ``rounds`` rounds of hardening ``fusion``; returns the card. The target's
+    round trainer (asg.workflows.trainers) trains each round; everything else here is the same for
+    every kind.
 
     ``weights``: start from this weights file (or a card: its last round's weights) instead of the
     shipped ones. ``space``: the perturbation spaces the adversarial rounds search (default
-    configs/generate.yaml's). ``detector_factory``: stand-in target for the attacks (tests)."""
+    configs/generate.yaml's). ``detector_factory``: stand-in target for the attacks (tests).
+    ``config_path``: the ``--config`` file ``config`` came from (None: train.yaml)."""
     if not isinstance(rounds, int) or not 1 <= rounds <= MAX_ROUNDS:
         raise InputError(f"--rounds must be a whole number from 1 to {MAX_ROUNDS}, got {rounds!r}")
     cfg = config or load_harden_config()
     _check_before_starting(cfg, space)
-    name = weights_for(fusion)
-    start = _start_weights(weights, fusion, name)
-    out = Path(out) if out is not None else default_out(fusion, cfg.data)
-    from ..generator.run import file_digest
-
+    trainer = round_trainer(resolve_target(fusion), cfg, threads, config_path)
+    trainer.check(weights, train_block(HARDEN_BLOCK, config_path) if config_path else None, train_block(HARDEN_BLOCK, None))
+    start = trainer.start(weights)
+    out = Path(out) if out is not None else default_out(trainer.target.label, cfg.data)
     pool = _pool(cfg)
     if rounds * cfg.scenes_per_round > len(pool):
         raise InputError(f"{rounds} rounds of {cfg.scenes_per_round} fresh scenes need {rounds * cfg.scenes_per_round}; "
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
-    stage_cfg = stage_config(cfg.fit_stage)
-    settings = {"fusion": fusion, "start_weights": str(start), "start_sha256": file_digest(start),
-                "config": asdict(cfg), "space": list(space) if space else None, "detector": detector_factory,
-                "point_stage": asdict(stage_cfg) if stage_cfg else None}
-    # a setting added since a folder was claimed takes the default that reproduces what it did
-    # (a run from before rounds fitted their own point stage did not)
-    claim(out, settings, force, what="a hardening run",
-          as_today=lambda record: with_defaults(record, {"config": asdict(HardenConfig()) | {"fit_stage": False},
-                                                         "point_stage": None}))
-    build_stage_set(stage_cfg)
+    settings = {"fusion": fusion, **trainer.settings(start), "config": asdict(cfg),
+                "space": list(space) if space else None, "detector": detector_factory}
+    claim(out, settings, force, what="a hardening run", as_today=_as_today)
+    trainer.prepare()
     card_path = out / "card.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
-        "fusion": fusion, "data": cfg.data, "start": {"weights": str(start), "sha256": settings["start_sha256"]},
+        "fusion": fusion, "data": cfg.data, "start": {"weights": str(start.path), "sha256": trainer.digest(start)},
         "rounds": []}
     card["rounds"] = upgraded_rounds(card["rounds"])
-    _log_start_lidar(start, log)
-    current, current_round = start, 0  # the weights the next round starts from, and their round
-    shipped_start = settings["start_sha256"] == file_digest(_start_weights(None, fusion, name))
+    trainer.log_start(start, log)
+    current, current_round = start, 0  # the model the next round starts from, and its round
     for k in range(rounds + 1):
         done = {row["round"]: row for row in card["rounds"]}
         round_dir = out / f"round-{k}"
         if k in done:
             if k and is_kept(done[k]):
-                current, current_round = out / done[k]["weights"], k
+                current, current_round = trainer.model_at(out / done[k]["weights"]), k
             continue
         row: dict = {"round": k}
-        weights = started_from = current
+        model = started_from = current
         if k:
             scenes = pool[(k - 1) * cfg.scenes_per_round: k * cfg.scenes_per_round]
             row["data"] = _round_scenes(fusion, current, scenes, cfg, space, round_dir, executor, detector_factory, log)
             first = {f"round-{j}": load_scenes(out / f"round-{j}" / "scenes")
                      for j in (range(1, k + 1) if cfg.keep_previous else [k])}
-            weights, record = round_dir / "weights.pt", round_dir / "trained.json"
-            if not (weights.is_file() and record.is_file()):
-                trained = fit_chunk(name, current, weights, round_dir / "last.pt", cfg, cfg.steps, threads,
-                                    log, progress, lambda: mixed_sources(name, first, cfg, log))
-                write_text_atomic(record, json.dumps(trained, indent=1))  # kept for a round resumed after training
-            row["trained"] = json.loads(record.read_text())
-            if stage_cfg:
-                row["stage"] = stage_of_round(fusion, weights, round_dir, stage_cfg, log)
-            row["weights"] = str(weights.relative_to(out))
-        log(f"round {k}: evaluating {weights} ...")
-        row["evaluation"] = evaluate_round(fusion, weights, cfg, _eval_cache(out, k, weights), executor, log)
+            model, row["trained"] = trainer.train(current, first, round_dir, log, progress)
+            _after_training(trainer, model, round_dir, row, log)
+            row["weights"] = str(model.path.relative_to(out))
+        log(f"round {k}: evaluating {model.path} ...")
+        cache = _eval_cache(trainer, out, k, model)
+        row["evaluation"] = evaluate_round(fusion, model, cfg, cache, executor, log)
         if k and cfg.guard_set is not None:
-            before = _eval_cache(out, current_round, current)  # evaluated again if gone (a resume on another data root)
-            evaluated_set(fusion, current, cfg.guard_set, cfg.guard_set, before, True, executor, log)
-            row["guard"] = guard(before, _eval_cache(out, k, weights), cfg.guard_set)
+            before = _eval_cache(trainer, out, current_round, current)  # evaluated again if gone (another data root)
+            evaluated_set(current, cfg.guard_set, cfg.guard_set, before, True, executor, log)
+            row["guard"] = guard(before, cache, cfg.guard_set)
             if not row["guard"]["kept"] and cfg.guard_average:
                 _log_guard(log, k, row["guard"], "its weights are averaged with the ones it started from")
-                weights = _averaged_round(fusion, row, current, current_round, weights, cfg, stage_cfg, out, k,
-                                          executor, log)
+                model = _averaged_round(trainer, fusion, row, (current, current_round), model, out, k, executor, log)
             if not row["guard"]["kept"]:
                 _log_guard(log, k, row["guard"], "its weights are not kept; the next round starts from "
                            f"{f'round {current_round}' if current_round else 'the start weights'}")
         if k and is_kept(row):
-            current, current_round = weights, k
+            current, current_round = model, k
         if cfg.reattack:
-            own_set = None if k == 0 and shipped_start else weights  # the shipped weights' attack exists
-            row["reattack"] = reattack_round(fusion, own_set, round_dir / "reattack", executor,
+            own_set = k == 0 and trainer.is_own_start(start)  # the target's own attack exists
+            row["reattack"] = reattack_round(fusion, None if own_set else model, round_dir / "reattack", executor,
                                              detector_factory, log, row["evaluation"])
             if k:
-                row["reattack"][STARTED_FROM] = started_from_on_reattack(fusion, started_from, weights, round_dir,
-                                                                         executor, log)
+                row["reattack"][STARTED_FROM] = started_from_on_reattack(started_from, model, round_dir, executor, log)
         card["rounds"].append(row)
-        card["weights"] = str(current.relative_to(out)) if current_round else str(start)
+        card["weights"] = str(current.path.relative_to(out)) if current_round else str(start.path)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
+
+
+def _as_today(record: dict) -> dict:
+    """A run.json written before today's settings, as today's code would write it: a setting added
+    since takes the default that reproduces what the run did (a run from before rounds fitted their
+    own point stage did not); ``opencood_epochs``, once in the harden block and read only by an
+    OpenCOOD round (now the ``opencood`` block's ``epochs``), dropped from an asg model's record."""
+    if isinstance(record.get("config"), dict) and "start_sha256" in record:
+        record = {**record, "config": {k: v for k, v in record["config"].items() if k != "opencood_epochs"}}
+    return with_defaults(record, {"config": asdict(HardenConfig()) | {"fit_stage": False}, "point_stage": None})
+
+
+def _after_training(trainer, model, round_dir: Path, row: dict, log: Callable[[str], None]) -> None:
+    """What the trainer gives a trained or averaged model before it is evaluated (a point stage),
+    recorded in the round's ``row`` under "stage"."""
+    stage = trainer.after_training(model, round_dir, log)
+    if stage is not None:
+        row["stage"] = stage
 
 
 def _check_before_starting(cfg: HardenConfig, space: tuple[str, ...] | None) -> None:
@@ -235,50 +232,35 @@ def _log_guard(log: Callable[[str], None], k: int, gap: dict, outcome: str) -> N
         f"95 % interval [{100 * gap['low']:+.1f}, {100 * gap['high']:+.1f}]: {outcome}")
 
 
-def _averaged_round(fusion: str, row: dict, current: Path, current_round: int, weights: Path, cfg: HardenConfig,
-                    stage_cfg: PointStageFitConfig | None, out: Path, k: int, executor,
-                    log: Callable[[str], None]) -> Path:
-    """The guard's cure for a round it would not keep: ``round-k/averaged.pt``, the round's weights
-    averaged with the ones it started from (``cfg.guard_average`` of the round's), with a point
-    stage fitted to them (``stage_cfg``; None: none), evaluated and guarded in their turn. ``row``
-    is updated to the averaged weights; what the round trained stays under its "unaveraged" key.
-    Returns the averaged weights' file."""
-    from ..perception.weights_io import average_weights
-
-    averaged = out / f"round-{k}" / AVERAGED_WEIGHTS
-    if not averaged.is_file():
-        average_weights(current, weights, cfg.guard_average, averaged)
+def _averaged_round(trainer, fusion: str, row: dict, start: tuple, trained, out: Path, k: int, executor,
+                    log: Callable[[str], None]):
+    """The guard's cure for a round it would not keep: the round's model averaged with the one it
+    started from (``start``: that model and its round; ``cfg.guard_average`` of the round's, the
+    trainer's ``average``), given what the trainer gives a trained model (a point stage),
+    evaluated and guarded in its turn. ``row`` is updated to the averaged model; what the round
+    trained stays under its "unaveraged" key. Returns the averaged model."""
+    cfg, (current, current_round) = trainer.cfg, start
+    averaged = trainer.average(current, trained, cfg.guard_average, out / f"round-{k}")
     row["unaveraged"] = {"weights": row["weights"], "evaluation": row["evaluation"], "guard": row["guard"],
                          **({"stage": row["stage"]} if "stage" in row else {})}
-    if stage_cfg:
-        row["stage"] = stage_of_round(fusion, averaged, out / f"round-{k}", stage_cfg, log)
-    log(f"round {k}: evaluating {averaged} ({cfg.guard_average:g} of the round's weights) ...")
-    row["weights"] = str(averaged.relative_to(out))
-    row["evaluation"] = evaluate_round(fusion, averaged, cfg, _eval_cache(out, k, averaged), executor, log)
-    row["guard"] = guard(_eval_cache(out, current_round, current), _eval_cache(out, k, averaged), cfg.guard_set) | {
+    _after_training(trainer, averaged, out / f"round-{k}", row, log)
+    log(f"round {k}: evaluating {averaged.path} ({cfg.guard_average:g} of the round's weights) ...")
+    row["weights"] = str(averaged.path.relative_to(out))
+    cache = _eval_cache(trainer, out, k, averaged)
+    row["evaluation"] = evaluate_round(fusion, averaged, cfg, cache, executor, log)
+    row["guard"] = guard(_eval_cache(trainer, out, current_round, current), cache, cfg.guard_set) | {
         "averaged": cfg.guard_average}
     return averaged
 
 
-def _eval_cache(out: Path, k: int, weights: Path) -> Path:
+def _eval_cache(trainer, out: Path, k: int, model) -> Path:
     """Where round ``k``'s evaluations are cached: the round's folder (``eval``, or ``eval-averaged``
-    for its averaged weights), but for round 0 (the start weights) a folder of the data root named by
-    the weights' digest, and their own point stage's when one is beside them (a round's weights
-    given as the start: asg.evaluation.start_evaluations_dir), shared by every run (and control)
-    that starts from the same model with the same code."""
-    from ..evaluation import start_evaluations_dir
-    from ..generator.run import file_digest
-    from ..perception.weights_io import stage_path_of
-
+    for its averaged model), but for round 0 (the start) the trainer's cache of the start
+    (asg.evaluation.start_evaluations_dir), shared by every run (and control) that starts from the
+    same model with the same code."""
     if k:
-        return out / f"round-{k}" / ("eval" if weights.name != AVERAGED_WEIGHTS else f"eval-{Path(AVERAGED_WEIGHTS).stem}")
-    stage = stage_path_of(weights)
-    return start_evaluations_dir(file_digest(weights)[:16] + (f"-{file_digest(stage)[:8]}" if stage.is_file() else ""))
-
-
-def is_kept(row: dict) -> bool:
-    """Whether a card's round keeps its weights (every round before the guard existed did)."""
-    return bool(row.get("weights")) and row.get("guard", {}).get("kept", True)
+        return out / f"round-{k}" / ("eval" if model.path.stem != AVERAGED else f"eval-{AVERAGED}")
+    return trainer.start_cache(model)
 
 
 def guard(before_cache: Path, after_cache: Path, guard_set: str) -> dict:
@@ -290,37 +272,6 @@ def guard(before_cache: Path, after_cache: Path, guard_set: str) -> dict:
     gap = paired_ap_gap(load_matches(before_cache / f"{guard_set}.matches.npz"),
                         load_matches(after_cache / f"{guard_set}.matches.npz"), 0.7)
     return gap.guard_record(guard_set)
-
-
-def _log_start_lidar(start: Path, log: Callable[[str], None]) -> None:
-    """One line when the start weights' card says they were trained for another LiDAR than the one
-    every round attacks, trains and evaluates with (the shipped preset)."""
-    trained_for = lidar_of_weights(start)
-    if trained_for not in (None, DEFAULT_LIDAR):
-        log(f"{start}: trained for the {trained_for!r} LiDAR; every round casts its frames with {DEFAULT_LIDAR!r}, "
-            "so round 0 scores them on another sensor and the rounds tune them to it")
-
-
-def _start_weights(weights: Path | None, fusion: str, name: str) -> Path:
-    """The weights file to start from: ``weights`` (a .pt, or a harden card: its last kept round's) or
-    the shipped ``name``; InputError if missing or not loadable by ``fusion``'s detector."""
-    from ..perception import check_weights_file
-
-    if weights is None:
-        return weights_path(name)
-    path = Path(weights)
-    if path.suffix == ".json" and path.is_file():
-        try:
-            card = json.loads(path.read_text())
-            card["rounds"][0]  # a card with a finished round
-            kept = [r for r in card["rounds"] if is_kept(r)]
-            path = path.parent / kept[-1]["weights"] if kept else Path(card["start"]["weights"])
-        except (ValueError, KeyError, IndexError, TypeError, AttributeError):
-            raise InputError(f"--weights {weights}: not a harden card (card.json) with a finished round") from None
-    if not path.is_file():
-        raise InputError(f"--weights {path}: no such file; give a .pt written by asg train, finetune or harden")
-    check_weights_file(fusion, path)  # one clear line for a corrupt or foreign file
-    return path
 
 
 def _pool(cfg: HardenConfig) -> list[Scene]:
@@ -343,7 +294,7 @@ def _pool(cfg: HardenConfig) -> list[Scene]:
     return [scenes[int(i)] for i in order]
 
 
-def _round_scenes(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenConfig, space, round_dir: Path,
+def _round_scenes(fusion: str, model: Model, scenes: list[Scene], cfg: HardenConfig, space, round_dir: Path,
                   executor, detector_factory: str | None, log: Callable[[str], None]) -> dict:
     """Make (or find) the round's training scenes, ``round_dir/scenes/``, and return the record of
     how they were made (``round_dir/data.json``). A round whose scenes and record are both on disk
@@ -352,7 +303,7 @@ def _round_scenes(fusion: str, weights: Path, scenes: list[Scene], cfg: HardenCo
     folder, record = round_dir / "scenes", round_dir / "data.json"
     if (folder / ".complete").is_file() and record.is_file():
         return json.loads(record.read_text())
-    made, data = round_data(fusion, weights, scenes, cfg, space, round_dir / "attack", executor, detector_factory, log)
+    made, data = round_data(model, scenes, cfg, space, round_dir / "attack", executor, detector_factory, log)
     save_scenes(made, folder)
     write_text_atomic(record, json.dumps(data, indent=1))
     return data

@@ -15,6 +15,7 @@ from sumo_scenarios.atomic import write_text_atomic
 from ..objective.pooled import REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..scene import Scene, load_scene
 from .random_control import ATTACK_SEED, random_draw
+from .trainers import Model
 
 #: the name of the noisy evaluation set in a card
 NOISY_SET = "normal-val-noisy"
@@ -24,13 +25,14 @@ STARTED_FROM = "started_from"
 REATTACK_EVAL = "reattack-eval"
 
 
-def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg, space, run_dir: Path, executor,
+def round_data(model: Model, scenes: list[Scene], cfg, space, run_dir: Path, executor,
                detector_factory: str | None, log: Callable[[str], None]) -> tuple[list[Scene], dict]:
-    """The round's training scenes (see ``cfg.data``) and a record of how they were made."""
+    """The round's training scenes (see ``cfg.data``), made against ``model``, and a record of how
+    they were made."""
     from ..generator.run import open_run
     from ..generator.config import load_generate_config
 
-    gen_cfg = load_generate_config(fusion=fusion, weights=str(weights))
+    gen_cfg = load_generate_config(fusion=model.fusion, weights=model.weights_arg)
     if space:
         gen_cfg = replace(gen_cfg, space=replace(gen_cfg.space, kinds=tuple(space))).validate()
     if cfg.data == "normal":
@@ -41,7 +43,7 @@ def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg, space, run_
     from ..generator.run_folder import aggregate_pooled
     from ..generator.stages import Stage
 
-    log(f"attacking {len(scenes)} scenes against {weights} ...")
+    log(f"attacking {len(scenes)} scenes against {model.path} ...")
     run = open_run(gen_cfg, run_dir, scenes=scenes, record={"harden": str(run_dir), "detector": detector_factory},
                    seed=ATTACK_SEED).run(detector_factory=detector_factory, executor=executor, artifacts=False)
     ids = [e["scene_id"] for e in run.summary["scenes"]]
@@ -51,11 +53,11 @@ def round_data(fusion: str, weights: Path, scenes: list[Scene], cfg, space, run_
                   **pair_json({"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)})}
 
 
-def evaluate_round(fusion: str, weights: Path, cfg, cache: Path, executor,
+def evaluate_round(fusion: str, model: Model, cfg, cache: Path, executor,
                    log: Callable[[str], None]) -> dict:
     """{set: {"ap", "ap_per_frame": AP by threshold, ours and the paper's (a pooled AP,
-    asg.objective.pooled), "frames": N}} of ``weights`` on the fixed evaluation sets and the guard
-    set, each result cached in ``cache`` (a cached result without the paper's yardstick, from before
+    asg.objective.pooled), "frames": N}} of ``model`` on the fixed evaluation sets (with the
+    challenging val set of the target ``fusion``, the run's start) and the guard set, each result cached in ``cache`` (a cached result without the paper's yardstick, from before
     it was recorded, is evaluated again), the guard set's per-frame matches beside it
     (``SET.matches.npz``, for the guard's paired interval)."""
     from .challenging import own_val_set
@@ -64,13 +66,13 @@ def evaluate_round(fusion: str, weights: Path, cfg, cache: Path, executor,
     sets = {s: s for s in (*cfg.eval_sets, own_val, *([cfg.guard_set] if cfg.guard_set else []))}
     if cfg.noisy:
         sets[NOISY_SET] = str(noisy_val_set())
-    return {label: evaluated_set(fusion, weights, label, set_arg, cache, label == cfg.guard_set, executor, log)
+    return {label: evaluated_set(model, label, set_arg, cache, label == cfg.guard_set, executor, log)
             for label, set_arg in sets.items()}
 
 
-def evaluated_set(fusion: str, weights: Path, label: str, set_arg: str, cache: Path, guarded: bool,
+def evaluated_set(model: Model, label: str, set_arg: str, cache: Path, guarded: bool,
                   executor, log: Callable[[str], None]) -> dict:
-    """``weights`` on one set (``{"ap", "ap_per_frame", "frames"}``), cached in ``cache`` as
+    """``model`` on one set (``{"ap", "ap_per_frame", "frames"}``), cached in ``cache`` as
     ``LABEL.json``; ``guarded``: its per-frame matches too (``LABEL.matches.npz``), a cached result
     without them evaluated again."""
     from ..evaluation import evaluate
@@ -82,7 +84,7 @@ def evaluated_set(fusion: str, weights: Path, label: str, set_arg: str, cache: P
         pooled = PooledAP.from_json(cached)
         if pooled.ap_per_frame is not None and (matches.is_file() or not guarded):
             return pooled.to_json() | {"frames": cached["frames"]}
-    result = evaluate(fusion, set_arg, weights_file=str(weights), executor=executor, keep_matches=guarded)
+    result = evaluate(model.fusion, set_arg, weights_file=model.weights_arg, executor=executor, keep_matches=guarded)
     pooled = PooledAP.from_result(result)
     row = pooled.to_json(4) | {"frames": result["frames"]}
     cache.mkdir(parents=True, exist_ok=True)
@@ -118,35 +120,35 @@ def noisy_val_set() -> Path:
     return write_noisy_set(scenes_of("normal-val"), data_root() / NOISY_SET, seed=ATTACK_SEED)
 
 
-def reattack_round(fusion: str, weights: Path | None, out: Path, executor, detector_factory: str | None,
+def reattack_round(fusion: str, model: Model | None, out: Path, executor, detector_factory: str | None,
                    log: Callable[[str], None], evaluation: dict) -> dict:
-    """The paper's protocol on normal-val against ``weights``: {"frames", "normal", "challenging"},
+    """The paper's protocol on normal-val against ``model``: {"frames", "normal", "challenging"},
     each a pooled AP (``{"ap", "ap_per_frame"}``; the paper's yardstick None for a set built before
     it was recorded) (round 0 from other than the shipped weights: those weights attacked).
-    None: the shipped weights, whose own attack is challenging-F-val; its AP is taken from
+    None: the target ``fusion`` as shipped, whose own attack is challenging-F-val; its AP is taken from
     the round's ``evaluation`` (scored by today's code), not from the AP the set's index recorded
     when it was built (older meshes or detectors give another figure for the same scenes); its
     "normal" from the evaluation's normal-val when the round has one, else from the index."""
     from .challenging import build_challenging, set_name
     from ..datasets import data_root
 
-    if weights is None:
+    if model is None:
         own = set_name(fusion, "val")
         index = json.loads((data_root() / own / "index.json").read_text())
         normal = (PooledAP.from_json(evaluation["normal-val"]) if "normal-val" in evaluation
                   else pooled_pair(index, REATTACK_PAIR)["normal"])
         return {"frames": evaluation[own]["frames"],
                 **pair_json({"normal": normal, "challenging": PooledAP.from_json(evaluation[own])})}
-    log(f"re-attacking {weights} on normal-val ...")
-    built = build_challenging(fusion, "val", executor=executor, weights_file=str(weights), out=out,
+    log(f"re-attacking {model.path} on normal-val ...")
+    built = build_challenging(model.fusion, "val", executor=executor, weights_file=model.weights_arg, out=out,
                               detector_factory=detector_factory)
     index = json.loads((built / "index.json").read_text())
     return {"frames": index["frames"], **pair_json(pooled_pair(index, REATTACK_PAIR))}
 
 
-def started_from_on_reattack(fusion: str, started_from: Path, attacked: Path, round_dir: Path, executor,
+def started_from_on_reattack(started_from: Model, attacked: Model, round_dir: Path, executor,
                              log: Callable[[str], None]) -> dict:
-    """The weights a round started from, scored on the scenes its re-attack found against the
+    """The model a round started from, scored on the scenes its re-attack found against the
     round's weights (``round_dir/reattack``): their pooled AP and frames, and "gap", the round's
     weights over them on those same scenes ({yardstick: AP@0.7 gap with its 95 % paired interval}).
     The re-attack's gain over the start's own attack is this gap plus how much easier these scenes
@@ -157,8 +159,8 @@ def started_from_on_reattack(fusion: str, started_from: Path, attacked: Path, ro
     from ..objective.paired import load_matches, paired_ap_gap
 
     scenes, cache = str(round_dir / "reattack"), round_dir / REATTACK_EVAL
-    row = evaluated_set(fusion, started_from, "started-from", scenes, cache, True, executor, log)
-    evaluated_set(fusion, attacked, "attacked", scenes, cache, True, executor, log)
+    row = evaluated_set(started_from, "started-from", scenes, cache, True, executor, log)
+    evaluated_set(attacked, "attacked", scenes, cache, True, executor, log)
     before, after = (load_matches(cache / f"{label}.matches.npz") for label in ("started-from", "attacked"))
     return row | {"gap": {y.value: paired_ap_gap(before, after, 0.7, method=y).to_dict() for y in Yardstick}}
 

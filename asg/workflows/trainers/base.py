@@ -1,0 +1,115 @@
+"""How a hardening round trains its target one round further: one interface, :class:`RoundTrainer`,
+with an implementation per training kind of the target (asg.perception.targets.Training): asg's own
+trainer (``asg``) and OpenCOOD's (``opencood``), each a module of this package registered in
+:data:`ROUND_TRAINERS`. The round loop, the guard and the re-attack (asg.workflows.harden) are the
+same for both: they ask the trainer for the start, a round's training, what follows it (a point
+stage), the guard's average, and where the start's evaluations are cached, and run every model as a
+:class:`Model` (a ``--fusion`` name and a weights file)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from sumo_scenarios.errors import InputError
+
+from ...perception.targets import Target
+from ...registry import Registry
+
+#: the stem of a round's model averaged with its start's (the guard's cure), in the round's folder
+AVERAGED = "averaged"
+#: the round trainers, by the training kind of the target they train (its ``Training`` value)
+ROUND_TRAINERS: Registry[type["RoundTrainer"]] = Registry("round trainer", "--fusion")
+
+
+@dataclass(frozen=True)
+class Model:
+    """A model a round starts from or ends with.
+
+    ``fusion``: the ``--fusion`` name that runs it (a shipped model's name, or ``opencood:FOLDER``);
+    ``weights``: the weights file its detector loads (None: the name's own, an OpenCOOD folder's
+    checkpoint); ``path``: what a card records of it (the weights file, or the model folder)."""
+    fusion: str
+    weights: Path | None
+    path: Path
+
+    @property
+    def weights_arg(self) -> str | None:
+        """``weights`` as the ``weights_file`` argument of asg.evaluation.evaluate and the generator."""
+        return str(self.weights) if self.weights is not None else None
+
+
+class RoundTrainer:
+    """Trains ``target`` round by round with the harden settings ``cfg``
+    (asg.workflows.harden.HardenConfig) on ``threads`` threads; ``config_path``: the ``--config``
+    file the settings came from (None: train.yaml), where a trainer reads a block of its own.
+    Subclasses answer every method."""
+
+    def __init__(self, target: Target, cfg, threads: int = 2, config_path: Path | None = None):
+        self.target, self.cfg, self.threads, self.config_path = target, cfg, threads, config_path
+
+    def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
+        """Refuse (one InputError) before any work: a start ``weights`` it cannot take, or a harden
+        block ``given`` (a ``--config`` file's; None: train.yaml's) that changes, from train.yaml's
+        ``shipped``, a setting this trainer does not read (it would be ignored)."""
+        raise NotImplementedError
+
+    def start(self, weights: Path | None) -> Model:
+        """The model round 1 starts from (``weights``, else the target's own)."""
+        raise NotImplementedError
+
+    def is_own_start(self, start: Model) -> bool:
+        """Is ``start`` the target as shipped (its own attack is its challenging val set)?"""
+        raise NotImplementedError
+
+    def model_at(self, path: Path) -> Model:
+        """The model a card recorded at ``path`` (a resumed run)."""
+        raise NotImplementedError
+
+    def digest(self, model: Model):
+        """The sha256 of what ``model`` loads (a hex string, or one per file), for its card."""
+        raise NotImplementedError
+
+    def settings(self, start: Model) -> dict:
+        """What the run folder's run.json records of the start and of this trainer's settings."""
+        raise NotImplementedError
+
+    def prepare(self) -> None:
+        """What the run needs built once its folder is claimed, before round 0 (nothing by default)."""
+
+    def train(self, start: Model, scenes: dict[str, list], round_dir: Path, log: Callable[[str], None],
+              progress) -> tuple[Model, dict]:
+        """Train one round from ``start`` on ``scenes`` ({label: scenes}: this round's, and with
+        ``keep_previous`` every earlier round's) beside the train splits of ``mix_with``, in
+        ``round_dir`` (resumable); the trained model and the record of its training."""
+        raise NotImplementedError
+
+    def after_training(self, model: Model, round_dir: Path, log: Callable[[str], None]) -> dict | None:
+        """What a trained (or averaged) model gets before it is evaluated: its record (None: nothing)."""
+        return None
+
+    def average(self, start: Model, trained: Model, share: float, round_dir: Path) -> Model:
+        """``(1 - share) * start + share * trained`` written in ``round_dir`` (the guard's cure)."""
+        raise NotImplementedError
+
+    def start_cache(self, start: Model) -> Path:
+        """Where the start's evaluations are cached: a folder of the data root named by the digest
+        of what it loads, shared by every run and control that starts from it."""
+        raise NotImplementedError
+
+    def log_start(self, start: Model, log: Callable[[str], None]) -> None:
+        """One line about the start a user should read (nothing by default)."""
+
+
+def is_kept(row: dict) -> bool:
+    """Whether a harden card's round keeps its model (every round before the guard existed did)."""
+    return bool(row.get("weights")) and row.get("guard", {}).get("kept", True)
+
+
+def round_trainer(target: Target, cfg, threads: int = 2, config_path: Path | None = None) -> RoundTrainer:
+    """The round trainer of ``target``'s training kind; InputError (its one line) for a target
+    nothing here trains."""
+    target.check_trainable()
+    if target.training.value not in ROUND_TRAINERS:  # (the package imports every trainer module)
+        raise InputError(target.not_trained_here())
+    return ROUND_TRAINERS.entry(target.training.value)(target, cfg, threads, config_path)

@@ -1,0 +1,158 @@
+"""OpenCOOD's own trainer as a hardening round's (asg.workflows.trainers.base): the round's scenes
+and the train splits of ``mix_with`` exported in the OPV2V layout OpenCOOD reads (``asg export
+--format opv2v``, each group's scenario folders prefixed with its label), normal-val beside them for
+the trainer's validation loss, then ``round-k/model``: the start folder's config and checkpoint,
+trained ``epochs`` more epochs (train.yaml's ``opencood`` block) by OpenCOOD's ``tools/train.py``
+(asg.perception.opencood.trainer: resumable, it saves every epoch). The round's model is run as
+``opencood:OUT/round-k/model``; the guard's average is a folder of its own (the two checkpoints'
+tensors averaged, the trained one's config)."""
+from __future__ import annotations
+
+import hashlib
+import shutil
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+from sumo_scenarios.atomic import atomic_dir
+from sumo_scenarios.errors import InputError
+from sumo_scenarios.strict import from_mapping, read_yaml
+
+from ...perception.targets import Training
+from .base import AVERAGED, ROUND_TRAINERS, Model, RoundTrainer
+
+#: the train.yaml block of OpenCOOD's trainer
+OPENCOOD_BLOCK = "opencood"
+#: the set the trainer validates on (its validation loss), exported once a run
+VAL_SET = "normal-val"
+#: the harden block's settings every kind reads (the round loop's); the others set asg's own trainer
+ROUND_SETTINGS = ("scenes_per_round", "pool", "data", "keep_previous", "noisy", "reattack", "guard_set",
+                  "guard_average", "eval_sets", "mix_with", "seed")
+
+
+@dataclass(frozen=True)
+class OpenCOODTrainConfig:
+    """train.yaml's ``opencood`` block: how OpenCOOD's trainer trains an OpenCOOD model folder (the
+    rest, its batch, rate and schedule, from the folder's own config.yaml)."""
+    #: epochs a hardening round trains (one gained on its challenging set and holdout where three lost
+    #: per frame on normal-val: docs/results/README.md, OpenCOOD)
+    epochs: int = 1
+
+
+def load_opencood_train_config(path: Path | None = None) -> OpenCOODTrainConfig:
+    """train.yaml's (or ``path``'s, when it has one) ``opencood`` block, checked."""
+    from sumo_scenarios import checks
+
+    from ...training.config import train_block
+
+    where = f"train.yaml:{OPENCOOD_BLOCK}"
+    data = train_block(OPENCOOD_BLOCK, None)
+    if path is not None:
+        given = read_yaml(path)
+        if isinstance(given, dict) and OPENCOOD_BLOCK in given:
+            data = train_block(OPENCOOD_BLOCK, path)
+    cfg = from_mapping(OpenCOODTrainConfig, data, where)
+    checks.number(cfg.epochs, f"{where}.epochs", 1, 1000)
+    return cfg
+
+
+@ROUND_TRAINERS.register(Training.OPENCOOD.value)
+class OpenCOODRoundTrainer(RoundTrainer):
+    """An OpenCOOD model folder, trained by OpenCOOD's trainer."""
+
+    def __init__(self, target, cfg, threads: int = 2, config_path: Path | None = None):
+        super().__init__(target, cfg, threads, config_path)
+        self.train_cfg = load_opencood_train_config(config_path)
+
+    def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
+        if weights is not None:
+            raise InputError("--weights applies to asg's own models; an OpenCOOD model starts from its folder's "
+                             "checkpoint (a further round of a run: --fusion opencood:OUT/round-K/model)")
+        ignored = sorted(k for k, v in (given or {}).items() if k not in ROUND_SETTINGS and v != shipped.get(k))
+        if ignored:
+            raise InputError(f"{self.config_path}: {', '.join(ignored)} set asg's own trainer; a round of an OpenCOOD model reads only "
+                             f"{', '.join(ROUND_SETTINGS)} of the harden block, and epochs of the {OPENCOOD_BLOCK} "
+                             "block (OpenCOOD's trainer takes the rest from the folder's config.yaml)")
+
+    def start(self, weights: Path | None) -> Model:
+        return self.model_at(self.target.model_dir)
+
+    def is_own_start(self, start: Model) -> bool:
+        return True  # the folder as given: its own attack is its challenging val set
+
+    def model_at(self, path: Path) -> Model:
+        return Model(self.target.name_of(Path(path)), None, Path(path))
+
+    def digest(self, model: Model) -> dict[str, str]:
+        """{"config", "checkpoint": each file's sha256}."""
+        from ...perception.targets import resolve_target
+        from ...generator.run import file_digest
+
+        return {k: file_digest(p) for k, p in resolve_target(model.fusion).model_files().items()}
+
+    def settings(self, start: Model) -> dict:
+        return {"start": self.digest(start), "opencood": asdict(self.train_cfg)}
+
+    def train(self, start: Model, scenes: dict[str, list], round_dir: Path, log: Callable[[str], None],
+              progress) -> tuple[Model, dict]:
+        from ...datasets import build_dataset, dataset_path, iter_frames, scenes_of
+        from ...perception.opencood.trainer import TRAIN_LOG, run_trainer, seed_from
+
+        groups = {label: s for label, s in scenes.items() if s}
+        for mix in self.cfg.mix_with:
+            if not (dataset_path(mix) / "index.json").is_file():
+                log(f"building data set {mix} ...")
+                build_dataset(mix)
+            groups[mix] = list(iter_frames(mix, "train"))
+        train, val, model = round_dir / "train", round_dir.parent / "val", round_dir / "model"
+        export_opv2v(train, groups, log)
+        export_opv2v(val, {"": list(scenes_of(VAL_SET))}, log)
+        seed_from(model, start.path, train, val, self.train_cfg.epochs)
+        log(f"training {model} with OpenCOOD's trainer ({self.train_cfg.epochs} epochs; its log: {model / TRAIN_LOG}) ...")
+        run_trainer(model)
+        return self.model_at(model), {"trainer": Training.OPENCOOD.value, "epochs": self.train_cfg.epochs,
+                                      "examples": {label: len(s) for label, s in groups.items()},
+                                      "mix_with": list(self.cfg.mix_with)}
+
+    def average(self, start: Model, trained: Model, share: float, round_dir: Path) -> Model:
+        """``round_dir/averaged``: the trained folder's config and its checkpoint's tensors averaged
+        with the start's, under the trained checkpoint's name (its epoch)."""
+        from ...perception.opencood.folder import checkpoint_of
+        from ...perception.weights_io import average_weights
+
+        folder = round_dir / AVERAGED
+        if not (folder / ".complete").is_file():
+            last = checkpoint_of(trained.path)
+            with atomic_dir(folder) as work:
+                shutil.copyfile(trained.path / "config.yaml", work / "config.yaml")
+                average_weights(checkpoint_of(start.path), last, share, work / last.name)
+                (work / ".complete").write_text("")
+        return self.model_at(folder)
+
+    def start_cache(self, start: Model) -> Path:
+        """Named by the digest of the folder's config and checkpoint."""
+        from ...evaluation import start_evaluations_dir
+        from ...perception.targets import resolve_target
+
+        target = resolve_target(start.fusion)
+        h = hashlib.sha256()
+        for name, digest in sorted(self.digest(start).items()):
+            h.update(name.encode() + b"\0" + digest.encode())
+        return start_evaluations_dir(f"{target.kind}-{h.hexdigest()[:16]}")
+
+
+def export_opv2v(folder: Path, groups: dict[str, list], log: Callable[[str], None]) -> None:
+    """``folder`` in the OPV2V layout: every scene of each group, its scenario folder prefixed with the
+    group's name (``NAME-``; none for ``""``); written whole (a stopped export is made again)."""
+    if (folder / ".complete").is_file():
+        return
+    from ...io.export import EXPORT_FORMATS
+
+    log(f"exporting {sum(map(len, groups.values()))} scenes to {folder} (OPV2V layout) ...")
+    with atomic_dir(folder) as work:
+        writer = EXPORT_FORMATS.entry("opv2v")(work, None)
+        for prefix, scenes in groups.items():
+            for scene in scenes:
+                writer.write(replace(scene, scene_id=f"{prefix}-{scene.scene_id}" if prefix else scene.scene_id))
+        writer.close()
+        (work / ".complete").write_text("")
