@@ -757,6 +757,48 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
     assert "--weights" in err and not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
+def test_finetune_trains_an_opencood_model_with_its_own_trainer(capsys, tmp_path, monkeypatch):
+    """``asg finetune --fusion opencood:DIR --on SET``: the target's trainer (OpenCOOD's) trains the
+    folder one epoch further on the challenging set and mix_with's train split, into OUT/model; the
+    model before and after is scored on the evaluation sets; a rerun trains nothing again."""
+    from test_tables import write_set
+
+    import asg.generator.config as generator_config
+
+    root = tmp_path / "data"
+    write_set(root, "normal", {"train": ["t0"], "val": ["v0", "v1"]})
+    write_set(root, "challenging-x-train", {"train": ["c0"]})
+    monkeypatch.setenv("ASG_DATA", str(root))
+    load = generator_config.load_generate_config  # the own val set's attack: 2 evaluations a scene
+    monkeypatch.setattr(generator_config, "load_generate_config", lambda *a, **k: load(*a, **{**k, "budget": 2}))
+    model = make_model_dir(tmp_path / "m", "intermediate", score_threshold=THRESHOLD)
+    config = tmp_path / "ft.yaml"
+    config.write_text(yaml.safe_dump({"finetune": {"eval_sets": ["normal-val"], "mix_with": ["normal"]}}))
+    out = tmp_path / "ft"
+    argv = ["finetune", "--fusion", f"opencood:{model}", "--on", "challenging-x-train", "--config", str(config),
+            "--out", str(out), "--stages", "train,evaluate", "--workers", "1"]
+    assert main(argv) == 0
+    card = json.loads(next(out.glob("opencood-m-*-ft.json")).read_text())
+    assert card["weights"] == "model" and card["trained"]["epochs"] == 1 and card["trained"]["on"] == "challenging-x-train"
+    assert card["trained"]["examples"] == {"challenging-x-train": 1, "normal": 1}
+    trained = out / "model" / "net_epoch2.pth"
+    assert trained.is_file()
+    assert {s for s in card["evaluation"]} == {"normal-val", next(s for s in card["evaluation"] if s.startswith("challenging-"))}
+    assert all(set(row) == {"before", "after", "frames"} for row in card["evaluation"].values())
+    stamp = trained.stat().st_mtime_ns
+    assert main(argv) == 0 and trained.stat().st_mtime_ns == stamp
+
+
+def test_finetune_refuses_what_opencoods_trainer_would_ignore(capsys, tmp_path):
+    """``--steps`` and ``--weights`` set asg's own trainer: one line each, before anything is written."""
+    model = make_model_dir(tmp_path / "m", "early")
+    for extra, needle in ((["--steps", "5"], "steps set asg's own trainer"), (["--weights", str(tmp_path / "w.pt")], "--weights")):
+        err = _refusal(capsys, "finetune", "--fusion", f"opencood:{model}", "--on", "challenging-x-train",
+                       "--out", str(tmp_path / "o"), *extra)
+        assert needle in err and not (tmp_path / "o").exists()
+
+
 def test_the_guards_average_of_two_opencood_models_is_a_model_folder(tmp_path):
     """An OpenCOOD round the guard would drop is averaged with its start: a folder with the trained
     model's config and a checkpoint (named by its epoch) whose tensors are the share's mix of the two;

@@ -18,6 +18,8 @@ from ...registry import Registry
 
 #: the stem of a round's model averaged with its start's (the guard's cure), in the round's folder
 AVERAGED = "averaged"
+#: the record of a training, in the folder it trained in (a resumed run reads it, not trains again)
+TRAINED = "trained.json"
 #: the round trainers, by the training kind of the target they train (its ``Training`` value)
 ROUND_TRAINERS: Registry[type["RoundTrainer"]] = Registry("round trainer", "--fusion")
 
@@ -77,11 +79,12 @@ class RoundTrainer:
     def prepare(self) -> None:
         """What the run needs built once its folder is claimed, before round 0 (nothing by default)."""
 
-    def train(self, start: Model, scenes: dict[str, list], round_dir: Path, log: Callable[[str], None],
-              progress) -> tuple[Model, dict]:
-        """Train one round from ``start`` on ``scenes`` ({label: scenes}: this round's, and with
-        ``keep_previous`` every earlier round's) beside the train splits of ``mix_with``, in
-        ``round_dir`` (resumable); the trained model and the record of its training."""
+    def train(self, start: Model, scenes: dict[str, list], folder: Path, log: Callable[[str], None],
+              progress, name: str = "weights") -> tuple[Model, dict]:
+        """Train from ``start`` on ``scenes`` ({label: scenes}: a round's, and with ``keep_previous``
+        every earlier round's; a fine-tuning's challenging set) beside the train splits of
+        ``mix_with``, in ``folder`` (resumable), the model called ``name`` where a kind names it;
+        the trained model and the record of its training."""
         raise NotImplementedError
 
     def after_training(self, model: Model, round_dir: Path, log: Callable[[str], None]) -> dict | None:

@@ -9,17 +9,18 @@ tensors averaged, the trained one's config)."""
 from __future__ import annotations
 
 import hashlib
+import json
 import shutil
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
-from sumo_scenarios.atomic import atomic_dir
+from sumo_scenarios.atomic import atomic_dir, write_text_atomic
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.strict import from_mapping, read_yaml
 
 from ...perception.targets import Training
-from .base import AVERAGED, ROUND_TRAINERS, Model, RoundTrainer
+from .base import AVERAGED, ROUND_TRAINERS, TRAINED, Model, RoundTrainer
 
 #: the train.yaml block of OpenCOOD's trainer
 OPENCOOD_BLOCK = "opencood"
@@ -70,7 +71,8 @@ class OpenCOODRoundTrainer(RoundTrainer):
                              "checkpoint (a further round of a run: --fusion opencood:OUT/round-K/model)")
         ignored = sorted(k for k, v in (given or {}).items() if k not in ROUND_SETTINGS and v != shipped.get(k))
         if ignored:
-            raise InputError(f"{self.config_path}: {', '.join(ignored)} set asg's own trainer; a round of an OpenCOOD model reads only "
+            where = f"{self.config_path}: " if self.config_path else ""
+            raise InputError(f"{where}{', '.join(ignored)} set asg's own trainer; a round of an OpenCOOD model reads only "
                              f"{', '.join(ROUND_SETTINGS)} of the harden block, and epochs of the {OPENCOOD_BLOCK} "
                              "block (OpenCOOD's trainer takes the rest from the folder's config.yaml)")
 
@@ -93,26 +95,32 @@ class OpenCOODRoundTrainer(RoundTrainer):
     def settings(self, start: Model) -> dict:
         return {"start": self.digest(start), "opencood": asdict(self.train_cfg)}
 
-    def train(self, start: Model, scenes: dict[str, list], round_dir: Path, log: Callable[[str], None],
-              progress) -> tuple[Model, dict]:
+    def train(self, start: Model, scenes: dict[str, list], folder: Path, log: Callable[[str], None],
+              progress, name: str = "weights") -> tuple[Model, dict]:
+        """``folder/model`` (whatever ``name``), trained on the export ``folder/train``; normal-val
+        exported beside ``folder`` (``val``: shared by a run's rounds)."""
         from ...datasets import build_dataset, dataset_path, iter_frames, scenes_of
         from ...perception.opencood.trainer import TRAIN_LOG, run_trainer, seed_from
 
+        record = folder / TRAINED
+        if record.is_file() and (folder / "model" / "config.yaml").is_file():
+            return self.model_at(folder / "model"), json.loads(record.read_text())
         groups = {label: s for label, s in scenes.items() if s}
         for mix in self.cfg.mix_with:
             if not (dataset_path(mix) / "index.json").is_file():
                 log(f"building data set {mix} ...")
                 build_dataset(mix)
             groups[mix] = list(iter_frames(mix, "train"))
-        train, val, model = round_dir / "train", round_dir.parent / "val", round_dir / "model"
+        train, val, model = folder / "train", folder.parent / "val", folder / "model"
         export_opv2v(train, groups, log)
         export_opv2v(val, {"": list(scenes_of(VAL_SET))}, log)
         seed_from(model, start.path, train, val, self.train_cfg.epochs)
         log(f"training {model} with OpenCOOD's trainer ({self.train_cfg.epochs} epochs; its log: {model / TRAIN_LOG}) ...")
         run_trainer(model)
-        return self.model_at(model), {"trainer": Training.OPENCOOD.value, "epochs": self.train_cfg.epochs,
-                                      "examples": {label: len(s) for label, s in groups.items()},
-                                      "mix_with": list(self.cfg.mix_with)}
+        trained = {"trainer": Training.OPENCOOD.value, "epochs": self.train_cfg.epochs,
+                   "examples": {label: len(s) for label, s in groups.items()}, "mix_with": list(self.cfg.mix_with)}
+        write_text_atomic(record, json.dumps(trained, indent=1))
+        return self.model_at(model), trained
 
     def average(self, start: Model, trained: Model, share: float, round_dir: Path) -> Model:
         """``round_dir/averaged``: the trained folder's config and its checkpoint's tensors averaged

@@ -13,20 +13,22 @@ from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
 from ...perception.targets import Training
-from ..finetune import fit_chunk, mixed_sources
+from .chunk import fit_chunk, mixed_sources
 from ..harden_stage import build_stage_set, stage_config, stage_of_round
-from .base import AVERAGED, ROUND_TRAINERS, Model, RoundTrainer, is_kept
+from .base import AVERAGED, ROUND_TRAINERS, TRAINED, Model, RoundTrainer, is_kept
 
 
 
 @ROUND_TRAINERS.register(Training.ASG.value)
 class ShippedRoundTrainer(RoundTrainer):
-    """A shipped model, trained by asg's trainer: every setting of the harden block is read."""
+    """A shipped model, trained by asg's trainer: every setting of its block is read (a fine-tuning's
+    settings fit no point stage: they have no ``fit_stage``)."""
 
     def __init__(self, target, cfg, threads: int = 2, config_path: Path | None = None):
         super().__init__(target, cfg, threads, config_path)
         self.weights_name = target.shipped_weights
-        self.stage_cfg = stage_config(cfg.fit_stage)  # checked (and its data set known) before any work
+        # checked (and its data set known) before any work
+        self.stage_cfg = stage_config(getattr(cfg, "fit_stage", False))
 
     def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
         self.start(weights)
@@ -65,11 +67,12 @@ class ShippedRoundTrainer(RoundTrainer):
     def prepare(self) -> None:
         build_stage_set(self.stage_cfg)
 
-    def train(self, start: Model, scenes: dict[str, list], round_dir: Path, log: Callable[[str], None],
-              progress) -> tuple[Model, dict]:
-        weights, record = round_dir / "weights.pt", round_dir / "trained.json"
+    def train(self, start: Model, scenes: dict[str, list], folder: Path, log: Callable[[str], None],
+              progress, name: str = "weights") -> tuple[Model, dict]:
+        """``folder/NAME.pt`` after ``steps`` steps (checkpoints in ``folder/last.pt``)."""
+        weights, record = folder / f"{name}.pt", folder / TRAINED
         if not (weights.is_file() and record.is_file()):
-            trained = fit_chunk(self.weights_name, start.path, weights, round_dir / "last.pt", self.cfg, self.cfg.steps,
+            trained = fit_chunk(self.weights_name, start.path, weights, folder / "last.pt", self.cfg, self.cfg.steps,
                                 self.threads, log, progress, lambda: mixed_sources(self.weights_name, scenes, self.cfg, log))
             write_text_atomic(record, json.dumps(trained, indent=1))  # kept for a round resumed after training
         return self.model_at(weights), json.loads(record.read_text())
