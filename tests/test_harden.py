@@ -169,10 +169,10 @@ def _stopped_before_round_one_is_evaluated(out, cfg, monkeypatch) -> None:
 
     real = h.evaluate_round
 
-    def stop_in_round_one(fusion, weights, *args, **kw):
-        if "round-1" in str(weights):
+    def stop_in_round_one(model, *args, **kw):
+        if "round-1" in str(model.path):
             raise KeyboardInterrupt
-        return real(fusion, weights, *args, **kw)
+        return real(model, *args, **kw)
 
     with monkeypatch.context() as m:
         m.setattr(h, "evaluate_round", stop_in_round_one)
@@ -291,7 +291,7 @@ def test_round_zeros_reattack_is_scored_by_todays_code(data_root):
     normal, attacked = {"0.3": 0.9, "0.5": 0.8, "0.7": 0.7}, {"0.3": 0.6, "0.5": 0.5, "0.7": 0.4}
     evaluation = {"normal-val": {"ap": normal, "ap_per_frame": normal, "frames": 1},
                   "challenging-attfuse-val": {"ap": attacked, "ap_per_frame": attacked, "frames": 1}}
-    got = reattack_round("attfuse", None, data_root / "unused", None, None, _quiet, evaluation)
+    got = reattack_round(None, "challenging-attfuse-val", data_root / "unused", None, None, _quiet, evaluation)
     assert got == {"frames": 1, "normal": {"ap": normal, "ap_per_frame": normal},
                    "challenging": {"ap": attacked, "ap_per_frame": attacked}}
     assert not (data_root / "unused").exists()  # nothing attacked
@@ -473,8 +473,8 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
         "kept": after.name == "eval-averaged"})
     staged_when_scored = []
     real_evaluate = harden_mod.evaluate_round
-    monkeypatch.setattr(harden_mod, "evaluate_round", lambda fusion, model, *a: (
-        staged_when_scored.append((model.path.name, stage_path_of(model.path).is_file())), real_evaluate(fusion, model, *a))[1])
+    monkeypatch.setattr(harden_mod, "evaluate_round", lambda model, *a: (
+        staged_when_scored.append((model.path.name, stage_path_of(model.path).is_file())), real_evaluate(model, *a))[1])
     out = tmp_path / "h"
     cfg = replace(TINY, guard_set="holdout", fit_stage=True)
     card = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)

@@ -42,6 +42,7 @@ from .harden_rounds import (NOISY_SET, REATTACK_EVAL, STARTED_FROM, evaluate_rou
                             load_scenes, noisy_val_set, reattack_round, round_data, save_scenes,
                             started_from_on_reattack, upgraded_rounds)  # (this module's API too: scripts, tests)
 from .random_control import ATTACK_SEED  # noqa: F401  (this module's API too)
+from .challenging import own_val_set
 from .trainers import Model, round_trainer
 from .trainers.base import AVERAGED, is_kept  # (is_kept: this module's API too)
 from ..io.run_record import claim, with_defaults
@@ -147,6 +148,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
     card["rounds"] = upgraded_rounds(card["rounds"])
     trainer.log_start(start, log)
     current, current_round = start, 0  # the model the next round starts from, and its round
+    own_val = None  # the target's own challenging val set (asg.workflows.challenging.own_val_set)
     for k in range(rounds + 1):
         done = {row["round"]: row for row in card["rounds"]}
         round_dir = out / f"round-{k}"
@@ -158,7 +160,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         model = started_from = current
         if k:
             scenes = pool[(k - 1) * cfg.scenes_per_round: k * cfg.scenes_per_round]
-            row["data"] = _round_scenes(fusion, current, scenes, cfg, space, round_dir, executor, detector_factory, log)
+            row["data"] = _round_scenes(current, scenes, cfg, space, round_dir, executor, detector_factory, log)
             first = {f"round-{j}": load_scenes(out / f"round-{j}" / "scenes")
                      for j in (range(1, k + 1) if cfg.keep_previous else [k])}
             model, row["trained"] = trainer.train(current, first, round_dir, log, progress)
@@ -166,14 +168,15 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
             row["weights"] = str(model.path.relative_to(out))
         log(f"round {k}: evaluating {model.path} ...")
         cache = _eval_cache(trainer, out, k, model)
-        row["evaluation"] = evaluate_round(fusion, model, cfg, cache, executor, log)
+        own_val = own_val or own_val_set(fusion, executor, log)  # built once, before the first evaluation
+        row["evaluation"] = evaluate_round(model, own_val, cfg, cache, executor, log)
         if k and cfg.guard_set is not None:
             before = _eval_cache(trainer, out, current_round, current)  # evaluated again if gone (another data root)
             evaluated_set(current, cfg.guard_set, cfg.guard_set, before, True, executor, log)
             row["guard"] = guard(before, cache, cfg.guard_set)
             if not row["guard"]["kept"] and cfg.guard_average:
                 _log_guard(log, k, row["guard"], "its weights are averaged with the ones it started from")
-                model = _averaged_round(trainer, fusion, row, (current, current_round), model, out, k, executor, log)
+                model = _averaged_round(trainer, own_val, row, (current, current_round), model, out, k, executor, log)
             if not row["guard"]["kept"]:
                 _log_guard(log, k, row["guard"], "its weights are not kept; the next round starts from "
                            f"{f'round {current_round}' if current_round else 'the start weights'}")
@@ -181,7 +184,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
             current, current_round = model, k
         if cfg.reattack:
             own_set = k == 0 and trainer.is_own_start(start)  # the target's own attack exists
-            row["reattack"] = reattack_round(fusion, None if own_set else model, round_dir / "reattack", executor,
+            row["reattack"] = reattack_round(None if own_set else model, own_val, round_dir / "reattack", executor,
                                              detector_factory, log, row["evaluation"])
             if k:
                 row["reattack"][STARTED_FROM] = started_from_on_reattack(started_from, model, round_dir, executor, log)
@@ -232,7 +235,7 @@ def _log_guard(log: Callable[[str], None], k: int, gap: dict, outcome: str) -> N
         f"95 % interval [{100 * gap['low']:+.1f}, {100 * gap['high']:+.1f}]: {outcome}")
 
 
-def _averaged_round(trainer, fusion: str, row: dict, start: tuple, trained, out: Path, k: int, executor,
+def _averaged_round(trainer, own_val: str, row: dict, start: tuple, trained, out: Path, k: int, executor,
                     log: Callable[[str], None]):
     """The guard's cure for a round it would not keep: the round's model averaged with the one it
     started from (``start``: that model and its round; ``cfg.guard_average`` of the round's, the
@@ -247,7 +250,7 @@ def _averaged_round(trainer, fusion: str, row: dict, start: tuple, trained, out:
     log(f"round {k}: evaluating {averaged.path} ({cfg.guard_average:g} of the round's weights) ...")
     row["weights"] = str(averaged.path.relative_to(out))
     cache = _eval_cache(trainer, out, k, averaged)
-    row["evaluation"] = evaluate_round(fusion, averaged, cfg, cache, executor, log)
+    row["evaluation"] = evaluate_round(averaged, own_val, cfg, cache, executor, log)
     row["guard"] = guard(_eval_cache(trainer, out, current_round, current), cache, cfg.guard_set) | {
         "averaged": cfg.guard_average}
     return averaged
@@ -294,7 +297,7 @@ def _pool(cfg: HardenConfig) -> list[Scene]:
     return [scenes[int(i)] for i in order]
 
 
-def _round_scenes(fusion: str, model: Model, scenes: list[Scene], cfg: HardenConfig, space, round_dir: Path,
+def _round_scenes(model: Model, scenes: list[Scene], cfg: HardenConfig, space, round_dir: Path,
                   executor, detector_factory: str | None, log: Callable[[str], None]) -> dict:
     """Make (or find) the round's training scenes, ``round_dir/scenes/``, and return the record of
     how they were made (``round_dir/data.json``). A round whose scenes and record are both on disk

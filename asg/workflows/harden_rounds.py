@@ -53,16 +53,13 @@ def round_data(model: Model, scenes: list[Scene], cfg, space, run_dir: Path, exe
                   **pair_json({"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)})}
 
 
-def evaluate_round(fusion: str, model: Model, cfg, cache: Path, executor,
+def evaluate_round(model: Model, own_val: str, cfg, cache: Path, executor,
                    log: Callable[[str], None]) -> dict:
     """{set: {"ap", "ap_per_frame": AP by threshold, ours and the paper's (a pooled AP,
-    asg.objective.pooled), "frames": N}} of ``model`` on the fixed evaluation sets (with the
-    challenging val set of the target ``fusion``, the run's start) and the guard set, each result cached in ``cache`` (a cached result without the paper's yardstick, from before
+    asg.objective.pooled), "frames": N}} of ``model`` on the fixed evaluation sets, ``own_val`` (the
+    challenging val set of the run's target, built) and the guard set, each result cached in ``cache`` (a cached result without the paper's yardstick, from before
     it was recorded, is evaluated again), the guard set's per-frame matches beside it
     (``SET.matches.npz``, for the guard's paired interval)."""
-    from .challenging import own_val_set
-
-    own_val = own_val_set(fusion, executor, log)
     sets = {s: s for s in (*cfg.eval_sets, own_val, *([cfg.guard_set] if cfg.guard_set else []))}
     if cfg.noisy:
         sets[NOISY_SET] = str(noisy_val_set())
@@ -120,25 +117,24 @@ def noisy_val_set() -> Path:
     return write_noisy_set(scenes_of("normal-val"), data_root() / NOISY_SET, seed=ATTACK_SEED)
 
 
-def reattack_round(fusion: str, model: Model | None, out: Path, executor, detector_factory: str | None,
+def reattack_round(model: Model | None, own_val: str, out: Path, executor, detector_factory: str | None,
                    log: Callable[[str], None], evaluation: dict) -> dict:
     """The paper's protocol on normal-val against ``model``: {"frames", "normal", "challenging"},
     each a pooled AP (``{"ap", "ap_per_frame"}``; the paper's yardstick None for a set built before
     it was recorded) (round 0 from other than the shipped weights: those weights attacked).
-    None: the target ``fusion`` as shipped, whose own attack is challenging-F-val; its AP is taken from
-    the round's ``evaluation`` (scored by today's code), not from the AP the set's index recorded
-    when it was built (older meshes or detectors give another figure for the same scenes); its
-    "normal" from the evaluation's normal-val when the round has one, else from the index."""
-    from .challenging import build_challenging, set_name
+    None: the run's target as shipped, whose own attack is its challenging val set ``own_val``; its
+    AP is taken from the round's ``evaluation`` (scored by today's code), not from the AP the set's
+    index recorded when it was built (older meshes or detectors give another figure for the same
+    scenes); its "normal" from the evaluation's normal-val when the round has one, else from the index."""
+    from .challenging import build_challenging
     from ..datasets import data_root
 
     if model is None:
-        own = set_name(fusion, "val")
-        index = json.loads((data_root() / own / "index.json").read_text())
+        index = json.loads((data_root() / own_val / "index.json").read_text())
         normal = (PooledAP.from_json(evaluation["normal-val"]) if "normal-val" in evaluation
                   else pooled_pair(index, REATTACK_PAIR)["normal"])
-        return {"frames": evaluation[own]["frames"],
-                **pair_json({"normal": normal, "challenging": PooledAP.from_json(evaluation[own])})}
+        return {"frames": evaluation[own_val]["frames"],
+                **pair_json({"normal": normal, "challenging": PooledAP.from_json(evaluation[own_val])})}
     log(f"re-attacking {model.path} on normal-val ...")
     built = build_challenging(model.fusion, "val", executor=executor, weights_file=model.weights_arg, out=out,
                               detector_factory=detector_factory)
