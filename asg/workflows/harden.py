@@ -59,8 +59,11 @@ DATA_KINDS: tuple[str, ...] = get_args(DataKind)
 
 @dataclass(frozen=True)
 class HardenConfig(FinetuneConfig):
-    """train.yaml's ``harden`` block: a fine-tuning chunk per round (FinetuneConfig's fields, the
-    round's scenes taking ``challenging_share`` of each batch) and what each round attacks."""
+    """train.yaml's ``harden`` block: what each round attacks, evaluates and guards, read by every
+    kind (asg.workflows.trainers.base.SHARED_SETTINGS), and asg's own trainer's chunk a round
+    (FinetuneConfig's other fields, the round's scenes taking ``challenging_share`` of each batch,
+    and ``fit_stage``), which an OpenCOOD round refuses to be given (its trainer reads train.yaml's
+    ``opencood`` block)."""
 
     scenes_per_round: int = 219
     #: data sets whose train split gives each round fresh scenes

@@ -18,6 +18,10 @@ from ...registry import Registry
 
 #: the stem of a round's model averaged with its start's (the guard's cure), in the round's folder
 AVERAGED = "averaged"
+#: the settings of the harden (and finetune) block every trainer reads: the round loop's, the
+#: evaluation sets, and the sets trained beside the new scenes; the others set asg's own trainer
+SHARED_SETTINGS = ("scenes_per_round", "pool", "data", "keep_previous", "noisy", "reattack", "guard_set",
+                   "guard_average", "eval_sets", "mix_with", "seed")
 #: the record of a training, in the folder it trained in (a resumed run reads it, not trains again)
 TRAINED = "trained.json"
 #: the round trainers, by the training kind of the target they train (its ``Training`` value)

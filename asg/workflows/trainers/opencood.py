@@ -20,15 +20,12 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.strict import from_mapping, read_yaml
 
 from ...perception.targets import Training
-from .base import AVERAGED, ROUND_TRAINERS, TRAINED, Model, RoundTrainer
+from .base import AVERAGED, ROUND_TRAINERS, SHARED_SETTINGS, TRAINED, Model, RoundTrainer
 
 #: the train.yaml block of OpenCOOD's trainer
 OPENCOOD_BLOCK = "opencood"
 #: the set the trainer validates on (its validation loss), exported once a run
 VAL_SET = "normal-val"
-#: the harden block's settings every kind reads (the round loop's); the others set asg's own trainer
-ROUND_SETTINGS = ("scenes_per_round", "pool", "data", "keep_previous", "noisy", "reattack", "guard_set",
-                  "guard_average", "eval_sets", "mix_with", "seed")
 
 
 @dataclass(frozen=True)
@@ -69,11 +66,11 @@ class OpenCOODRoundTrainer(RoundTrainer):
         if weights is not None:
             raise InputError("--weights applies to asg's own models; an OpenCOOD model starts from its folder's "
                              "checkpoint (a further round of a run: --fusion opencood:OUT/round-K/model)")
-        ignored = sorted(k for k, v in (given or {}).items() if k not in ROUND_SETTINGS and v != shipped.get(k))
+        ignored = sorted(k for k, v in (given or {}).items() if k not in SHARED_SETTINGS and v != shipped.get(k))
         if ignored:
             where = f"{self.config_path}: " if self.config_path else ""
             raise InputError(f"{where}{', '.join(ignored)} set asg's own trainer; a round of an OpenCOOD model reads only "
-                             f"{', '.join(ROUND_SETTINGS)} of the harden block, and epochs of the {OPENCOOD_BLOCK} "
+                             f"{', '.join(SHARED_SETTINGS)} of the harden block, and epochs of the {OPENCOOD_BLOCK} "
                              "block (OpenCOOD's trainer takes the rest from the folder's config.yaml)")
 
     def start(self, weights: Path | None) -> Model:

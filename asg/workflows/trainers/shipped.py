@@ -31,7 +31,7 @@ class ShippedRoundTrainer(RoundTrainer):
         self.stage_cfg = stage_config(getattr(cfg, "fit_stage", False))
 
     def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
-        self.start(weights)
+        """Nothing to refuse: it reads every setting of its block; ``start`` checks the weights."""
 
     def start(self, weights: Path | None) -> Model:
         """``weights`` (a .pt, or a harden card: its last kept round's) or the shipped weights;
