@@ -721,7 +721,7 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
     assert r1["weights"] == "round-1/model" and r2["weights"] == "round-2/model" and card["weights"] == "round-2/model"
     assert (out / "round-1" / "model" / "net_epoch2.pth").is_file()  # DIR's epoch 1, then one more
     trained = out / "round-2" / "model" / "net_epoch3.pth"  # round 2 from round 1's model
-    assert trained.is_file()
+    assert trained.is_file() and (out / "val").is_dir() and not (out / "round-1" / "val").exists()  # one val export
     own = next(s for s in card["rounds"][0]["evaluation"] if s.startswith("challenging-opencood-m-"))
     for row in card["rounds"]:
         assert set(row["evaluation"]) == {"normal-val", own}
@@ -783,7 +783,7 @@ def test_finetune_trains_an_opencood_model_with_its_own_trainer(capsys, tmp_path
     assert card["weights"] == "model" and card["trained"]["epochs"] == 1 and card["trained"]["on"] == "challenging-x-train"
     assert card["trained"]["examples"] == {"challenging-x-train": 1, "normal": 1}
     trained = out / "model" / "net_epoch2.pth"
-    assert trained.is_file()
+    assert trained.is_file() and (out / "val").is_dir() and not (tmp_path / "val").exists()  # nothing outside OUT
     assert {s for s in card["evaluation"]} == {"normal-val", next(s for s in card["evaluation"] if s.startswith("challenging-"))}
     assert all(set(row) == {"before", "after", "frames"} for row in card["evaluation"].values())
     stamp = trained.stat().st_mtime_ns

@@ -166,7 +166,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
             row["data"] = _round_scenes(current, scenes, cfg, space, round_dir, executor, detector_factory, log)
             first = {f"round-{j}": load_scenes(out / f"round-{j}" / "scenes")
                      for j in (range(1, k + 1) if cfg.keep_previous else [k])}
-            model, row["trained"] = trainer.train(current, first, round_dir, log, progress)
+            model, row["trained"] = trainer.train(current, first, round_dir, log, progress, shared=out)
             _after_training(trainer, model, round_dir, row, log)
             row["weights"] = str(model.path.relative_to(out))
         log(f"round {k}: evaluating {model.path} ...")

@@ -84,11 +84,12 @@ class RoundTrainer:
         """What the run needs built once its folder is claimed, before round 0 (nothing by default)."""
 
     def train(self, start: Model, scenes: dict[str, list], folder: Path, log: Callable[[str], None],
-              progress, name: str = "weights") -> tuple[Model, dict]:
+              progress, name: str = "weights", shared: Path | None = None) -> tuple[Model, dict]:
         """Train from ``start`` on ``scenes`` ({label: scenes}: a round's, and with ``keep_previous``
         every earlier round's; a fine-tuning's challenging set) beside the train splits of
         ``mix_with``, in ``folder`` (resumable), the model called ``name`` where a kind names it;
-        the trained model and the record of its training."""
+        ``shared``: a folder of the run where what every round needs alike is made once (default
+        ``folder``). The trained model and the record of its training."""
         raise NotImplementedError
 
     def after_training(self, model: Model, round_dir: Path, log: Callable[[str], None]) -> dict | None:

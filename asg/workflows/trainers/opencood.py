@@ -70,7 +70,7 @@ class OpenCOODRoundTrainer(RoundTrainer):
         if ignored:
             where = f"{self.config_path}: " if self.config_path else ""
             raise InputError(f"{where}{', '.join(ignored)} set asg's own trainer; a round of an OpenCOOD model reads only "
-                             f"{', '.join(SHARED_SETTINGS)} of the harden block, and epochs of the {OPENCOOD_BLOCK} "
+                             f"{', '.join(SHARED_SETTINGS)} of its block, and epochs of the {OPENCOOD_BLOCK} "
                              "block (OpenCOOD's trainer takes the rest from the folder's config.yaml)")
 
     def start(self, weights: Path | None) -> Model:
@@ -93,9 +93,9 @@ class OpenCOODRoundTrainer(RoundTrainer):
         return {"start": self.digest(start), "opencood": asdict(self.train_cfg)}
 
     def train(self, start: Model, scenes: dict[str, list], folder: Path, log: Callable[[str], None],
-              progress, name: str = "weights") -> tuple[Model, dict]:
+              progress, name: str = "weights", shared: Path | None = None) -> tuple[Model, dict]:
         """``folder/model`` (whatever ``name``), trained on the export ``folder/train``; normal-val
-        exported beside ``folder`` (``val``: shared by a run's rounds)."""
+        exported to ``shared/val`` (default ``folder/val``)."""
         from ...datasets import build_dataset, dataset_path, iter_frames, scenes_of
         from ...perception.opencood.trainer import TRAIN_LOG, run_trainer, seed_from
 
@@ -108,7 +108,7 @@ class OpenCOODRoundTrainer(RoundTrainer):
                 log(f"building data set {mix} ...")
                 build_dataset(mix)
             groups[mix] = list(iter_frames(mix, "train"))
-        train, val, model = folder / "train", folder.parent / "val", folder / "model"
+        train, val, model = folder / "train", (shared or folder) / "val", folder / "model"
         export_opv2v(train, groups, log)
         export_opv2v(val, {"": list(scenes_of(VAL_SET))}, log)
         seed_from(model, start.path, train, val, self.train_cfg.epochs)

@@ -68,7 +68,7 @@ class ShippedRoundTrainer(RoundTrainer):
         build_stage_set(self.stage_cfg)
 
     def train(self, start: Model, scenes: dict[str, list], folder: Path, log: Callable[[str], None],
-              progress, name: str = "weights") -> tuple[Model, dict]:
+              progress, name: str = "weights", shared: Path | None = None) -> tuple[Model, dict]:
         """``folder/NAME.pt`` after ``steps`` steps (checkpoints in ``folder/last.pt``)."""
         weights, record = folder / f"{name}.pt", folder / TRAINED
         if not (weights.is_file() and record.is_file()):
