@@ -627,3 +627,21 @@ def test_a_refused_run_builds_no_point_stage_set(tmp_path, data_root, monkeypatc
     (out / "card.json").write_text("{}")
     with pytest.raises(InputError, match="other settings"):
         harden("attfuse", 1, out, config=staged, detector_factory=ORACLE, log=_quiet)
+
+
+def test_a_run_folder_recording_opencood_epochs_resumes(tmp_path):
+    """A run.json written while the harden block held ``opencood_epochs`` (read only by an OpenCOOD
+    round) is today's settings for an asg model: the folder resumes; any other change is refused."""
+    from dataclasses import asdict
+
+    import asg.workflows.harden as harden_mod
+    from asg.io.run_record import claim
+
+    today = {"fusion": "attfuse", "start_weights": "w.pt", "start_sha256": "ab", "point_stage": None,
+             "config": asdict(TINY), "space": None, "detector": None}
+    old = json.loads(json.dumps(today))
+    old["config"]["opencood_epochs"] = 1
+    claim(tmp_path / "h", old)
+    claim(tmp_path / "h", today, as_today=harden_mod._as_today)  # no refusal
+    with pytest.raises(InputError, match="steps"):
+        claim(tmp_path / "h", today | {"config": asdict(replace(TINY, steps=3))}, as_today=harden_mod._as_today)
