@@ -87,5 +87,5 @@ class OpenCOODTarget(Target):
         return post_processor_note()
 
     def not_trained_here(self) -> str:
-        return (f"'{self.name}' is an OpenCOOD model: OpenCOOD's own trainer trains it (docs/opencood.md); "
-                f"asg trains, fine-tunes and hardens the shipped models ({shipped_list()})")
+        return (f"'{self.name}' is an OpenCOOD model: OpenCOOD's own trainer trains it, through asg finetune and "
+                f"asg harden (docs/opencood.md); asg train trains the shipped models ({shipped_list()})")
