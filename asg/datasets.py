@@ -264,6 +264,20 @@ def scenes_of(set_name: str) -> Iterator[Scene]:
     raise InputError(f"unknown set {set_name!r}; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
 
 
+def _build_hint(name: str) -> str:
+    """The command that builds the challenging set ``name`` (``challenging-MODEL-SPLIT``); a set
+    made against a prefixed target (``challenging-opencood-NAME-DIGEST-SPLIT``) names the target's
+    form, ``opencood:DIR``: its folder cannot be read back from the set's name."""
+    from .registry import TARGET_PREFIXES
+
+    parts = name.split("-")
+    if len(parts) < 3:
+        return "asg dataset build challenging --fusion NAME --split val"
+    model = "-".join(parts[1:-1])
+    prefixed = next((p.prefix for kind, p in TARGET_PREFIXES.items() if model.startswith(f"{kind}-")), None)
+    return f"asg dataset build challenging --fusion {f'{prefixed}DIR' if prefixed else model} --split {parts[-1]}"
+
+
 def challenging_scenes(name: str):
     """The scenes of a built challenging set, by its name (``challenging-NAME-SPLIT``)."""
     from sumo_scenarios.checks import safe_id
@@ -272,8 +286,5 @@ def challenging_scenes(name: str):
         raise InputError(f"'{name}' is not a challenging set name (challenging-MODEL-train|val)")
     safe_id(name, "challenging set")  # a name, never a path out of the data folder
     if not (data_root() / name / "index.json").is_file():
-        parts = name.split("-")
-        hint = (f"asg dataset build challenging --fusion {'-'.join(parts[1:-1])} --split {parts[-1]}"
-                if len(parts) >= 3 else "asg dataset build challenging --fusion NAME --split val")
-        raise InputError(f"challenging set '{name}' is not built; run '{hint}'")
+        raise InputError(f"challenging set '{name}' is not built; run '{_build_hint(name)}'")
     return iter_frames(data_root() / name)

@@ -4,6 +4,7 @@ import gzip
 import json
 
 import pytest
+from sumo_scenarios.errors import InputError
 
 from asg.workflows.challenging import build_challenging
 from asg.workflows.finetune import attacked_model
@@ -75,3 +76,14 @@ def test_bad_challenging_requests_are_one_line(capsys, data_root):
         code, err = run(capsys, *argv)
         assert code == 2, argv
         assert_one_line_error(err, needle)
+
+
+def test_a_missing_set_names_the_command_that_builds_it(data_root):
+    """The hint of a set not built: the shipped model's name, or the prefixed target's form (an
+    OpenCOOD set's name holds its folder's name and digest, not the folder)."""
+    from asg.datasets import challenging_scenes
+
+    for name, hint in (("challenging-attfuse-wide-val", "--fusion attfuse-wide --split val"),
+                       ("challenging-opencood-m-ab12cd34-train", "--fusion opencood:DIR --split train")):
+        with pytest.raises(InputError, match=f"run 'asg dataset build challenging {hint}'"):
+            challenging_scenes(name)
