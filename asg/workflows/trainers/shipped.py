@@ -1,5 +1,5 @@
 """asg's own trainer as a hardening round's (asg.workflows.trainers.base): a shipped model's weights
-fine-tuned one chunk a round (asg.workflows.finetune.fit_chunk, the harden block's steps, rate and
+fine-tuned one chunk a round (asg.workflows.trainers.chunk.fit_chunk, the harden block's steps, rate and
 mixing), a point stage fitted to them (``fit_stage``: train.yaml's ``point_stage`` block), the
 guard's average of two weights files."""
 from __future__ import annotations
