@@ -137,13 +137,11 @@ class OpenCOODRoundTrainer(RoundTrainer):
     def start_cache(self, start: Model) -> Path:
         """Named by the digest of the folder's config and checkpoint."""
         from ...evaluation import start_evaluations_dir
-        from ...perception.targets import resolve_target
 
-        target = resolve_target(start.fusion)
         h = hashlib.sha256()
         for name, digest in sorted(self.digest(start).items()):
             h.update(name.encode() + b"\0" + digest.encode())
-        return start_evaluations_dir(f"{target.kind}-{h.hexdigest()[:16]}")
+        return start_evaluations_dir(f"{self.target.kind}-{h.hexdigest()[:16]}")
 
 
 def export_opv2v(folder: Path, groups: dict[str, list], log: Callable[[str], None]) -> None:
