@@ -92,7 +92,7 @@ def generate_buildings(lane_map: LaneMap, seed: int, params: BuildingParams = Bu
             if not take or centre_s > line.length:
                 continue
             p = line.interpolate(centre_s)
-            heading = lane_map._heading_at(lane.centerline_xy, line, centre_s)
+            heading = lane_map.heading_at(lane.lane_id, centre_s)
             offset = lane.width_m / 2 + params.setback_m + depth / 2 + 0.5
             cx = p.x - side * math.sin(heading) * offset
             cy = p.y + side * math.cos(heading) * offset

@@ -122,6 +122,12 @@ class LaneMap:
         self.junctions: tuple[Junction, ...] = tuple(junctions)
         self._lines = [LineString(l.centerline_xy) for l in self.lanes]
         self._lane_tree = shapely.STRtree(self._lines) if self._lines else None
+        self._line_array = np.array(self._lines, dtype=object)
+        self._line_lengths = shapely.length(self._line_array) if self._lines else np.zeros(0)
+        #: how far (m) from its centerline a point is on each lane
+        self._reach_m = np.array([l.width_m / 2.0 + DRIVABLE_TOLERANCE_M for l in self.lanes])
+        #: per lane index, its centerline's stations and segment headings (_centerline_steps), when first asked
+        self._steps: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         pieces = [
             line.buffer(lane.width_m / 2.0, cap_style="flat", join_style="round")
             for line, lane in zip(self._lines, self.lanes)
@@ -238,7 +244,7 @@ class LaneMap:
         line = self._lines[best]
         lane = self.lanes[best]
         s = line.project(pt)
-        heading = self._heading_at(lane.centerline_xy, line, s)
+        heading = self._heading_of(best, s)
         foot = line.interpolate(s)
         dx, dy = x_m - foot.x, y_m - foot.y
         lateral = -math.sin(heading) * dx + math.cos(heading) * dy
@@ -247,15 +253,21 @@ class LaneMap:
     def directions_at(self, x_m: float, y_m: float) -> list[float]:
         """Headings (rad) of every lane, internal ones included, whose area (centerline widened by
         half its width, within tolerance) holds the point."""
-        if self._lane_tree is None:
-            return []
-        pt = Point(x_m, y_m)
-        near = self._lane_tree.query(pt, predicate="dwithin", distance=self._max_half_width_m + DRIVABLE_TOLERANCE_M)
-        out = []
-        for i in np.atleast_1d(near):
-            line, lane = self._lines[int(i)], self.lanes[int(i)]
-            if line.length > 0 and line.distance(pt) <= lane.width_m / 2.0 + DRIVABLE_TOLERANCE_M:
-                out.append(self._heading_at(lane.centerline_xy, line, line.project(pt)))
+        return self.directions_at_many(np.array([[x_m, y_m]]))[0]
+
+    def directions_at_many(self, xy: np.ndarray) -> list[list[float]]:
+        """:meth:`directions_at` of each point of ``xy`` (n, 2), asking the index and GEOS once for all."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        out: list[list[float]] = [[] for _ in range(len(xy))]
+        if self._lane_tree is None or not len(xy):
+            return out
+        points = shapely.points(xy)
+        at, lane = self._lane_tree.query(points, predicate="dwithin", distance=self._max_half_width_m + DRIVABLE_TOLERANCE_M)
+        lines = self._line_array[lane]
+        inside = (self._line_lengths[lane] > 0) & (shapely.distance(lines, points[at]) <= self._reach_m[lane])
+        at, lane = at[inside], lane[inside]
+        for p, h in zip(at.tolist(), self._headings_of(lane, shapely.line_locate_point(lines[inside], points[at])).tolist()):
+            out[p].append(h)
         return out
 
     def in_junction(self, x_m: float, y_m: float) -> bool:
@@ -267,20 +279,45 @@ class LaneMap:
         heading within ``max_heading_rad`` of its yaw, and each corner of its footprint on a lane
         of its own direction (within 90 deg: a neighbouring lane of the same road, as in a lane
         change) or inside a junction."""
-        if not any(heading_gap_rad(h, yaw_rad) <= max_heading_rad for h in self.directions_at(*center_xy)):
-            return False
-        return all(self.in_junction(x, y) or any(heading_gap_rad(h, yaw_rad) < math.pi / 2 for h in self.directions_at(x, y))
-                   for x, y in np.asarray(footprint_xy))
+        return bool(self.in_own_lanes(np.array([center_xy]), np.array([yaw_rad]), np.asarray(footprint_xy)[None],
+                                      max_heading_rad)[0])
 
-    @staticmethod
-    def _heading_at(xy: np.ndarray, line: LineString, s: float) -> float:
-        seg_len = np.hypot(*np.diff(xy, axis=0).T)
-        cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-        k = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg_len) - 1))
-        while seg_len[k] == 0 and k > 0:
-            k -= 1
-        d = xy[k + 1] - xy[k]
-        return math.atan2(d[1], d[0])
+    def in_own_lanes(self, centres_xy: np.ndarray, yaws_rad: np.ndarray, footprints_xy: np.ndarray,
+                     max_heading_rad: float) -> np.ndarray:
+        """(n,) bool: :meth:`in_own_lane` of n vehicles (centres (n, 2), yaws (n,), footprints
+        (n, K, 2)), with one query of the lanes and junctions for all their points."""
+        n, corners = len(centres_xy), np.asarray(footprints_xy, dtype=float).reshape(len(centres_xy), -1, 2)
+        headings = self.directions_at_many(np.concatenate([np.asarray(centres_xy, dtype=float).reshape(-1, 2),
+                                                           corners.reshape(-1, 2)]))
+        junction = shapely.contains_xy(self._junctions_loose, corners[..., 0], corners[..., 1])  # (n, K)
+        per_corner = iter(headings[n:])
+        out = np.zeros(n, dtype=bool)
+        for k in range(n):
+            yaw = float(yaws_rad[k])
+            along = [any(heading_gap_rad(h, yaw) < math.pi / 2 for h in next(per_corner)) for _ in range(corners.shape[1])]
+            out[k] = (any(heading_gap_rad(h, yaw) <= max_heading_rad for h in headings[k])
+                      and all(j or a for j, a in zip(junction[k], along)))
+        return out
+
+    def heading_at(self, lane_id: str, s_m: float) -> float:
+        """The heading (rad) of lane ``lane_id``'s centerline at station ``s_m`` (the segment's
+        there; a zero-length segment takes the one before it)."""
+        return self._heading_of(self._by_id[lane_id], s_m)
+
+    def _heading_of(self, index: int, s_m: float) -> float:
+        return float(self._headings_of(np.array([index]), np.array([s_m]))[0])
+
+    def _headings_of(self, lanes: np.ndarray, s_m: np.ndarray) -> np.ndarray:
+        """(n,) headings (rad) of lanes (n,) (indices) at stations ``s_m`` (n,), grouped by lane."""
+        out = np.zeros(len(lanes))
+        for index in np.unique(lanes).tolist():
+            steps = self._steps.get(index)
+            if steps is None:
+                steps = self._steps[index] = _centerline_steps(self.lanes[index].centerline_xy)
+            cum_m, heading_rad = steps
+            rows = np.flatnonzero(lanes == index)
+            out[rows] = heading_rad[np.clip(np.searchsorted(cum_m, s_m[rows], side="right") - 1, 0, len(heading_rad) - 1)]
+        return out
 
     def lane_km(self) -> float:
         """Total length of the non-internal lanes, km."""
@@ -293,6 +330,20 @@ class LaneMap:
     def road_edges(self) -> Iterable[tuple[Lane, LineString]]:
         """Non-internal lanes with their centerlines."""
         return ((l, line) for l, line in zip(self.lanes, self._lines) if not l.internal)
+
+
+def _centerline_steps(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A centerline's (P, 2) station (m) at each vertex (P,) and the heading (rad) of each of its
+    P - 1 segments, a zero-length one taking the heading of the nearest earlier one of length."""
+    seg_len = np.hypot(*np.diff(xy, axis=0).T)
+    heading = []
+    for k in range(len(seg_len)):
+        j = k
+        while seg_len[j] == 0 and j > 0:
+            j -= 1
+        d = xy[j + 1] - xy[j]
+        heading.append(math.atan2(d[1], d[0]))
+    return np.concatenate([[0.0], np.cumsum(seg_len)]), np.array(heading)
 
 
 def _parse_shape(text: str) -> np.ndarray:

@@ -33,6 +33,19 @@ def test_own_lane_heading_and_direction(cross_map):
     assert junction(-6.0, -1.6, 0.0) and not junction(-6.0, -1.6, 180.0)
 
 
+def test_own_lanes_of_many_vehicles_at_once_answer_each_alone(cross_map):
+    """One query for many vehicles: each answer is the vehicle's own (none shifted onto another's
+    corners), mixed with vehicles that fail on their centre, on a corner, or pass in a junction."""
+    rng = np.random.default_rng(3)
+    for lanes in (_road(), cross_map):
+        poses = np.column_stack([rng.uniform(-25, 25, 60), rng.uniform(-4, 4, 60), rng.uniform(-math.pi, math.pi, 60)])
+        poses[::3, 2], poses[1::3, 2] = 0.0, math.pi  # headed along the road, one way or the other: some pass
+        cars = [car("c", x, y, yaw) for x, y, yaw in poses]
+        one = [lanes.in_own_lane((c.x_m, c.y_m), c.yaw_rad, c.footprint_xy(), math.radians(30.0)) for c in cars]
+        many = lanes.in_own_lanes(poses[:, :2], poses[:, 2], np.stack([c.footprint_xy() for c in cars]), math.radians(30.0))
+        assert list(many) == one and 3 <= sum(one) <= 57
+
+
 def test_checker_and_recheck_agree_on_random_moves():
     scene = Scene.from_dict(_scene_dict())
     movers = ["v2", "u1"]

@@ -136,9 +136,10 @@ class FeasibilityChecker:
 
     def wrong_way(self, agents: Sequence[Agent]) -> np.ndarray:
         """(n,) bool: not in a lane of its own direction (see LaneMap.in_own_lane)."""
-        lanes = self.scene.lane_map
-        return np.array([not lanes.in_own_lane((a.x_m, a.y_m), a.yaw_rad, a.footprint_xy(), self.max_heading_rad)
-                         for a in agents], dtype=bool)
+        if not agents:
+            return np.zeros(0, dtype=bool)
+        return ~self.scene.lane_map.in_own_lanes(np.array([[a.x_m, a.y_m] for a in agents]), np.array([a.yaw_rad for a in agents]),
+                                                 np.stack([a.footprint_xy() for a in agents]), self.max_heading_rad)
 
     def check(self, moved: Mapping[str, Agent]) -> Plausibility:
         """Collisions, off-road and out-of-range counts of the ``moved`` vehicles (by id) at their
