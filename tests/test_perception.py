@@ -613,8 +613,14 @@ def test_v2vnet_passes_the_pairwise_messages_and_starts_near_the_ego_alone():
         for i in range(3):
             pairs = torch.stack([torch.cat([feats[b, j], feats[b, i]]) for j in senders])
             assert torch.allclose(got[b, i], passing.message(pairs).mean(dim=0), atol=1e-5)
+    assert torch.allclose(passing.messages(feats, mask, 1), got[:, :1], atol=1e-6)
     feats[1, 2] = 1e3  # the absent agent's slot
     assert torch.allclose(passing(feats, mask)[0][1], passing(feats[:, :2], mask[:, :2])[0][1], atol=1e-4)
+    h = feats  # every agent updated every round: the last round's ego map is the same
+    with torch.no_grad():
+        for _ in range(passing.rounds):
+            h = passing.gru(passing.messages(h, mask).reshape(6, 4, 5, 6), h.reshape(6, 4, 5, 6)).view_as(feats)
+        assert torch.allclose(passing(feats, mask)[0], passing.out(h[:, 0]), atol=1e-5)
     attfuse, v2vnet = AttFuse(TINY), V2VNet(TINY)
     missing = v2vnet.load_state_dict(attfuse.state_dict(), strict=False).missing_keys
     assert missing and all(k.startswith(V2VNet.parts_beyond_base) for k in missing)

@@ -50,27 +50,38 @@ class MessagePassing(nn.Module):
         self.gru = ConvGRUCell(channels)
         self.out = nn.Conv2d(channels, channels, 1)
 
-    def messages(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """h (B, N, C, H, W), mask (B, N) of present agents -> a_i (B, N, C, H, W): the mean over
-        the present agents j of the message conv3x3([h_j, h_i])."""
+    def messages(self, h: torch.Tensor, mask: torch.Tensor, receivers: int | None = None) -> torch.Tensor:
+        """h (B, N, C, H, W), mask (B, N) of present agents -> a_i (B, R, C, H, W) of the first R =
+        ``receivers`` agents (all N if None): the mean over the present agents j of the message
+        conv3x3([h_j, h_i])."""
         b, n, c, height, width = h.shape
-        flat = h.reshape(b * n, c, height, width)
-        w_from, w_to = self.message.weight[:, :c], self.message.weight[:, c:]
-        sent = F.conv2d(flat, w_from, padding=1).view(b, n, c, height, width)
-        received = F.conv2d(flat, w_to, self.message.bias, padding=1).view(b, n, c, height, width)
+        r = n if receivers is None else receivers
+        w_from, w_to = (_maps(w) for w in (self.message.weight[:, :c], self.message.weight[:, c:]))
+        sent = F.conv2d(_maps(h.reshape(b * n, c, height, width)), w_from, padding=1).view(b, n, c, height, width)
+        received = F.conv2d(_maps(h[:, :r].reshape(b * r, c, height, width)), w_to, self.message.bias,
+                            padding=1).view(b, r, c, height, width)
         present = mask.to(h.dtype)[:, :, None, None, None]
         mean_sent = (sent * present).sum(dim=1, keepdim=True) / present.sum(dim=1, keepdim=True)
         return mean_sent + received
 
     def forward(self, feats: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, None]:
         """feats (B, N, C, H, W), mask (B, N) of present agents (the ego, index 0, always) -> the
-        ego's fused features (B, C, H, W), None (no attention)."""
+        ego's fused features (B, C, H, W), None (no attention). Only the ego's map is read after
+        the last round, so that round updates the ego alone (the same maps, a third of the work)."""
         b, n, c, height, width = feats.shape
         h = feats
-        for _ in range(self.rounds):
-            a = self.messages(h, mask)
-            h = self.gru(a.reshape(b * n, c, height, width), h.reshape(b * n, c, height, width)).view_as(feats)
+        for k in range(self.rounds):
+            r = 1 if k == self.rounds - 1 else n
+            a = self.messages(h, mask, r)
+            h = self.gru(_maps(a.reshape(b * r, c, height, width)),
+                         _maps(h[:, :r].reshape(b * r, c, height, width))).view(b, r, c, height, width)
         return self.out(h[:, 0]), None
+
+
+def _maps(x: torch.Tensor) -> torch.Tensor:
+    """``x`` (B, C, H, W) channels-last in memory, the detector's layout (its weights' too): a
+    convolution then needs no reorder of its input, and gives the same values."""
+    return x.contiguous(memory_format=torch.channels_last)
 
 
 class V2VNet(AttFuse):
