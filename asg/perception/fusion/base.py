@@ -13,7 +13,7 @@ from sumo_scenarios.paths import configs_dir
 from ..config import DEFAULT_CONFIG_FILE, DetectorConfig, load_detector_config
 from ..data import in_range
 from ..feeds import AGENT_CLOUDS, Feed
-from ..inference import fold_batch_norms
+from ..inference import fold_batch_norms, relus_in_place
 from ..model import postprocess
 from ..point_stage import PointStage, refine
 
@@ -24,7 +24,7 @@ def load_point_stage(weights_name: str, weights_file: str | None) -> PointStage 
     from ..weights_io import load_state, stage_file_for
 
     path = stage_file_for(weights_name, weights_file)
-    return None if path is None else load_state(PointStage(), path)
+    return None if path is None else relus_in_place(load_state(PointStage(), path))
 
 Detections = tuple[np.ndarray, np.ndarray]  # boxes (K, 7) in the ego sensor frame, scores (K,)
 
