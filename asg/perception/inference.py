@@ -27,19 +27,14 @@ def fold_batch_norms(model: nn.Module) -> nn.Module:
     return relus_in_place(model)
 
 
-#: layers whose output is a fresh tensor that no backward pass reads (a ReLU may overwrite it)
-_FRESH_OUTPUT = (nn.Conv2d, nn.ConvTranspose2d, nn.Linear, nn.BatchNorm1d, nn.BatchNorm2d)
-
-
 def relus_in_place(model: nn.Module) -> nn.Module:
-    """Every ReLU of a Sequential that follows a convolution, a linear layer or a batch norm
-    (past folded norms, now identities) works in place on that layer's fresh output: the same
-    values, one tensor fewer to allocate and write. Used on asg's detectors, their point stages
-    and OpenCOOD's models alike."""
+    """Every ReLU of a Sequential that follows a convolution or a linear layer (past folded
+    norms) works in place on that layer's fresh output: the same values, one tensor fewer to
+    allocate and write (neither layer's backward pass reads its output)."""
     for module in model.modules():
         if isinstance(module, nn.Sequential):
             layers = [m for m in module if not isinstance(m, nn.Identity)]
             for before, layer in zip(layers, layers[1:]):
-                if isinstance(layer, nn.ReLU) and isinstance(before, _FRESH_OUTPUT):
+                if isinstance(layer, nn.ReLU) and isinstance(before, (nn.Conv2d, nn.ConvTranspose2d, nn.Linear)):
                     layer.inplace = True
     return model

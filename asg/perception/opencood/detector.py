@@ -16,7 +16,6 @@ from sumo_scenarios.errors import InputError
 from ...sensors.opv2v import agent_views, frame_ids
 from ...sensors.frame import CooperativeFrame
 from ..data import in_range
-from ..inference import relus_in_place
 from .attention import ego_row_weights, use_ego_row
 from .folder import FUSION_KINDS, MODELS, checkpoint_of, load_checkpoint, read_hypes
 from .runtime import module
@@ -54,7 +53,7 @@ class OpenCOODDetector:
         finally:
             shutil.rmtree(empty, ignore_errors=True)
         load_checkpoint(self.model, checkpoint_of(folder))
-        relus_in_place(self.model.eval())  # the same values (parity holds to the bit)
+        self.model.eval()
         self.fusions = use_ego_row(self.model)  # AttFuse's attention by the ego's row: OpenCOOD's function, faster
         self.infer = getattr(module("tools.inference_utils"), f"inference_{self.kind}_fusion")
         self._corner_to_center = module("utils.box_utils").corner_to_center
