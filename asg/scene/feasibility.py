@@ -138,8 +138,9 @@ class FeasibilityChecker:
         """(n,) bool: not in a lane of its own direction (see LaneMap.in_own_lane)."""
         if not agents:
             return np.zeros(0, dtype=bool)
-        return ~self.scene.lane_map.in_own_lanes(np.array([[a.x_m, a.y_m] for a in agents]), np.array([a.yaw_rad for a in agents]),
-                                                 np.stack([a.footprint_xy() for a in agents]), self.max_heading_rad)
+        centres_xy, yaws_rad = np.array([[a.x_m, a.y_m] for a in agents]), np.array([a.yaw_rad for a in agents])
+        footprints_xy = np.stack([a.footprint_xy() for a in agents])
+        return ~self.scene.lane_map.in_own_lanes(centres_xy, yaws_rad, footprints_xy, self.max_heading_rad)
 
     def check(self, moved: Mapping[str, Agent]) -> Plausibility:
         """Collisions, off-road and out-of-range counts of the ``moved`` vehicles (by id) at their
