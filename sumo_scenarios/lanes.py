@@ -250,13 +250,10 @@ class LaneMap:
         lateral = -math.sin(heading) * dx + math.cos(heading) * dy
         return LanePosition(lane.lane_id, float(s), float(lateral), float(heading), abs(lateral) <= lane.width_m / 2.0)
 
-    def directions_at(self, x_m: float, y_m: float) -> list[float]:
-        """Headings (rad) of every lane, internal ones included, whose area (centerline widened by
-        half its width, within tolerance) holds the point."""
-        return self.directions_at_many(np.array([[x_m, y_m]]))[0]
-
     def directions_at_many(self, xy: np.ndarray) -> list[list[float]]:
-        """:meth:`directions_at` of each point of ``xy`` (n, 2), asking the index and GEOS once for all."""
+        """Per point of ``xy`` (n, 2), the headings (rad) of every lane, internal ones included, whose
+        area (centerline widened by half its width, within tolerance) holds it; the index and GEOS
+        asked once for all the points."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         out: list[list[float]] = [[] for _ in range(len(xy))]
         if self._lane_tree is None or not len(xy):
@@ -269,9 +266,6 @@ class LaneMap:
         for p, h in zip(at.tolist(), self._headings_of(lane, shapely.line_locate_point(lines[inside], points[at])).tolist()):
             out[p].append(h)
         return out
-
-    def in_junction(self, x_m: float, y_m: float) -> bool:
-        return bool(self._junctions_loose.contains(Point(x_m, y_m)))
 
     def in_own_lane(self, center_xy: tuple[float, float], yaw_rad: float, footprint_xy: np.ndarray,
                     max_heading_rad: float) -> bool:
@@ -290,11 +284,12 @@ class LaneMap:
         headings = self.directions_at_many(np.concatenate([np.asarray(centres_xy, dtype=float).reshape(-1, 2),
                                                            corners.reshape(-1, 2)]))
         junction = shapely.contains_xy(self._junctions_loose, corners[..., 0], corners[..., 1])  # (n, K)
-        per_corner = iter(headings[n:])
+        per_corner = corners.shape[1]
         out = np.zeros(n, dtype=bool)
         for k in range(n):
             yaw = float(yaws_rad[k])
-            along = [any(heading_gap_rad(h, yaw) < math.pi / 2 for h in next(per_corner)) for _ in range(corners.shape[1])]
+            corner_headings = headings[n + k * per_corner: n + (k + 1) * per_corner]
+            along = [any(heading_gap_rad(h, yaw) < math.pi / 2 for h in hs) for hs in corner_headings]
             out[k] = (any(heading_gap_rad(h, yaw) <= max_heading_rad for h in headings[k])
                       and all(j or a for j, a in zip(junction[k], along)))
         return out
