@@ -15,7 +15,8 @@ from .datasets import scenes_of
 from .objective.ap import Yardstick, ap_by_method_from_matches, frame_matches
 from .objective.pooled import PooledAP
 from .perception.data import Sample
-from .perception import V2XDetector, build_detector
+from .perception import V2XDetector
+from .perception.targets import Target
 from .scene import Scene
 from .sensors import LidarSpec, load_lidar_spec, simulate_frame
 from .sensors.lidar_spec import DEFAULT_LIDAR
@@ -31,13 +32,11 @@ class GroundTruth(str, enum.Enum):
     OPENCOOD = "opencood"
 
 
-def check_ground_truth(truth: GroundTruth, fusion: str) -> GroundTruth:
-    """``truth`` if the target ``fusion`` can be scored by it; one InputError otherwise."""
-    from .perception import resolve_target
-
-    if truth is GroundTruth.OPENCOOD and not resolve_target(fusion).own_ground_truth:
+def check_ground_truth(truth: GroundTruth, target: Target) -> GroundTruth:
+    """``truth`` if ``target`` can be scored by it; one InputError otherwise."""
+    if truth is GroundTruth.OPENCOOD and not target.own_ground_truth:
         raise InputError(f"--ground-truth opencood scores an OpenCOOD model folder by OpenCOOD's own test-time rule; "
-                         f"'{fusion}' is not one (use --ground-truth asg)")
+                         f"'{target.name}' is not one (use --ground-truth asg)")
     return truth
 
 
@@ -81,20 +80,20 @@ def _detect(detector: V2XDetector, spec: LidarSpec, scene: Scene, truth: GroundT
     return boxes, scores, sample.gt_eval()
 
 
-def target_detector(fusion: str, weights_file: str | None = None, detector_factory: str | None = None) -> V2XDetector:
-    """The detector scored as ``fusion``: its shipped weights (or ``weights_file``), or the target
+def target_detector(target: Target, weights_file: str | None = None, detector_factory: str | None = None) -> V2XDetector:
+    """The detector scored as ``target``: its shipped weights (or ``weights_file``), or the one
     that ``detector_factory`` ("module:function", as for ``asg generate --detector``) returns for it."""
     if detector_factory:
         from .generator.config import GenerateConfig
         from .generator.run import factory_models
 
-        return factory_models(detector_factory, GenerateConfig(fusion=fusion))[0]
-    return build_detector(fusion, weights_file=weights_file)
+        return factory_models(detector_factory, GenerateConfig(fusion=target.name))[0]
+    return target.detector(weights_file)
 
 
-def _worker_setup(fusion: str, weights_file: str | None, detector_factory: str | None,
+def _worker_setup(target: Target, weights_file: str | None, detector_factory: str | None,
                   truth: str = GroundTruth.ASG.value) -> tuple[V2XDetector, LidarSpec, GroundTruth]:
-    return target_detector(fusion, weights_file, detector_factory), load_lidar_spec(), GroundTruth(truth)
+    return target_detector(target, weights_file, detector_factory), load_lidar_spec(), GroundTruth(truth)
 
 
 def _worker_run(state: tuple[V2XDetector, LidarSpec, GroundTruth], item: tuple[int, dict]) -> tuple:
@@ -102,10 +101,10 @@ def _worker_run(state: tuple[V2XDetector, LidarSpec, GroundTruth], item: tuple[i
     return _detect(detector, spec, Scene.from_dict(item[1]), truth)
 
 
-def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None,
+def evaluate(target: Target, set_name: str, limit: int | None = None, progress=None,
              weights_file: str | None = None, executor=None, detector_factory: str | None = None,
              keep_matches: bool = False, truth: GroundTruth = GroundTruth.ASG) -> dict:
-    """AP of detector ``fusion`` (its shipped weights, or ``weights_file``, or what
+    """AP of ``target``'s detector (its shipped weights, or ``weights_file``, or what
     ``detector_factory`` returns) on a set (see scenes_of), its scenes on ``executor`` (default:
     this process), against the ground truth ``truth``; the frames are pooled in the set's order
     (``keep_matches``: see :func:`scored`). A set with no scenes is one InputError."""
@@ -113,23 +112,23 @@ def evaluate(fusion: str, set_name: str, limit: int | None = None, progress=None
 
     from .executors import Job
 
-    check_ground_truth(truth, fusion)
+    check_ground_truth(truth, target)
     scenes = list(itertools.islice(scenes_of(set_name), limit))
     if not scenes:
         raise InputError(f"set {set_name!r} has no scenes to score; rebuild it ('asg dataset build') or pick another set")
     if executor is None:
-        result = evaluate_detector(target_detector(fusion, weights_file, detector_factory), scenes, progress, keep_matches,
+        result = evaluate_detector(target_detector(target, weights_file, detector_factory), scenes, progress, keep_matches,
                                    truth=truth)
     else:
         frames: dict[int, tuple] = {}
-        job = Job(_worker_setup, _worker_run, (fusion, weights_file, detector_factory, truth.value))
+        job = Job(_worker_setup, _worker_run, (target, weights_file, detector_factory, truth.value))
         for (i, _), detected in executor.map_unordered(job, [(i, s.to_dict()) for i, s in enumerate(scenes)]):
             frames[i] = detected
             if progress:
                 progress(len(frames))
         ordered = [frames[i] for i in range(len(scenes))]
         result = scored(ordered, keep_matches) | {"without_collaborators": sum(not s.collaborators for s in scenes)}
-    result["fusion"] = fusion
+    result["fusion"] = target.name
     result["set"] = set_name
     result["ground_truth"] = truth.value
     return result

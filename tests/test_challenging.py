@@ -6,6 +6,7 @@ import json
 import pytest
 from sumo_scenarios.errors import InputError
 
+from asg.perception.targets import resolve_target
 from asg.workflows.challenging import build_challenging
 from asg.workflows.finetune import attacked_model
 from asg.cli import main
@@ -13,6 +14,8 @@ from asg.scene import Scene
 
 from test_cli import assert_one_line_error, run
 from test_tables import write_set
+
+NONE = resolve_target("none")
 
 
 @pytest.fixture
@@ -26,7 +29,7 @@ def data_root(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_build_resume_and_evaluate(capsys, data_root):
-    out = build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
+    out = build_challenging(NONE, "val", count=2, detector_factory="fakes:oracle_factory")
     index = json.loads((out / "index.json").read_text())
     assert out.name == "challenging-none-val" and index["frames"] == 2 and index["splits"] == {"val": ["n0", "n1"]}
     assert index["source"]["detector"] == "fakes:oracle_factory"  # the set names the detector it attacked
@@ -36,7 +39,7 @@ def test_build_resume_and_evaluate(capsys, data_root):
     first = (out / "run" / "scenes" / "n0" / "result.json").read_text()
     assert not (out / "run" / "scenes" / "n0" / "clouds").exists()  # a data set keeps no clouds or pictures
     # a larger --count resumes: the finished scenes stay as they are
-    out = build_challenging("none", "val", detector_factory="fakes:oracle_factory")
+    out = build_challenging(NONE, "val", detector_factory="fakes:oracle_factory")
     assert json.loads((out / "index.json").read_text())["frames"] == 3
     assert (out / "run" / "scenes" / "n0" / "result.json").read_text() == first
     finals = [Scene.from_dict(json.loads(line)) for line in gzip.open(out / "frames.jsonl.gz", "rt")]
@@ -49,7 +52,7 @@ def test_build_resume_and_evaluate(capsys, data_root):
 def test_a_set_attacked_against_other_shipped_weights_is_generated_again(capsys, data_root):
     """challenging-F-SPLIT is the split attacked against the shipped F: after those weights change
     (a new install), building it again attacks anew instead of resuming the old attack."""
-    out = build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
+    out = build_challenging(NONE, "val", count=2, detector_factory="fakes:oracle_factory")
     record_path = out / "run" / "run.json"
     today = json.loads(record_path.read_text())["shipped_weights_sha256"]
     stale = dict(today, single="0" * 64)
@@ -57,13 +60,13 @@ def test_a_set_attacked_against_other_shipped_weights_is_generated_again(capsys,
     marker = out / "run" / "scenes" / "n0" / "result.json"
     marker.write_text(marker.read_text().replace('"scene_id"', '"old": 1, "scene_id"', 1))  # the old attack's
     capsys.readouterr()
-    out = build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
+    out = build_challenging(NONE, "val", count=2, detector_factory="fakes:oracle_factory")
     assert "generating it again" in capsys.readouterr().out
     assert json.loads(record_path.read_text())["shipped_weights_sha256"] == today
     assert '"old"' not in marker.read_text() and json.loads((out / "index.json").read_text())["frames"] == 2
     # the same weights: resumed, nothing generated again
     marker.write_text(marker.read_text().replace('"scene_id"', '"kept": 1, "scene_id"', 1))
-    build_challenging("none", "val", count=2, detector_factory="fakes:oracle_factory")
+    build_challenging(NONE, "val", count=2, detector_factory="fakes:oracle_factory")
     assert '"kept"' in marker.read_text()
 
 

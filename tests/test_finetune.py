@@ -8,6 +8,7 @@ from dataclasses import replace
 import pytest
 import torch
 
+from asg.perception.targets import resolve_target
 from asg.workflows.challenging import build_challenging
 from asg.workflows.finetune import finetune
 from asg.training.config import load_finetune_config
@@ -17,6 +18,8 @@ from sumo_scenarios.errors import InputError
 from test_cli import assert_one_line_error, run
 from test_robustness import _scene_dict
 from test_tables import write_set
+
+ATTFUSE = resolve_target("attfuse")
 
 #: two steps of one example, mixed with the normal set only, evaluated on normal-val only
 TINY = replace(load_finetune_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
@@ -31,7 +34,7 @@ def data_root(tmp_path, monkeypatch):
     write_set(root, "normal", {"train": ["n0", "n1"], "val": ["n2"]})
     monkeypatch.setenv("ASG_DATA", str(root))
     for split in ("train", "val"):
-        build_challenging("attfuse", split, detector_factory="fakes:oracle_factory")
+        build_challenging(ATTFUSE, split, detector_factory="fakes:oracle_factory")
     return root
 
 
@@ -43,7 +46,7 @@ def _sha(path) -> str:
 def test_finetune_trains_evaluates_and_keeps_the_shipped_weights(tmp_path, data_root):
     shipped = _sha(WEIGHTS_DIR / "attfuse.pt")
     out = tmp_path / "ft"
-    card = finetune("attfuse", "challenging-attfuse-train", out, config=TINY, stages=("train", "evaluate"),
+    card = finetune(ATTFUSE, "challenging-attfuse-train", out, config=TINY, stages=("train", "evaluate"),
                     log=lambda m: None)
     assert _sha(WEIGHTS_DIR / "attfuse.pt") == shipped
     before = torch.load(WEIGHTS_DIR / "attfuse.pt", weights_only=True)
@@ -60,16 +63,16 @@ def test_finetune_trains_evaluates_and_keeps_the_shipped_weights(tmp_path, data_
         assert all(row[when]["ap_per_frame"] == row[when]["ap"] for when in ("before", "after"))
     assert not (out / "last.pt").exists()
     # a rerun finds everything done and changes nothing; other settings are refused
-    assert finetune("attfuse", "challenging-attfuse-train", out, config=TINY, stages=("train", "evaluate"),
+    assert finetune(ATTFUSE, "challenging-attfuse-train", out, config=TINY, stages=("train", "evaluate"),
                     log=lambda m: None) == card
     with pytest.raises(InputError, match="other settings"):
-        finetune("attfuse", "challenging-attfuse-train", out, config=replace(TINY, lr=0.001), log=lambda m: None)
+        finetune(ATTFUSE, "challenging-attfuse-train", out, config=replace(TINY, lr=0.001), log=lambda m: None)
 
 
 @pytest.mark.slow
 def test_an_interrupted_finetune_resumes_to_the_same_weights(tmp_path, data_root):
     whole = tmp_path / "whole"
-    finetune("attfuse", "challenging-attfuse-train", whole, config=TINY, stages=("train",), log=lambda m: None)
+    finetune(ATTFUSE, "challenging-attfuse-train", whole, config=TINY, stages=("train",), log=lambda m: None)
 
     def stop_after_first(step, total, loss):  # called after each step, before its checkpoint
         if step == 2:
@@ -77,10 +80,10 @@ def test_an_interrupted_finetune_resumes_to_the_same_weights(tmp_path, data_root
 
     part = tmp_path / "part"
     with pytest.raises(KeyboardInterrupt):
-        finetune("attfuse", "challenging-attfuse-train", part, config=TINY, stages=("train",), log=lambda m: None,
+        finetune(ATTFUSE, "challenging-attfuse-train", part, config=TINY, stages=("train",), log=lambda m: None,
                  progress=stop_after_first)
     assert (part / "last.pt").is_file() and not (part / "attfuse-ft.pt").exists()
-    finetune("attfuse", "challenging-attfuse-train", part, config=TINY, stages=("train",), log=lambda m: None)
+    finetune(ATTFUSE, "challenging-attfuse-train", part, config=TINY, stages=("train",), log=lambda m: None)
     a = torch.load(whole / "attfuse-ft.pt", weights_only=True)
     b = torch.load(part / "attfuse-ft.pt", weights_only=True)
     assert all(torch.equal(a[k], b[k]) for k in a)

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import pytest
 
+from asg.perception.targets import resolve_target
 from asg.workflows.challenging import build_challenging
 from asg.scene.recheck import recheck
 from asg.perception.weights_io import WEIGHTS_DIR
@@ -15,6 +16,8 @@ from sumo_scenarios.errors import InputError
 
 from test_cli import assert_one_line_error, run
 from test_tables import write_set
+
+ATTFUSE = resolve_target("attfuse")
 
 #: two steps a round, one scene a round from the normal train split, mixed with normal
 TINY = replace(load_harden_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
@@ -29,7 +32,7 @@ def data_root(tmp_path, monkeypatch):
     root = tmp_path / "data"
     write_set(root, "normal", {"train": ["n0", "n1"], "val": ["n2"]})
     monkeypatch.setenv("ASG_DATA", str(root))
-    build_challenging("attfuse", "val", detector_factory=ORACLE)
+    build_challenging(ATTFUSE, "val", detector_factory=ORACLE)
     return root
 
 
@@ -60,11 +63,11 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        harden("attfuse", 2, out, config=TINY, detector_factory=ORACLE, log=_quiet, progress=stop_in_round_two)
+        harden(ATTFUSE, 2, out, config=TINY, detector_factory=ORACLE, log=_quiet, progress=stop_in_round_two)
     card = json.loads((out / "card.json").read_text())
     assert [r["round"] for r in card["rounds"]] == [0, 1]  # round 2 stopped: not in the card
     first = (out / "round-1" / "weights.pt").stat().st_mtime_ns
-    card = harden("attfuse", 2, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    card = harden(ATTFUSE, 2, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     assert (out / "round-1" / "weights.pt").stat().st_mtime_ns == first  # round 1 not run again
     assert [r["round"] for r in card["rounds"]] == [0, 1, 2]
     for row in card["rounds"]:
@@ -83,9 +86,9 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     ids = [sorted(p.stem for p in (out / f"round-{k}" / "scenes").glob("*.yaml")) for k in (1, 2)]
     assert len(ids[0]) == len(ids[1]) == 1 and ids[0] != ids[1]
     with pytest.raises(InputError, match="other settings"):
-        harden("attfuse", 2, out, config=replace(TINY, lr=TINY.lr * 2), detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 2, out, config=replace(TINY, lr=TINY.lr * 2), detector_factory=ORACLE, log=_quiet)
     # a card starts a new run from its last round's weights
-    follow = harden("attfuse", 1, tmp_path / "next", weights=out / "card.json", config=replace(TINY, seed=9),
+    follow = harden(ATTFUSE, 1, tmp_path / "next", weights=out / "card.json", config=replace(TINY, seed=9),
                     detector_factory=ORACLE, log=_quiet)
     assert follow["start"]["weights"].endswith("round-2/weights.pt")
 
@@ -97,7 +100,7 @@ def test_the_report_shows_a_hardening_run_round_by_round(capsys, tmp_path, data_
     from asg.cli import main
 
     out = tmp_path / "h"
-    harden("attfuse", 2, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    harden(ATTFUSE, 2, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     for k in (1, 2):
         lines = (out / f"round-{k}" / "loss.csv").read_text().splitlines()
         assert lines[0] == "step,loss" and lines[-1].startswith("2,")
@@ -121,7 +124,7 @@ def test_the_controls_draw_the_scenes_they_claim(tmp_path, data_root, data):
     from asg.scene import load_scene
 
     cfg = replace(TINY, data=data, scenes_per_round=2, steps=1)
-    card = harden("attfuse", 1, tmp_path / data, config=cfg, log=_quiet)
+    card = harden(ATTFUSE, 1, tmp_path / data, config=cfg, log=_quiet)
     made = {p.stem: load_scene(p) for p in (tmp_path / data / "round-1" / "scenes").glob("*.yaml")}
     pool = {s.scene_id: s for s in iter_frames("normal", "train")}
     assert set(made) == set(pool) and card["rounds"][1]["data"]["scenes"] == 2
@@ -177,13 +180,13 @@ def _stopped_before_round_one_is_evaluated(out, cfg, monkeypatch) -> None:
     with monkeypatch.context() as m:
         m.setattr(h, "evaluate_round", stop_in_round_one)
         with pytest.raises(KeyboardInterrupt):
-            harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+            harden(ATTFUSE, 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
 
 
 @pytest.mark.slow
 def test_a_round_stopped_after_its_training_keeps_the_training_record(tmp_path, data_root, monkeypatch):
     _stopped_before_round_one_is_evaluated(tmp_path / "h", TINY, monkeypatch)
-    card = harden("attfuse", 1, tmp_path / "h", config=TINY, detector_factory=ORACLE, log=_quiet)
+    card = harden(ATTFUSE, 1, tmp_path / "h", config=TINY, detector_factory=ORACLE, log=_quiet)
     assert card["rounds"][1]["trained"]["steps"] == 2
 
 
@@ -202,7 +205,7 @@ def test_a_round_with_its_scenes_on_disk_resumes_at_its_training_without_attacki
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet, progress=stop_at_step_two)
+        harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet, progress=stop_at_step_two)
     made = json.loads((out / "round-1" / "data.json").read_text())
     assert made["kind"] == "adversarial" and (out / "round-1" / "last.pt").is_file()
     shutil.rmtree(out / "round-1" / "attack")
@@ -211,7 +214,7 @@ def test_a_round_with_its_scenes_on_disk_resumes_at_its_training_without_attacki
         raise AssertionError("the round's scenes were made again")
 
     monkeypatch.setattr(h, "round_data", no_attack)
-    card = harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+    card = harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     assert card["rounds"][1]["data"] == made and card["rounds"][1]["trained"]["steps"] == 2
 
 
@@ -249,7 +252,7 @@ def test_harden_rounds_need_the_finetune_table(capsys):
 
 @pytest.mark.slow
 def test_challenging_views_ego_trains_the_rounds_scenes_from_the_attacked_view_only(tmp_path, data_root):
-    card = harden("attfuse", 1, tmp_path / "ego", config=replace(TINY, challenging_views="ego"),
+    card = harden(ATTFUSE, 1, tmp_path / "ego", config=replace(TINY, challenging_views="ego"),
                   detector_factory=ORACLE, log=_quiet)
     trained = card["rounds"][1]["trained"]
     assert trained["examples"] == {"round-1": 1, "normal": 6}  # one view of the round's scene, all of normal's
@@ -301,7 +304,7 @@ def test_round_zeros_reattack_is_scored_by_todays_code(data_root):
 def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_root):
     """From other ``--weights`` (a card's last round), round 0's re-attack attacks those weights;
     from the shipped ones it is the shipped model's own challenging set (nothing attacked)."""
-    first = harden("attfuse", 1, tmp_path / "first", config=replace(TINY, reattack=True), detector_factory=ORACLE,
+    first = harden(ATTFUSE, 1, tmp_path / "first", config=replace(TINY, reattack=True), detector_factory=ORACLE,
                    log=_quiet)
     assert not (tmp_path / "first" / "round-0" / "reattack").exists()
     assert first["rounds"][0]["reattack"]["challenging"]["ap"] == first["rounds"][0]["evaluation"]["challenging-attfuse-val"]["ap"]
@@ -309,13 +312,13 @@ def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_roo
     from asg.evaluation import evaluate
 
     scenes = str(tmp_path / "first" / "round-1" / "reattack")
-    start = evaluate("attfuse", scenes, weights_file=str(WEIGHTS_DIR / "attfuse.pt"))
-    attacked = evaluate("attfuse", scenes, weights_file=str(tmp_path / "first" / first["rounds"][1]["weights"]))
+    start = evaluate(ATTFUSE, scenes, weights_file=str(WEIGHTS_DIR / "attfuse.pt"))
+    attacked = evaluate(ATTFUSE, scenes, weights_file=str(tmp_path / "first" / first["rounds"][1]["weights"]))
     started = first["rounds"][1]["reattack"]["started_from"]
     assert started["frames"] == 1 and started["ap"] == pytest.approx(start["ap"])
     for y, key in (("global", "ap"), ("per-frame", "ap_per_frame")):
         assert started["gap"][y]["gap"] == pytest.approx(attacked[key]["0.7"] - start[key]["0.7"])
-    card = harden("attfuse", 1, tmp_path / "next", weights=tmp_path / "first" / "card.json",
+    card = harden(ATTFUSE, 1, tmp_path / "next", weights=tmp_path / "first" / "card.json",
                   config=replace(TINY, reattack=True, pool=("normal",)), detector_factory=ORACLE, log=_quiet)
     assert (tmp_path / "next" / "round-0" / "reattack" / "index.json").is_file()
     assert card["rounds"][0]["reattack"]["frames"] == 1
@@ -374,7 +377,7 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
     write_set(data_root, "holdout", {"test": ["g0", "g1", "g2"]})
     cfg = replace(TINY, guard_set="holdout")
     out = tmp_path / "h"
-    card = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    card = harden(ATTFUSE, 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
     g = card["rounds"][1]["guard"]  # the real guard, on the real matches of both weights
     assert g["set"] == "holdout" and g["frames"] == 3 and g["threshold"] == 0.7
     assert g["low"] <= g["gap"] <= g["high"] and g["kept"] == (g["high"] >= 0)
@@ -389,7 +392,7 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
         "set": guard_set, "threshold": 0.7, "gap": -0.1, "low": -0.2, "high": -0.05, "frames": 3, "kept": False})
     lines = []
     out2 = tmp_path / "h2"
-    card = harden("attfuse", 2, out2, config=cfg, detector_factory=ORACLE, log=lines.append)
+    card = harden(ATTFUSE, 2, out2, config=cfg, detector_factory=ORACLE, log=lines.append)
     start = weights_path("attfuse")
     assert [r["guard"]["kept"] for r in card["rounds"][1:]] == [False, False]
     assert starts == [start, start]  # round 2 trained from the start weights, not round 1's
@@ -414,7 +417,7 @@ def test_a_round_resumed_on_an_empty_data_root_guards_against_its_start_evaluate
     start_cache = start_evaluations_dir("x").parent
     assert any(start_cache.iterdir())
     shutil.rmtree(start_cache)
-    card = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    card = harden(ATTFUSE, 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
     g = card["rounds"][1]["guard"]
     assert g["set"] == "holdout" and g["frames"] == 3 and g["kept"] == (g["high"] >= 0)
 
@@ -439,7 +442,7 @@ def test_a_round_the_guard_drops_is_averaged_with_its_start_and_kept_if_that_pas
     real_fit = shipped_trainer.fit_chunk
     monkeypatch.setattr(shipped_trainer, "fit_chunk", lambda name, start, *a, **k: (starts.append(start), real_fit(name, start, *a, **k))[1])
     out = tmp_path / "h"
-    card = harden("attfuse", 2, out, config=replace(TINY, guard_set="holdout", guard_average=0.25),
+    card = harden(ATTFUSE, 2, out, config=replace(TINY, guard_set="holdout", guard_average=0.25),
                   detector_factory=ORACLE, log=_quiet)
     r1 = card["rounds"][1]
     assert r1["weights"] == "round-1/averaged.pt" and r1["guard"]["kept"] and r1["guard"]["averaged"] == 0.25
@@ -477,7 +480,7 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
         staged_when_scored.append((model.path.name, stage_path_of(model.path).is_file())), real_evaluate(model, *a))[1])
     out = tmp_path / "h"
     cfg = replace(TINY, guard_set="holdout", fit_stage=True)
-    card = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    card = harden(ATTFUSE, 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
     assert staged_when_scored == [("attfuse.pt", False), ("weights.pt", True), ("averaged.pt", True)]
     r1 = card["rounds"][1]
     assert r1["stage"]["weights"] == "averaged.stage.pt" and r1["unaveraged"]["stage"]["weights"] == "weights.stage.pt"
@@ -487,7 +490,7 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
     assert len(fitted) == 2
     del card["rounds"][1]  # the round resumed from its files: nothing fitted again, the same records
     (out / "card.json").write_text(json.dumps(card))
-    again = harden("attfuse", 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
+    again = harden(ATTFUSE, 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
     assert {p: p.stat().st_mtime_ns for p in fitted} == fitted and again["rounds"][1]["stage"] == r1["stage"]
     # the round's weights with their stage, and the same file without it, are two starts
     alone = tmp_path / "alone" / "weights.pt"
@@ -505,7 +508,7 @@ def test_a_point_stage_data_set_that_cannot_be_had_is_refused_before_the_run_sta
 
     monkeypatch.setattr(harden_stage, "load_point_stage_config", lambda: PointStageFitConfig(dataset="nosuchset"))
     with pytest.raises(InputError, match="nosuchset"):
-        harden("attfuse", 1, tmp_path / "h", config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, tmp_path / "h", config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
     assert not (tmp_path / "h").exists()
 
 
@@ -517,7 +520,7 @@ def test_a_guard_average_outside_zero_to_one_is_refused(share):
 
 def test_a_guard_set_that_is_trained_on_is_refused(tmp_path, data_root):
     with pytest.raises(InputError, match="guard_set 'normal' is trained on"):
-        harden("attfuse", 1, tmp_path / "h", config=replace(TINY, guard_set="normal"), detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, tmp_path / "h", config=replace(TINY, guard_set="normal"), detector_factory=ORACLE, log=_quiet)
     assert not (tmp_path / "h").exists()
 
 
@@ -564,24 +567,24 @@ def test_a_folder_claimed_before_a_setting_existed_resumes_and_other_settings_ar
     monkeypatch.setattr(hardening, "upgraded_rounds", stop)
     out = tmp_path / "h"
     with pytest.raises(Claimed):
-        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     record = json.loads((out / "run.json").read_text())
     assert record["config"]["lidar"] == "v2xp"
     del record["config"]["lidar"]
     (out / "run.json").write_text(json.dumps(record))
     with pytest.raises(Claimed):
-        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     # a folder from before rounds fitted their own point stage did not: it resumes without, not with
     del record["config"]["fit_stage"], record["point_stage"]
     (out / "run.json").write_text(json.dumps(record))
     with pytest.raises(Claimed):
-        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     with pytest.raises(InputError, match="fit_stage"):
-        harden("attfuse", 1, out, config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, out, config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
     record["config"]["lr"] *= 2
     (out / "run.json").write_text(json.dumps(record))
     with pytest.raises(InputError, match="config.lr"):
-        harden("attfuse", 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
 
 
 def test_start_weights_trained_for_another_lidar_are_named_in_one_line(tmp_path, data_root, monkeypatch):
@@ -605,7 +608,7 @@ def test_start_weights_trained_for_another_lidar_are_named_in_one_line(tmp_path,
     for weights, out in ((other, "other"), (None, "shipped")):
         lines = []
         with pytest.raises(Evaluating):
-            harden("attfuse", 1, tmp_path / out, weights=weights, config=TINY, detector_factory=ORACLE, log=lines.append)
+            harden(ATTFUSE, 1, tmp_path / out, weights=weights, config=TINY, detector_factory=ORACLE, log=lines.append)
         named = [line for line in lines if "LiDAR" in line]
         assert named == ([f"{other}: trained for the 'vlp16' LiDAR; every round casts its frames with 'v2xp', so round 0 "
                           "scores them on another sensor and the rounds tune them to it"] if weights else [])
@@ -620,13 +623,13 @@ def test_a_refused_run_builds_no_point_stage_set(tmp_path, data_root, monkeypatc
     monkeypatch.setattr(asg.datasets, "build_dataset", lambda *a, **k: pytest.fail("the stage's set was built"))
     staged = replace(TINY, fit_stage=True)
     with pytest.raises(InputError, match="fresh scenes"):
-        harden("attfuse", 50, tmp_path / "a", config=staged, detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 50, tmp_path / "a", config=staged, detector_factory=ORACLE, log=_quiet)
     out = tmp_path / "b"
     out.mkdir()
     (out / "run.json").write_text(json.dumps({"schema": 1, "fusion": "attfuse"}))
     (out / "card.json").write_text("{}")
     with pytest.raises(InputError, match="other settings"):
-        harden("attfuse", 1, out, config=staged, detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, out, config=staged, detector_factory=ORACLE, log=_quiet)
 
 
 def test_a_run_folder_recording_opencood_epochs_resumes(tmp_path):

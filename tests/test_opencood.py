@@ -814,13 +814,13 @@ def test_the_guards_average_of_two_opencood_models_is_a_model_folder(tmp_path):
     (trained / "net_epoch1.pth").rename(trained / "net_epoch2.pth")
     trainer = round_trainer(resolve_target(f"opencood:{start}"), load_harden_config())
     averaged = trainer.average(trainer.start(None), trainer.model_at(trained), 0.25, tmp_path / "round-1")
-    assert averaged.path == tmp_path / "round-1" / "averaged" and averaged.fusion == f"opencood:{averaged.path}"
+    assert averaged.path == tmp_path / "round-1" / "averaged" and averaged.target.name == f"opencood:{averaged.path}"
     assert sorted(p.name for p in averaged.path.iterdir()) == [".complete", "config.yaml", "net_epoch2.pth"]
     a, b, mix = (torch.load(p, weights_only=True) for p in (start / "net_epoch1.pth", trained / "net_epoch2.pth",
                                                               averaged.path / "net_epoch2.pth"))
     key = next(k for k, v in a.items() if v.is_floating_point() and not torch.equal(v, b[k]))
     assert torch.allclose(mix[key], 0.75 * a[key] + 0.25 * b[key])
-    resolve_target(averaged.fusion).check()  # the adapter builds it
+    averaged.target.check()  # the adapter builds it
 
 
 def test_ego_row_attention_is_opencoods_attfusion(monkeypatch, tmp_path):

@@ -589,13 +589,14 @@ def test_a_signal_to_a_hardening_run_past_its_start_ends_it_and_it_resumes(tmp_p
     no temporary file; the same command then resumes and finishes the round (from the attack's
     finished scenes, or from the fine-tuning's checkpoint)."""
     psutil = pytest.importorskip("psutil")
+    from asg.perception.targets import resolve_target
     from asg.workflows.challenging import build_challenging
     from test_tables import write_set
 
     root = tmp_path / "data"
     write_set(root, "normal", {"train": ["n0", "n1"], "val": ["n2"]})
     monkeypatch.setenv("ASG_DATA", str(root))
-    build_challenging("attfuse", "val", detector_factory="fakes:oracle_factory")  # round 0 evaluates on it
+    build_challenging(resolve_target("attfuse"), "val", detector_factory="fakes:oracle_factory")  # round 0 evaluates on it
     config = tmp_path / "harden.yaml"
     config.write_text(_HARDEN_TINY)
     out = tmp_path / "harden"

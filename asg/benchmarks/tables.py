@@ -129,11 +129,13 @@ def finetune_table(run: TableRun) -> tuple[list[dict], int]:
     older build of the set would leave behind)."""
     from functools import cache
 
+    from ..perception.targets import resolve_target
     from ..workflows.challenging import build_challenging
 
     @cache
     def own_set(model: str) -> str:
-        return build_challenging(model, "val", run.executor, count=run.scenes, detector_factory=run.detector_factory).name
+        return build_challenging(resolve_target(model), "val", run.executor, count=run.scenes,
+                                 detector_factory=run.detector_factory).name
 
     challenging = own_set("attfuse")
     scored: dict[tuple[str, str], dict] = {}  # AttFuse's own attack is challenging-val: scored once
@@ -159,6 +161,7 @@ def harden_rows(run: TableRun) -> list[dict]:
         return []
     from dataclasses import replace
 
+    from ..perception.targets import resolve_target
     from ..workflows.harden import DATA_KINDS, harden, load_harden_config
 
     base = run.harden_config or load_harden_config()
@@ -166,7 +169,7 @@ def harden_rows(run: TableRun) -> list[dict]:
         base = replace(base, scenes_per_round=run.scenes)
     rows = []
     for data in DATA_KINDS:
-        card = harden("attfuse", run.harden_rounds, run.out / "harden" / data, config=replace(base, data=data),
+        card = harden(resolve_target("attfuse"), run.harden_rounds, run.out / "harden" / data, config=replace(base, data=data),
                       executor=run.executor, detector_factory=run.detector_factory, log=lambda *_: None)
         for row in card["rounds"][1:]:
             model = f"harden-{data}-r{row['round']}"
@@ -189,6 +192,7 @@ def harden_rows(run: TableRun) -> list[dict]:
 def transfer_table(run: TableRun) -> tuple[list[dict], int]:
     """Table III: each model scored on the challenging scenes generated against each model (train
     split), and on the normal scenes they came from."""
+    from ..perception.targets import resolve_target
     from ..workflows.challenging import set_name
 
     rows, counts = [], set()
@@ -199,7 +203,7 @@ def transfer_table(run: TableRun) -> tuple[list[dict], int]:
         normal = _evaluate(target, "normal", run)
         rows.append({"source": "normal", "target": target, "ap": normal["ap"], "paper": None})
         for source in models:
-            res = _evaluate(target, set_name(source, "train"), run)
+            res = _evaluate(target, set_name(resolve_target(source), "train"), run)
             counts.add(res["frames"])
             rows.append({"source": source, "target": target, "ap": res["ap"],
                          "paper": paper.TRANSFER.get((source, target))})
@@ -300,9 +304,10 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
 def _challenging(model: str, split: str, run: TableRun) -> dict:
     """{"scenes", "normal", "challenging"}: the model's challenging set of ``split`` (built or
     resumed), pooled over its first ``run.scenes`` scenes."""
+    from ..perception.targets import resolve_target
     from ..workflows.challenging import build_challenging, first_scenes_ap
 
-    out = build_challenging(model, split, run.executor, count=run.scenes, detector_factory=run.detector_factory)
+    out = build_challenging(resolve_target(model), split, run.executor, count=run.scenes, detector_factory=run.detector_factory)
     return first_scenes_ap(out, run.scenes, run.ap_method)
 
 
@@ -310,10 +315,11 @@ def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
     """{"ap": AP by threshold ranked by ``run.ap_method``, "frames"} of ``model`` on ``set_name``
     (detected once per measurement: see TableRun.scored)."""
     from ..evaluation import evaluate
+    from ..perception.targets import resolve_target
 
     key = (model, set_name)
     if key not in run.scored:
-        run.scored[key] = evaluate(model, set_name, limit=run.scenes, executor=run.executor,
+        run.scored[key] = evaluate(resolve_target(model), set_name, limit=run.scenes, executor=run.executor,
                                    detector_factory=run.detector_factory)
     res = run.scored[key]
     ap = PooledAP.from_result(res).of(run.ap_method)

@@ -38,14 +38,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _build_challenging(args: argparse.Namespace) -> int:
+    from ..perception.targets import resolve_target
     from ..workflows.challenging import build_challenging
 
     if not args.fusion or not args.split:
         raise InputError("give --fusion NAME and --split train|val, e.g. 'asg dataset build challenging "
                          "--fusion attfuse --split val'")
+    target = resolve_target(args.fusion)
     with progress_bar() as bar, executor_from_args(args, args.count or 10**6) as executor:
         task = bar.add_task(f"challenging {args.fusion} {args.split}", total=None)
-        out = build_challenging(args.fusion, args.split, executor, args.count,
+        out = build_challenging(target, args.split, executor, args.count,
                                 on_scene=lambda done, total, sid: bar.update(task, completed=done, total=total))
     index = json.loads((out / "index.json").read_text())
     pair = pooled_pair(index, REATTACK_PAIR)

@@ -75,9 +75,7 @@ def run(args: argparse.Namespace) -> int:
                                weights=None if args.weights is None else str(args.weights))
     cfg = with_space_flags(cfg, args.plausibility, args.space)
     if cfg.weights and not args.detector:
-        from ..perception import check_weights_file
-
-        check_weights_file(cfg.fusion, cfg.weights)
+        cfg.target.check(cfg.weights)
     if args.detector:  # built once here, so that a broken factory is refused before anything is written
         factory_models(args.detector, cfg)
     executor = executor_from_args(args, count)  # checked before anything is written
@@ -86,9 +84,8 @@ def run(args: argparse.Namespace) -> int:
     if args.count is not None and len(scenes) < count:
         console.print(f"the source holds {len(scenes)} usable scenes (asked for {count}); generating {len(scenes)}")
     from ..perception.fusion import ATTENTION_LENDER
-    from ..perception.targets import resolve_target
 
-    if cfg.acs_needs_attention and not args.detector and resolve_target(cfg.fusion).borrows_attention:
+    if cfg.acs_needs_attention and not args.detector and cfg.target.borrows_attention:
         console.print(f"note: {cfg.fusion} has no attention of its own; ACS-{cfg.acs} reads the shipped "
                       f"{ATTENTION_LENDER}'s (--acs random or off for a search without it)")
     if demo:

@@ -45,6 +45,14 @@ class GenerateConfig:
     space: SpaceConfig = field(default_factory=SpaceConfig)
 
     @property
+    def target(self):
+        """The target ``fusion`` names (asg.perception.targets.Target): what the run asks about
+        it (its detector, attention, digests) it asks this object, never the name."""
+        from ..perception.targets import resolve_target
+
+        return resolve_target(self.fusion)
+
+    @property
     def acs_needs_attention(self) -> bool:
         """Does the collaborator search read attention weights (then the run loads an attention model)?"""
         from ..collaborators import ACS_STRATEGIES
@@ -54,9 +62,7 @@ class GenerateConfig:
     def validate(self) -> "GenerateConfig":
         """The settings checked: the target (its own messages name its source: a model folder's
         config.yaml, not this config), then every other value (:meth:`validate_values`)."""
-        from ..perception.targets import check_fusion
-
-        check_fusion(self.fusion)
+        self.target.check()
         return self.validate_values()
 
     def validate_values(self) -> "GenerateConfig":
@@ -125,9 +131,7 @@ def load_generate_config(path: Path | None = None, protocol: str | None = None, 
         if str(path) in text or text.startswith("--"):
             raise
         raise InputError(f"{path}: {text}") from None
-    from ..perception.targets import check_fusion
-
-    check_fusion(cfg.fusion)  # outside the try: its refusal names its own source (a model folder), not this file
+    cfg.target.check()  # outside the try: its refusal names its own source (a model folder), not this file
     return cfg
 
 

@@ -196,9 +196,7 @@ def run_scenes(cfg: GenerateConfig, scenes: Sequence[Scene], out: Path, *, seed:
 def candidate_threads(cfg: GenerateConfig, detector_factory: str | None, executor: Executor, items: int) -> int:
     """The threads each worker scores a search's candidates on: the cores its executor leaves idle,
     for a target whose kind detects frames on several threads at once (a factory's detector: 1)."""
-    from ..perception.targets import resolve_target
-
-    if detector_factory or not resolve_target(cfg.fusion).concurrent_frames:
+    if detector_factory or not cfg.target.concurrent_frames:
         return 1
     return executor.spare_threads(items)
 
@@ -268,7 +266,7 @@ def _shipped_models(cfg: GenerateConfig):
     from ..perception import build_detector
     from ..perception.fusion import ATTENTION_LENDER, has_own_attention
 
-    target = build_detector(cfg.fusion, weights_file=cfg.weights)
+    target = cfg.target.detector(cfg.weights)
     acs_model = None
     if cfg.acs_needs_attention:  # the target's own attention when it has one, else the shipped AttFuse's
         acs_model = target if has_own_attention(target) else build_detector(ATTENTION_LENDER)
@@ -294,21 +292,19 @@ def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> di
                 "search_settings": search_params(cfg.search)}  # configs/search/NAME.yaml (BO's batch, ...)
     if cfg.weights:
         settings["weights_sha256"] = file_digest(Path(cfg.weights))
-    shipped = shipped_digests(cfg.fusion, cfg.weights, cfg.acs_needs_attention)
+    shipped = shipped_digests(cfg.target, cfg.weights, cfg.acs_needs_attention)
     if shipped:
         settings["shipped_weights_sha256"] = shipped
-    from ..perception.targets import resolve_target
-
-    settings.update(resolve_target(cfg.fusion).run_record())  # e.g. a model folder's files' digests
+    settings.update(cfg.target.run_record())  # e.g. a model folder's files' digests
     return settings
 
 
-def shipped_digests(fusion: str, weights: str | None, acs_attention: bool) -> dict[str, str]:
-    """{weights name: sha256} of the shipped weights files a run of these settings loads (the
-    target's when no ``weights`` file is given; the shipped AttFuse's for attention-based ACS)."""
+def shipped_digests(target, weights: str | None, acs_attention: bool) -> dict[str, str]:
+    """{weights name: sha256} of the shipped weights files a run against ``target`` loads (its own
+    when it is given no ``weights`` file; the shipped AttFuse's for attention-based ACS)."""
     from ..perception.targets import shipped_weights_of
 
-    files = shipped_weights_of(fusion, target=not weights, acs_attention=acs_attention)
+    files = shipped_weights_of(target, own=not weights, acs_attention=acs_attention)
     return {name: file_digest(path) for name, path in sorted(files.items())}
 
 
@@ -349,7 +345,9 @@ def with_new_defaults(record: dict) -> dict:
     if "search_settings" not in filled and isinstance(cfg, dict) and isinstance(cfg.get("search"), str):
         filled["search_settings"] = search_params(cfg["search"])
     if "shipped_weights_sha256" not in filled and isinstance(cfg, dict):
-        shipped = shipped_digests(str(cfg.get("fusion")), cfg.get("weights"), _reads_attention(cfg.get("acs")))
+        from ..perception.targets import resolve_target  # the name a record holds: resolved as a flag is
+
+        shipped = shipped_digests(resolve_target(str(cfg.get("fusion"))), cfg.get("weights"), _reads_attention(cfg.get("acs")))
         if shipped:
             filled["shipped_weights_sha256"] = shipped
     return filled
@@ -371,7 +369,7 @@ def made_with_other_shipped_weights(out: Path, cfg: GenerateConfig) -> str | Non
         return None
     if not isinstance(recorded, dict):
         return None  # a damaged record: claiming the folder refuses it
-    today = shipped_digests(cfg.fusion, cfg.weights, cfg.acs_needs_attention)
+    today = shipped_digests(cfg.target, cfg.weights, cfg.acs_needs_attention)
     return next((name for name in sorted(set(recorded) | set(today)) if recorded.get(name) != today.get(name)), None)
 
 

@@ -59,13 +59,14 @@ def card_validation(name: str, log: Callable[[str], None] = print, set_name: str
     """Evaluate the ``name`` weights in ``weights_dir`` (a training run folder) on ``set_name``
     (every fusion that uses them) and record the APs in that folder's model card."""
     from ..evaluation import evaluate
+    from ..perception.targets import resolve_target
 
     card_path = weights_dir / f"{name}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {"weights": f"{name}.pt"}
     card["validation"] = {}
     for fusion in fusions_of(name):  # none and late share 'single'
         t0 = time.perf_counter()
-        res = evaluate(fusion, set_name, weights_file=str(weights_dir / f"{name}.pt"))
+        res = evaluate(resolve_target(fusion), set_name, weights_file=str(weights_dir / f"{name}.pt"))
         card["validation"][fusion] = {"set": set_name, "frames": res["frames"],
                                       "ap": {k: round(v, 4) for k, v in res["ap"].items()},
                                       "eval_wall_s": round(time.perf_counter() - t0, 1)}

@@ -22,6 +22,7 @@ from sumo_scenarios.errors import InputError
 from ..datasets import challenging_scenes, data_root, iter_frames  # noqa: F401  (challenging_scenes: this module's API)
 from ..objective.ap import DEFAULT_AP_METHOD
 from ..objective.pooled import pair_json
+from ..perception.targets import Target
 from ..schemas import SchemaFile, stamped
 from ..scene import load_scene
 
@@ -31,37 +32,34 @@ SPLITS = ("train", "val")
 SEED = 1
 
 
-def set_name(fusion: str, split: str) -> str:
+def set_name(target: Target, split: str) -> str:
     """``challenging-LABEL-SPLIT``, LABEL the target's (a shipped model's name; an OpenCOOD model
     folder's name and digest)."""
-    from ..perception.targets import resolve_target
-
-    return f"challenging-{resolve_target(fusion).label}-{split}"
+    return f"challenging-{target.label}-{split}"
 
 
-def build_challenging(fusion: str, split: str, executor=None, count: int | None = None,
+def build_challenging(target: Target, split: str, executor=None, count: int | None = None,
                       detector_factory: str | None = None, on_scene=None, weights_file: str | None = None,
                       out: Path | None = None, log=print) -> Path:
-    """Generate (or resume) the challenging set of ``fusion`` on the ``split`` of ``normal``;
+    """Generate (or resume) the challenging set of ``target`` on the ``split`` of ``normal``;
     ``count``: only the first scenes (a quick build); ``weights_file``: attack these weights of
-    ``fusion`` instead of the shipped ones (then give ``out``: the set is not the shipped model's).
+    ``target`` instead of the shipped ones (then give ``out``: the set is not the shipped model's).
     Returns the data set's folder (``out``, default DATA/challenging-FUSION-SPLIT). A set attacked
     against shipped weights that have changed since is generated again."""
     from ..generator.run import SceneSource, made_with_other_shipped_weights, open_run
     from ..generator.run_folder import aggregate_pooled, load_done
     from ..generator.stages import Stage
     from ..generator.config import load_generate_config
-    from ..perception import check_fusion
 
     if split not in SPLITS:
         raise InputError(f"--split must be one of {', '.join(SPLITS)}, got {split!r}")
     if detector_factory is None:
-        check_fusion(fusion)
+        target.check()
     if weights_file and out is None:
         raise InputError("a challenging set of other weights needs its own folder (out)")
-    cfg = load_generate_config(fusion=fusion, weights=None if weights_file is None else str(weights_file))
+    cfg = load_generate_config(fusion=target.name, weights=None if weights_file is None else str(weights_file))
     source = SceneSource(scenes=Path("normal-val" if split == "val" else "normal"))
-    out = Path(out) if out is not None else data_root() / set_name(fusion, split)
+    out = Path(out) if out is not None else data_root() / set_name(target, split)
     run_dir = out / "run"
 
     def wanted(every: list) -> list:
@@ -85,7 +83,7 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
                 fh.write(json.dumps(final.to_dict(), separators=(",", ":")) + "\n")
     agg = run.summary["aggregate"]
     # the attacked detector: the shipped FUSION, its WEIGHTS, or a detector factory's target
-    attacked = {"fusion": fusion, "weights": cfg.weights, **({"detector": detector_factory} if detector_factory else {})}
+    attacked = {"fusion": target.name, "weights": cfg.weights, **({"detector": detector_factory} if detector_factory else {})}
     source = {"set": "normal", "split": split, **attacked, "seed": SEED, "skipped": [sid for sid, _ in run.skipped]}
     pooled = {"normal": aggregate_pooled(agg, Stage.NORMAL), "challenging": aggregate_pooled(agg, Stage.FINAL)}
     index = stamped(SchemaFile.INDEX, {"name": out.name, "frames": len(ids), "splits": {split: ids}, "source": source,
@@ -94,13 +92,13 @@ def build_challenging(fusion: str, split: str, executor=None, count: int | None 
     return out
 
 
-def own_val_set(fusion: str, executor=None, log=print) -> str:
-    """The name of ``fusion``'s challenging val set (normal-val attacked against the shipped
+def own_val_set(target: Target, executor=None, log=print) -> str:
+    """The name of ``target``'s challenging val set (normal-val attacked against the shipped
     model), built first if missing: the fixed yardstick of fine-tuning and hardening."""
-    own_val = set_name(fusion, "val")
+    own_val = set_name(target, "val")
     if not (data_root() / own_val / "index.json").is_file():
         log(f"building {own_val} (the original model attacked on normal-val) ...")
-        build_challenging(fusion, "val", executor=executor)
+        build_challenging(target, "val", executor=executor)
     return own_val
 
 

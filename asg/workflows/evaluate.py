@@ -29,23 +29,20 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from ..executors import build_executor
-    from ..perception import check_fusion, check_weights_file
     from ..perception.targets import resolve_target
     from ..progress import console, print_result, progress_bar
 
-    check_fusion(args.fusion)
-    truth = check_ground_truth(GroundTruth(args.ground_truth), args.fusion)
     weights = None if args.weights is None else str(args.weights)
-    if weights:
-        check_weights_file(args.fusion, weights)
+    target = resolve_target(args.fusion).check(weights)  # one line for an unknown fusion or a foreign file
+    truth = check_ground_truth(GroundTruth(args.ground_truth), target)
     # without --workers or --executor: this process on every thread; else workers of one thread
     spread = args.workers is not None or args.executor != "local"
     with progress_bar() as bar, (build_executor(args.executor, args.workers or 1, threads=1, address=args.address)
                                  if spread else contextlib.nullcontext()) as executor:
         task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
-        result = evaluate(args.fusion, args.set, args.limit, lambda n: bar.update(task, completed=n),
+        result = evaluate(target, args.set, args.limit, lambda n: bar.update(task, completed=n),
                           weights_file=weights, executor=executor, truth=truth)
-    if note := resolve_target(args.fusion).evaluation_note():
+    if note := target.evaluation_note():
         console.print(f"[yellow]note: {note}")
     if result["without_collaborators"]:
         console.print(f"[yellow]note: {result['without_collaborators']} of {result['frames']} scenes name no "

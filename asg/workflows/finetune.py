@@ -34,27 +34,26 @@ from ..cli_args import COUNT, executor_from_args, fusion_arg, training_run_args
 from ..io.run_record import claim, with_defaults
 from ..objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pair_json, pooled_pair
 from ..training.config import FINETUNE_BLOCK, FinetuneConfig, load_finetune_config, train_block
+from ..perception.targets import Target
 from .trainers.base import Model
 from .trainers.chunk import MixedBatches, mixed_sources  # noqa: F401  (this module's API too: scripts)
 
 
-def finetuned_name(fusion: str) -> str:
+def finetuned_name(target: Target) -> str:
     """The fine-tuned model's name (its weights file's stem and its card's): the target's label + -ft."""
-    from ..perception.targets import resolve_target
-
-    return f"{resolve_target(fusion).label}-ft"
+    return f"{target.label}-ft"
 
 
-def default_out(fusion: str) -> Path:
-    return runs_dir() / "finetune" / finetuned_name(fusion)
+def default_out(target: Target) -> Path:
+    return runs_dir() / "finetune" / finetuned_name(target)
 
 
-def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None = None,
+def finetune(target: Target, on: str, out: Path | None = None, *, steps: int | None = None,
              weights: Path | None = None, threads: int = 2, force: bool = False, executor=None,
              stages: tuple[str, ...] = ("train", "evaluate", "reattack"), config: FinetuneConfig | None = None,
              config_path: Path | None = None, log: Callable[[str], None] = print,
              progress: Callable[[int, int, float], None] | None = None) -> dict:
-    """Run (or resume) the fine-tuning of ``fusion`` on challenging set ``on``; returns its card.
+    """Run (or resume) the fine-tuning of ``target`` on challenging set ``on``; returns its card.
     The target's trainer (asg.workflows.trainers: asg's own, or OpenCOOD's for an OpenCOOD model
     folder) trains it.
 
@@ -64,44 +63,43 @@ def finetune(fusion: str, on: str, out: Path | None = None, *, steps: int | None
     file ``config`` came from (None: train.yaml)."""
     from .challenging import challenging_scenes
     from .trainers import round_trainer
-    from ..perception.targets import resolve_target
 
     fcfg = config or load_finetune_config()
     fcfg = replace(fcfg, steps=steps) if steps else fcfg
-    trainer = round_trainer(resolve_target(fusion), fcfg, threads, config_path)
+    trainer = round_trainer(target, fcfg, threads, config_path)
     given = dict(train_block(FINETUNE_BLOCK, config_path)) if config_path else {}
     trainer.check(weights, given | ({"steps": steps} if steps else {}), train_block(FINETUNE_BLOCK, None))
     start = trainer.start(weights)
-    out = Path(out) if out is not None else default_out(fusion)
+    out = Path(out) if out is not None else default_out(target)
     challenging_scenes(on)  # one clear line if the set is not built
     from ..datasets import check_set_name
 
     for set_name in fcfg.eval_sets:  # refused now, not after the training
         check_set_name(set_name)
-    settings = {"fusion": fusion, "on": on, **trainer.settings(start), "steps": fcfg.steps, "config": asdict(fcfg)}
+    settings = {"fusion": target.name, "on": on, **trainer.settings(start), "steps": fcfg.steps, "config": asdict(fcfg)}
     claim(out, settings, force, what="a fine-tuning run",  # a setting added since: the default that reproduces it
           as_today=lambda record: with_defaults(record, {"config": asdict(FinetuneConfig()), "point_stage": None}))
-    name = finetuned_name(fusion)
+    name = finetuned_name(target)
     card_path = out / f"{name}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {}
     if "train" in stages and not card.get("trained"):
         model, trained = trainer.train(start, {on: list(challenging_scenes(on))}, out, log, progress, name=name)
-        card = {"weights": str(model.path.relative_to(out)), "fusion": fusion,
+        card = {"weights": str(model.path.relative_to(out)), "fusion": target.name,
                 "start": {"weights": str(start.path), "sha256": trainer.digest(start)}, "trained": trained | {"on": on}}
         write_text_atomic(card_path, json.dumps(card, indent=1))
     if not card.get("trained") and set(stages) - {"train"}:
         raise InputError(f"{out}: no fine-tuned model yet; run the train stage first")
     tuned = trainer.model_at(out / card["weights"]) if card.get("trained") else None
     if "evaluate" in stages:
-        card["evaluation"] = evaluate_before_after(fusion, start, tuned, fcfg, out / "eval", executor, log)
+        card["evaluation"] = evaluate_before_after(target, start, tuned, fcfg, out / "eval", executor, log)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     if "reattack" in stages:
-        card["reattack"] = reattack(fusion, tuned, out / "reattack", executor, log)
+        card["reattack"] = reattack(target, tuned, out / "reattack", executor, log)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
 
 
-def evaluate_before_after(fusion: str, start: Model, tuned: Model, fcfg: FinetuneConfig, cache: Path,
+def evaluate_before_after(target: Target, start: Model, tuned: Model, fcfg: FinetuneConfig, cache: Path,
                           executor, log: Callable[[str], None]) -> dict:
     """``start`` and ``tuned`` (the fine-tuned model): {set: {"before", "after": a pooled AP each ({"ap", "ap_per_frame"}: AP by threshold ours and
     ranked per frame, the paper's yardstick), "frames": N}} on each eval set and the original
@@ -110,7 +108,7 @@ def evaluate_before_after(fusion: str, start: Model, tuned: Model, fcfg: Finetun
     from .challenging import own_val_set
     from ..evaluation import evaluate
 
-    own_val = own_val_set(fusion, executor, log)
+    own_val = own_val_set(target, executor, log)
     table = {}
     for set_name_ in (*fcfg.eval_sets, own_val):
         row = {}
@@ -118,7 +116,7 @@ def evaluate_before_after(fusion: str, start: Model, tuned: Model, fcfg: Finetun
             hit = cache / f"{when}-{set_name_}.json"
             result = json.loads(hit.read_text()) if hit.is_file() else {}
             if not result or PooledAP.from_result(result).ap_per_frame is None:
-                result = evaluate(model.fusion, set_name_, weights_file=model.weights_arg, executor=executor)
+                result = evaluate(model.target, set_name_, weights_file=model.weights_arg, executor=executor)
                 result = PooledAP.from_result(result).to_json() | {"frames": result["frames"]}
                 cache.mkdir(parents=True, exist_ok=True)
                 write_text_atomic(hit, json.dumps(result))
@@ -130,16 +128,16 @@ def evaluate_before_after(fusion: str, start: Model, tuned: Model, fcfg: Finetun
     return table
 
 
-def reattack(fusion: str, tuned: Model, out: Path, executor, log: Callable[[str], None]) -> dict:
+def reattack(target: Target, tuned: Model, out: Path, executor, log: Callable[[str], None]) -> dict:
     """The paper's protocol on normal-val against the fine-tuned model ``tuned`` (a challenging set
-    in ``out``), beside the original model ``fusion`` under its own attack (challenging-FUSION-val)."""
+    in ``out``), beside the original ``target`` under its own attack (challenging-FUSION-val)."""
     from .challenging import build_challenging, set_name
     from ..datasets import data_root
 
     log("re-attacking the fine-tuned model on normal-val ...")
-    built = build_challenging(tuned.fusion, "val", executor=executor, weights_file=tuned.weights_arg, out=out)
+    built = build_challenging(tuned.target, "val", executor=executor, weights_file=tuned.weights_arg, out=out)
     mine = json.loads((built / "index.json").read_text())
-    original = json.loads((data_root() / set_name(fusion, "val") / "index.json").read_text())
+    original = json.loads((data_root() / set_name(target, "val") / "index.json").read_text())
 
     def both(index: dict) -> dict:  # ours, and per frame where the set recorded it
         return pair_json(pooled_pair(index, REATTACK_PAIR))
@@ -176,17 +174,19 @@ def run(args: argparse.Namespace) -> int:
 
     from ..objective import ap_text
     from .challenging import set_name
+    from ..perception.targets import resolve_target
     from ..progress import console, loss_progress, progress_bar, stdout
 
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
     unknown = sorted(set(stages) - {"train", "evaluate", "reattack"})
     if unknown or not stages:
         raise InputError(f"--stages takes train, evaluate and reattack, got {args.stages!r}")
+    target = resolve_target(args.fusion)  # one line for an unknown fusion
     config = load_finetune_config(args.config)
-    on = args.on or set_name(args.fusion, "train")  # (one line for an unknown fusion)
+    on = args.on or set_name(target, "train")
     with progress_bar() as bar, executor_from_args(args, 10**6) as executor:  # one worker per core by default
         report = loss_progress(bar, bar.add_task(f"fine-tuning {args.fusion}", total=None), f"fine-tuning {args.fusion}")
-        card = finetune(args.fusion, on, args.out, steps=args.steps, weights=args.weights, threads=args.threads,
+        card = finetune(target, on, args.out, steps=args.steps, weights=args.weights, threads=args.threads,
                         force=args.force, executor=executor, stages=stages, config=config, config_path=args.config,
                         log=console.print, progress=report)
     table = Table(title=f"asg finetune --fusion {args.fusion} --on {on}: AP@0.3 / 0.5 / 0.7, and AP@0.7 ours / "
@@ -204,5 +204,5 @@ def run(args: argparse.Namespace) -> int:
         table.add_row("own attack on normal-val", str(r["frames"]), ap_text(original.ap), ap_text(finetuned.ap),
                       original.text(), finetuned.text())
     stdout.print(table)
-    console.print(f"weights and card: {card.get('weights')} in {args.out or default_out(args.fusion)}")
+    console.print(f"weights and card: {card.get('weights')} in {args.out or default_out(target)}")
     return 0

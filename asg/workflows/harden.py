@@ -46,7 +46,7 @@ from .challenging import own_val_set
 from .trainers import Model, round_trainer
 from .trainers.base import AVERAGED, is_kept  # (is_kept: this module's API too)
 from ..io.run_record import claim, with_defaults
-from ..perception.targets import resolve_target
+from ..perception.targets import Target
 from ..training.config import FinetuneConfig, train_block, check_train_config
 from ..scene import Scene
 
@@ -111,16 +111,18 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
     return cfg
 
 
-def default_out(fusion: str, data: str) -> Path:
-    return runs_dir() / "harden" / (fusion if data == "adversarial" else f"{fusion}-{data}")
+def default_out(target: Target, data: str) -> Path:
+    """runs/harden/LABEL, or runs/harden/LABEL-DATA for a control."""
+    return runs_dir() / "harden" / (target.label if data == "adversarial" else f"{target.label}-{data}")
 
 
-def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path | None = None,
+def harden(target: Target, rounds: int, out: Path | None = None, *, weights: Path | None = None,
            config: HardenConfig | None = None, space: tuple[str, ...] | None = None, executor=None,
            threads: int = 2, force: bool = False, detector_factory: str | None = None,
            config_path: Path | None = None, log: Callable[[str], None] = print,
            progress: Callable[[int, int, float], None] | None = None) -> dict:
-    """Run (or resume) ``rounds`` rounds of hardening ``fusion``; returns the card. The target's
+    """Run (or resume) ``rounds`` rounds of hardening ``target`` (asg.perception.targets.resolve_target
+    gives it from a ``--fusion`` name); returns the card. The target's
     round trainer (asg.workflows.trainers) trains each round; everything else here is the same for
     every kind.
 
@@ -132,21 +134,21 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
         raise InputError(f"--rounds must be a whole number from 1 to {MAX_ROUNDS}, got {rounds!r}")
     cfg = config or load_harden_config()
     _check_before_starting(cfg, space)
-    trainer = round_trainer(resolve_target(fusion), cfg, threads, config_path)
+    trainer = round_trainer(target, cfg, threads, config_path)
     trainer.check(weights, train_block(HARDEN_BLOCK, config_path) if config_path else None, train_block(HARDEN_BLOCK, None))
     start = trainer.start(weights)
-    out = Path(out) if out is not None else default_out(trainer.target.label, cfg.data)
+    out = Path(out) if out is not None else default_out(target, cfg.data)
     pool = _pool(cfg)
     if rounds * cfg.scenes_per_round > len(pool):
         raise InputError(f"{rounds} rounds of {cfg.scenes_per_round} fresh scenes need {rounds * cfg.scenes_per_round}; "
                          f"the pool ({', '.join(cfg.pool)}) holds {len(pool)}: fewer rounds or scenes_per_round")
-    settings = {"fusion": fusion, **trainer.settings(start), "config": asdict(cfg),
+    settings = {"fusion": target.name, **trainer.settings(start), "config": asdict(cfg),
                 "space": list(space) if space else None, "detector": detector_factory}
     claim(out, settings, force, what="a hardening run", as_today=_as_today)
     trainer.prepare()
     card_path = out / "card.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {
-        "fusion": fusion, "data": cfg.data, "start": {"weights": str(start.path), "sha256": trainer.digest(start)},
+        "fusion": target.name, "data": cfg.data, "start": {"weights": str(start.path), "sha256": trainer.digest(start)},
         "rounds": []}
     card["rounds"] = upgraded_rounds(card["rounds"])
     trainer.log_start(start, log)
@@ -171,7 +173,7 @@ def harden(fusion: str, rounds: int, out: Path | None = None, *, weights: Path |
             row["weights"] = str(model.path.relative_to(out))
         log(f"round {k}: evaluating {model.path} ...")
         cache = _eval_cache(trainer, out, k, model)
-        own_val = own_val or own_val_set(fusion, executor, log)  # built once, before the first evaluation
+        own_val = own_val or own_val_set(target, executor, log)  # built once, before the first evaluation
         row["evaluation"] = evaluate_round(model, own_val, cfg, cache, executor, log)
         if k and cfg.guard_set is not None:
             before = _eval_cache(trainer, out, current_round, current)  # evaluated again if gone (another data root)

@@ -34,10 +34,10 @@ def run(args: argparse.Namespace) -> int:
     target = resolve_target(args.fusion)  # one line for an unknown fusion
     space = tuple(k.strip() for k in args.space.split(",") if k.strip()) if args.space else None
     config = load_harden_config(args.config, data=args.data)
-    out = args.out or default_out(target.label, config.data)
+    out = args.out or default_out(target, config.data)
     with progress_bar() as bar, executor_from_args(args, 10**6) as executor:
         report = loss_progress(bar, bar.add_task(f"hardening {args.fusion}", total=None), f"hardening {args.fusion}")
-        card = harden(args.fusion, args.rounds, out, weights=args.weights, config=config, space=space,
+        card = harden(target, args.rounds, out, weights=args.weights, config=config, space=space,
                       executor=executor, threads=args.threads, force=args.force, config_path=args.config,
                       log=console.print, progress=report)
     rows = card["rounds"]

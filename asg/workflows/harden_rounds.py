@@ -32,7 +32,7 @@ def round_data(model: Model, scenes: list[Scene], cfg, space, run_dir: Path, exe
     from ..generator.run import open_run
     from ..generator.config import load_generate_config
 
-    gen_cfg = load_generate_config(fusion=model.fusion, weights=model.weights_arg)
+    gen_cfg = load_generate_config(fusion=model.target.name, weights=model.weights_arg)
     if space:
         gen_cfg = replace(gen_cfg, space=replace(gen_cfg.space, kinds=tuple(space))).validate()
     if cfg.data == "normal":
@@ -81,7 +81,7 @@ def evaluated_set(model: Model, label: str, set_arg: str, cache: Path, guarded: 
         pooled = PooledAP.from_json(cached)
         if pooled.ap_per_frame is not None and (matches.is_file() or not guarded):
             return pooled.to_json() | {"frames": cached["frames"]}
-    result = evaluate(model.fusion, set_arg, weights_file=model.weights_arg, executor=executor, keep_matches=guarded)
+    result = evaluate(model.target, set_arg, weights_file=model.weights_arg, executor=executor, keep_matches=guarded)
     pooled = PooledAP.from_result(result)
     row = pooled.to_json(4) | {"frames": result["frames"]}
     cache.mkdir(parents=True, exist_ok=True)
@@ -136,7 +136,7 @@ def reattack_round(model: Model | None, own_val: str, out: Path, executor, detec
         return {"frames": evaluation[own_val]["frames"],
                 **pair_json({"normal": normal, "challenging": PooledAP.from_json(evaluation[own_val])})}
     log(f"re-attacking {model.path} on normal-val ...")
-    built = build_challenging(model.fusion, "val", executor=executor, weights_file=model.weights_arg, out=out,
+    built = build_challenging(model.target, "val", executor=executor, weights_file=model.weights_arg, out=out,
                               detector_factory=detector_factory)
     index = json.loads((built / "index.json").read_text())
     return {"frames": index["frames"], **pair_json(pooled_pair(index, REATTACK_PAIR))}

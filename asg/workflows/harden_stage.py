@@ -9,6 +9,7 @@ from typing import Callable
 
 from sumo_scenarios.atomic import write_text_atomic
 
+from ..perception.targets import Target
 from ..training.point_stage_fit import PointStageFitConfig, load_point_stage_config
 
 
@@ -42,9 +43,10 @@ def build_stage_set(stage_cfg: PointStageFitConfig | None) -> None:
         build_dataset(stage_cfg.dataset)
 
 
-def stage_of_round(fusion: str, weights: Path, round_dir: Path, stage_cfg: PointStageFitConfig,
+def stage_of_round(target: Target, weights: Path, round_dir: Path, stage_cfg: PointStageFitConfig,
                    log: Callable[[str], None]) -> dict:
-    """The point stage fitted to a round's ``weights`` (asg.training.point_stage_fit.fit_stage_beside
+    """The point stage fitted to a round's ``weights`` of the shipped model ``target``
+    (asg.training.point_stage_fit.fit_stage_beside
     with ``stage_cfg``, train.yaml's ``point_stage`` block, on the frozen weights), written beside
     them, where every detector built from the file finds it; the fit's record, kept in the round's
     folder (``STEM.stage.json``) so that a resumed round neither fits it again nor loses the record.
@@ -56,7 +58,7 @@ def stage_of_round(fusion: str, weights: Path, round_dir: Path, stage_cfg: Point
     if stage_path_of(weights).is_file() and record.is_file():
         return json.loads(record.read_text())
     log(f"fitting a point stage to {weights} ...")
-    _, fitted = fit_stage_beside(fusion, weights, round_dir / f"stage-fit-{weights.stem}", log, fit_config=stage_cfg)
+    _, fitted = fit_stage_beside(target.name, weights, round_dir / f"stage-fit-{weights.stem}", log, fit_config=stage_cfg)
     write_text_atomic(record, json.dumps(fitted, indent=1))
     shutil.rmtree(round_dir / f"stage-fit-{weights.stem}", ignore_errors=True)
     return fitted

@@ -18,12 +18,13 @@ from asg.evaluation import target_detector
 from asg.objective.ap import ap_by_method
 from asg.objective.iou import bev_iou_matrix
 from asg.perception.data import Sample
+from asg.perception.targets import resolve_target
 from asg.sensors import load_lidar_spec, simulate_frame
 
 
 def detected_frames(fusion: str, set_name: str) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """(boxes (K, 7), scores (K,), ground truth (M, 7)) of each frame of the set, ego frame."""
-    detector, spec = target_detector(fusion), load_lidar_spec()
+    detector, spec = target_detector(resolve_target(fusion)), load_lidar_spec()
     frames = []
     for scene in scenes_of(set_name):
         sample = Sample(scene.scene_id, simulate_frame(scene, spec))

@@ -14,14 +14,15 @@ from asg.evaluation import evaluate
 from asg.objective.ap import Yardstick
 from asg.objective.paired import paired_ap_gap
 from asg.objective.pooled import PooledAP
+from asg.perception.targets import resolve_target
 from asg.registry import prefixed_kind
 
 
 def scored(spec: str, set_name: str) -> dict:
     if prefixed_kind(spec):  # a model folder (opencood:DIR) is a target by itself
-        return evaluate(spec, set_name, keep_matches=True)
+        return evaluate(resolve_target(spec), set_name, keep_matches=True)
     fusion, _, weights = spec.partition(":")
-    return evaluate(fusion, set_name, weights_file=weights or None, keep_matches=True)
+    return evaluate(resolve_target(fusion), set_name, weights_file=weights or None, keep_matches=True)
 
 
 def main(set_name: str, before: str, after: str, out: str | None = None) -> None:

@@ -23,6 +23,7 @@ from asg.datasets import scenes_of
 from asg.executors import build_executor
 from asg.generator.run import file_digest
 from asg.objective.ap import Yardstick
+from asg.perception.targets import resolve_target
 from asg.workflows.challenging import build_challenging
 
 
@@ -41,7 +42,7 @@ def main(run_dir: str, work_dir: str) -> None:
         raise SystemExit(f"{run}: the round kept its trained weights; their re-attack is round-1/reattack already")
     out = round_dir / TRAINED_REATTACK
     with build_executor("local", 2) as executor:
-        build_challenging(fusion, "val", executor, weights_file=str(weights), out=out)
+        build_challenging(resolve_target(fusion), "val", executor, weights_file=str(weights), out=out)
     own = own_attack(fusion, [run])
     if [s.scene_id for s in scenes_of(own)] != [s.scene_id for s in scenes_of(str(out))]:
         raise SystemExit(f"{own} and {out} were not attacked from the same normal-val scenes in order")

@@ -19,6 +19,7 @@ from asg.datasets import data_root
 from asg.executors import build_executor
 from asg.generator.run import file_digest
 from asg.objective.pooled import REATTACK_PAIR, pair_json, pooled_pair
+from asg.perception.targets import resolve_target
 from asg.perception.weights_io import WEIGHTS_DIR
 from asg.workflows.challenging import build_challenging
 
@@ -38,7 +39,7 @@ def main(results: str, work_dir: str, share: str) -> None:
                                   "gap": {y: {k: row[y][k] for k in ("threshold", "gap", "low", "high", "frames")}
                                           for y in ("global", "per-frame")}}
     with build_executor("local", 2) as executor:
-        built = build_challenging("attfuse", "val", executor, weights_file=str(averaged), out=work / "reattack")
+        built = build_challenging(resolve_target("attfuse"), "val", executor, weights_file=str(averaged), out=work / "reattack")
     index = json.loads((built / "index.json").read_text())
     card["averaged"] = {"with": "attfuse.pt", "share_of_hardened": a, "hardened_sha256": file_digest(shipped),
                         "why": "the hardened weights lost AP@0.7 on holdout (a town no model trained on) beyond their "

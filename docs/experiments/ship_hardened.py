@@ -20,6 +20,7 @@ from pathlib import Path
 
 from asg.generator.run import file_digest
 from asg.objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pair_json, pooled_pair
+from asg.perception.targets import resolve_target
 from asg.perception.weights_io import WEIGHTS_DIR
 
 
@@ -41,7 +42,7 @@ def main(card_path: str, k: str, command: str) -> None:
     evaluation = {}
     for set_name, record in done["evaluation"].items():
         where = str(noisy_val_set()) if set_name == "normal-val-noisy" else set_name
-        before, after = PooledAP.from_result(evaluate("attfuse", where)), PooledAP.from_json(record)
+        before, after = PooledAP.from_result(evaluate(resolve_target("attfuse"), where)), PooledAP.from_json(record)
         print(f"{set_name}: attfuse AP@0.7 ours / per frame {before.text()} -> {after.text()}")
         evaluation[set_name] = pair_json(dict(zip(FINETUNE_PAIR, (before, after))), 4) | {"frames": record["frames"]}
     shipped = {

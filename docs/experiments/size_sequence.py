@@ -249,6 +249,7 @@ def main_attack(out: Path, size: str, count: int) -> None:
     resumable; WORKERS processes of one thread each."""
     from asg.datasets import data_root
     from asg.executors.base import build_executor
+    from asg.perception.targets import resolve_target
     from asg.workflows.challenging import build_challenging
 
     if not chunks_done(out / size, "attfuse"):
@@ -258,7 +259,7 @@ def main_attack(out: Path, size: str, count: int) -> None:
                       PYTHONPATH=os.pathsep.join(filter(None, (here, os.environ.get("PYTHONPATH")))))
     sys.path.insert(0, here)
     with build_executor("local", WORKERS) as executor:
-        built = build_challenging("attfuse", "train", executor, count=count, detector_factory="size_sequence:attfuse_target",
+        built = build_challenging(resolve_target("attfuse"), "train", executor, count=count, detector_factory="size_sequence:attfuse_target",
                                   out=data_root() / attack_set(out, size))
     index = json.loads((built / "index.json").read_text())
     pair = pooled_pair(index, REATTACK_PAIR)

@@ -32,6 +32,7 @@ from asg.executors import build_executor
 from asg.generator.run import file_digest
 from asg.objective.ap import Yardstick
 from asg.perception.weights_io import stage_path_of
+from asg.perception.targets import resolve_target
 from asg.training.point_stage_fit import load_point_stage_config
 from asg.workflows.challenging import build_challenging
 from asg.workflows.harden_stage import stage_of_round
@@ -46,7 +47,7 @@ def refit(fusion: str, label: str, weights: Path, work: Path) -> tuple[Path, dic
     if not copy.is_file() or file_digest(copy) != file_digest(weights):
         shutil.copyfile(weights, copy)
         stage_path_of(copy).unlink(missing_ok=True)
-    return copy, stage_of_round(fusion, copy, folder, load_point_stage_config(), print)
+    return copy, stage_of_round(resolve_target(fusion), copy, folder, load_point_stage_config(), print)
 
 
 def main(fusion: str, start: str, work_dir: str, out: str, sets: str, *rest: str) -> None:
@@ -76,7 +77,7 @@ def main(fusion: str, start: str, work_dir: str, out: str, sets: str, *rest: str
         for label in models:
             attacked = work / label / "reattack"
             with build_executor("local", 2) as executor:
-                build_challenging(fusion, "val", executor, weights_file=str(refitted[label]), out=attacked)
+                build_challenging(resolve_target(fusion), "val", executor, weights_file=str(refitted[label]), out=attacked)
             if [s.scene_id for s in scenes_of(own)] != [s.scene_id for s in scenes_of(str(attacked))]:
                 raise SystemExit(f"{own} and {attacked} were not attacked from the same normal-val scenes in order")
             pair = {"start": measured(fusion, start, "own-attack", own, work / "cache" / "start"),

@@ -20,6 +20,7 @@ from asg.evaluation import evaluate
 from asg.objective.ap import Yardstick
 from asg.objective.paired import load_matches, paired_ap_gap, save_matches
 from asg.objective.pooled import PooledAP
+from asg.perception.targets import resolve_target
 from asg.perception.weights_io import average_weights
 
 
@@ -36,7 +37,7 @@ def scored(fusion: str, weights: Path, set_name: str, work: Path, label: str, ke
     hit, matches = work / f"{name}.json", work / f"{name}.matches.npz"
     if hit.is_file() and matches.is_file():
         return json.loads(hit.read_text()), load_matches(matches)
-    result = evaluate(fusion, set_name, weights_file=str(weights), keep_matches=True)
+    result = evaluate(resolve_target(fusion), set_name, weights_file=str(weights), keep_matches=True)
     record = PooledAP.from_result(result).to_json(4) | {"frames": result["frames"]}
     save_matches(matches, result["matches"])
     hit.write_text(json.dumps(record))

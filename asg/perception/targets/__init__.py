@@ -40,15 +40,14 @@ def shipped_model(fusion: str):
     return resolve_target(fusion).shipped_entry()
 
 
-def shipped_weights_of(fusion: str, target: bool = True, acs_attention: bool = False) -> dict[str, Path]:
-    """{weights name: file} of the shipped weights a generator run of ``fusion`` loads: the target's
-    own (a shipped model's, when ``target``: it is given no weights file) and, with attention-based
-    ACS and a target without attention of its own, the shipped AttFuse's. Files not on disk (a
-    plugin's) are left out."""
+def shipped_weights_of(target: Target, own: bool = True, acs_attention: bool = False) -> dict[str, Path]:
+    """{weights name: file} of the shipped weights a generator run against ``target`` loads: the
+    target's own (a shipped model's, when ``own``: it is given no weights file) and, with
+    attention-based ACS and a target without attention of its own, the shipped AttFuse's. Files not
+    on disk (a plugin's) are left out."""
     from ..weights_io import weights_path
 
-    chosen = resolve_target(fusion)
-    wanted = [chosen.shipped_weights] if chosen.shipped_weights and target else []
-    if acs_attention and not chosen.own_attention:
+    wanted = [target.shipped_weights] if target.shipped_weights and own else []
+    if acs_attention and not target.own_attention:
         wanted.append(FUSIONS.entry(ATTENTION_LENDER).weights)
     return {name: weights_path(name) for name in wanted if weights_path(name).is_file()}

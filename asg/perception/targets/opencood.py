@@ -37,6 +37,10 @@ class OpenCOODTarget(Target):
         """The ``--fusion`` name of a model folder (``opencood:FOLDER``)."""
         return f"{TARGET_PREFIXES[KIND].prefix}{folder}"
 
+    def at(self, folder: Path) -> "OpenCOODTarget":
+        """The model folder ``folder`` (another round's) as a target of this kind."""
+        return type(self)(self.name_of(folder))
+
     @property
     def model_dir(self) -> Path:
         """The model folder; InputError if it is empty or not a folder."""

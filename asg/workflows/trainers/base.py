@@ -4,7 +4,7 @@ trainer (``asg``) and OpenCOOD's (``opencood``), each a module of this package r
 :data:`ROUND_TRAINERS`. The round loop, the guard and the re-attack (asg.workflows.harden) are the
 same for both: they ask the trainer for the start, a round's training, what follows it (a point
 stage), the guard's average, and where the start's evaluations are cached, and run every model as a
-:class:`Model` (a ``--fusion`` name and a weights file)."""
+:class:`Model` (a target and a weights file)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -32,10 +32,10 @@ ROUND_TRAINERS: Registry[type["RoundTrainer"]] = Registry("round trainer", "--fu
 class Model:
     """A model a round starts from or ends with.
 
-    ``fusion``: the ``--fusion`` name that runs it (a shipped model's name, or ``opencood:FOLDER``);
-    ``weights``: the weights file its detector loads (None: the name's own, an OpenCOOD folder's
+    ``target``: what runs it (a shipped model, or the OpenCOOD model folder the round wrote);
+    ``weights``: the weights file its detector loads (None: the target's own, an OpenCOOD folder's
     checkpoint); ``path``: what a card records of it (the weights file, or the model folder)."""
-    fusion: str
+    target: Target
     weights: Path | None
     path: Path
 

@@ -80,14 +80,13 @@ class OpenCOODRoundTrainer(RoundTrainer):
         return True  # the folder as given: its own attack is its challenging val set
 
     def model_at(self, path: Path) -> Model:
-        return Model(self.target.name_of(Path(path)), None, Path(path))
+        return Model(self.target.at(Path(path)), None, Path(path))
 
     def digest(self, model: Model) -> dict[str, str]:
         """{"config", "checkpoint": each file's sha256}."""
-        from ...perception.targets import resolve_target
         from ...generator.run import file_digest
 
-        return {k: file_digest(p) for k, p in resolve_target(model.fusion).model_files().items()}
+        return {k: file_digest(p) for k, p in model.target.model_files().items()}
 
     def settings(self, start: Model) -> dict:
         return {"start": self.digest(start), "opencood": asdict(self.train_cfg)}

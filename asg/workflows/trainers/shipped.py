@@ -36,7 +36,6 @@ class ShippedRoundTrainer(RoundTrainer):
     def start(self, weights: Path | None) -> Model:
         """``weights`` (a .pt, or a harden card: its last kept round's) or the shipped weights;
         InputError if missing or not loadable by the target's detector."""
-        from ...perception import check_weights_file
         from ...perception.weights_io import weights_path
 
         if weights is None:
@@ -46,14 +45,14 @@ class ShippedRoundTrainer(RoundTrainer):
             path = _card_weights(path, weights)
         if not path.is_file():
             raise InputError(f"--weights {path}: no such file; give a .pt written by asg train, finetune or harden")
-        check_weights_file(self.target.name, path)  # one clear line for a corrupt or foreign file
+        self.target.check(str(path))  # one clear line for a corrupt or foreign file
         return self.model_at(path)
 
     def is_own_start(self, start: Model) -> bool:
         return self.digest(start) == self.digest(self.start(None))
 
     def model_at(self, path: Path) -> Model:
-        return Model(self.target.name, Path(path), Path(path))
+        return Model(self.target, Path(path), Path(path))
 
     def digest(self, model: Model) -> str:
         from ...generator.run import file_digest
@@ -80,7 +79,7 @@ class ShippedRoundTrainer(RoundTrainer):
     def after_training(self, model: Model, round_dir: Path, log: Callable[[str], None]) -> dict | None:
         if self.stage_cfg is None:
             return None
-        return stage_of_round(self.target.name, model.path, round_dir, self.stage_cfg, log)
+        return stage_of_round(self.target, model.path, round_dir, self.stage_cfg, log)
 
     def average(self, start: Model, trained: Model, share: float, round_dir: Path) -> Model:
         from ...perception.weights_io import average_weights
