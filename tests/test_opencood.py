@@ -745,7 +745,7 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
 
     evaluated, real = [], asg.evaluation.evaluate
     monkeypatch.setattr(asg.evaluation, "evaluate",
-                        lambda fusion, set_name, *a, **k: evaluated.append((fusion, set_name)) or real(fusion, set_name, *a, **k))
+                        lambda target, set_name, *a, **k: evaluated.append((target.name, set_name)) or real(target, set_name, *a, **k))
     control = [a if a != "random" else "normal" for a in argv[:-4]] + ["--out", str(tmp_path / "control"), "--workers", "1"]
     control[control.index("2")] = "1"
     assert main(control) == 0  # the control at equal compute: the start's evaluations are not made again
