@@ -439,25 +439,34 @@ def test_canvases_and_fused_maps_are_channels_last():
 
 def test_strided_conv_of_pillars_is_the_dense_convolution():
     """The first convolution computed from the occupied pillars alone equals the dense one on the
-    canvas, pillars on the grid's edges included, and so do its gradients (training uses it too)."""
+    canvas, pillars on the grid's edges included (an even grid, whose last row and column feed one
+    output row less, and an odd one), and so do its gradients (training uses it too)."""
     from asg.perception.pillars import Pillars, strided_conv_of_pillars
 
     torch.manual_seed(0)
-    n, c_in, c_out = 12, 5, 7
-    cells = [torch.tensor([0, 1, n - 1, n, 5 * n + 6, n * n - 1, n * (n - 1), 3 * n + 11]), torch.tensor([4, 77]),
-             torch.zeros(0, dtype=torch.long)]
-    pillars = Pillars(cells, [torch.randn(len(c), c_in) for c in cells], n)
-    for bias in (True, False):
-        conv = torch.nn.Conv2d(c_in, c_out, 3, stride=2, padding=1, bias=bias)
-        with torch.no_grad():
-            dense = conv(pillars.canvas())
-            sparse = strided_conv_of_pillars(conv, pillars)
-        assert sparse.shape == dense.shape == (3, c_out, n // 2, n // 2)
-        assert torch.allclose(sparse, dense, atol=1e-5)
+    c_in, c_out = 5, 7
+    for n in (12, 11):
+        cells = [torch.tensor([0, 1, n - 1, n, 5 * n + 6, n * n - 1, n * (n - 1), 3 * n + 10, n * n - 2]),
+                 torch.tensor([4, 77]), torch.zeros(0, dtype=torch.long)]
+        pillars = Pillars(cells, [torch.randn(len(c), c_in) for c in cells], n)
+        for bias in (True, False):
+            conv = torch.nn.Conv2d(c_in, c_out, 3, stride=2, padding=1, bias=bias)
+            with torch.no_grad():
+                dense = conv(pillars.canvas())
+                sparse = strided_conv_of_pillars(conv, pillars)
+            assert sparse.shape == dense.shape == (3, c_out, (n + 1) // 2, (n + 1) // 2)
+            assert torch.allclose(sparse, dense, atol=1e-5)
+    with torch.no_grad():  # no pillar at all
+        empty = Pillars([torch.zeros(0, dtype=torch.long)], [torch.zeros(0, c_in)], n)
+        assert torch.equal(strided_conv_of_pillars(conv, empty), conv(empty.canvas()))
     with pytest.raises(ValueError, match="3x3 convolution of stride 2"):
         strided_conv_of_pillars(torch.nn.Conv2d(c_in, c_out, 3, stride=1, padding=1), pillars)
 
     # training runs the same sparse path: its gradients are the dense convolution's
+    n = 12
+    cells = [torch.tensor([0, 1, n - 1, n, 5 * n + 6, n * n - 1, n * (n - 1), 3 * n + 11]), torch.tensor([4, 77]),
+             torch.zeros(0, dtype=torch.long)]
+    pillars = Pillars(cells, [torch.randn(len(c), c_in) for c in cells], n)
     conv = torch.nn.Conv2d(c_in, c_out, 3, stride=2, padding=1, bias=False)
     grads = []
     for sparse_path in (True, False):

@@ -128,21 +128,48 @@ def strided_conv_of_pillars(conv: nn.Conv2d, pillars: Pillars) -> torch.Tensor:
     batch = len(pillars.cells)
     weight = conv.weight  # (C_out, C_in, 3, 3)
     c_out = weight.shape[0]
-    out = torch.zeros(batch * m * m, c_out)
+    trash = batch * m * m  # one more row: where a pillar past the last output row or column adds
+    out = torch.zeros(trash + 1, c_out)
     if conv.bias is not None:
         out += conv.bias
-    cells = torch.cat([c + b * n * n for b, c in enumerate(pillars.cells)]) if batch else torch.zeros(0, dtype=torch.long)
-    feats = torch.cat(pillars.features) if batch else torch.zeros(0, weight.shape[1])
-    sample, local = cells // (n * n), cells % (n * n)
-    iy, ix = local // n, local % n
+    classes = _ParityClasses(pillars, m)
     for ky in range(3):
-        # output row oy takes input rows 2 oy - 1 + ky: the pillars of row iy feed oy = (iy + 1 - ky) / 2
-        row_ok = ((iy + 1 - ky) % 2 == 0) & (iy + 1 - ky >= 0) & (iy + 1 - ky < 2 * m)
         for kx in range(3):
-            sel = row_ok & ((ix + 1 - kx) % 2 == 0) & (ix + 1 - kx >= 0) & (ix + 1 - kx < 2 * m)
-            idx = torch.nonzero(sel).squeeze(1)
-            if not len(idx):
+            # output row oy takes input rows 2 oy - 1 + ky: the pillars of row iy feed oy = (iy + 1 - ky) / 2,
+            # an odd row for ky = 0 or 2, an even one for ky = 1 (the same for columns)
+            rows = classes.rows(ky != 1, kx != 1)
+            if rows.stop == rows.start:
                 continue
-            target = sample[idx] * m * m + (iy[idx] + 1 - ky) // 2 * m + (ix[idx] + 1 - kx) // 2
-            out.index_add_(0, target, feats[idx] @ weight[:, :, ky, kx].t())
-    return out.view(batch, m, m, c_out).permute(0, 3, 1, 2)
+            target = classes.target[rows] - (m if ky == 2 else 0) - (1 if kx == 2 else 0)
+            past = [edge[rows] for edge, k in ((classes.past_y, ky), (classes.past_x, kx)) if k == 0]
+            if past:  # the tap 0 of the last input row (column) falls past the output: into the trash row
+                target = torch.where(past[0] if len(past) == 1 else past[0] | past[1], trash, target)
+            out.index_add_(0, target, classes.feats[rows] @ weight[:, :, ky, kx].t())
+    return out[:trash].view(batch, m, m, c_out).permute(0, 3, 1, 2)
+
+
+class _ParityClasses:
+    """The pillars of a batch sorted by the parity of their row and column (even-even, even-odd,
+    odd-even, odd-odd), each class in the batch's order: the pillars that feed one tap of a
+    stride-2 convolution are one class, a slice. ``feats`` (P, C_in) sorted; ``target`` (P,) the
+    flat output cell (sample, (iy + 1) // 2, (ix + 1) // 2) each feeds through the taps ky, kx in
+    {0, 1}; ``past_y`` / ``past_x`` (P,) whether that row or column is past the output's last."""
+
+    def __init__(self, pillars: Pillars, m: int):
+        n, batch = pillars.grid_size, len(pillars.cells)
+        cells = torch.cat([c + b * n * n for b, c in enumerate(pillars.cells)]) if batch else torch.zeros(0, dtype=torch.long)
+        feats = torch.cat(pillars.features) if batch else torch.zeros(0, 0)
+        sample, local = cells // (n * n), cells % (n * n)
+        iy, ix = local // n, local % n
+        parity = (iy % 2) * 2 + ix % 2
+        order = torch.argsort(parity, stable=True)
+        oy, ox = (iy[order] + 1) // 2, (ix[order] + 1) // 2
+        self.feats = feats[order]
+        self.target = sample[order] * m * m + oy * m + ox
+        self.past_y, self.past_x = oy == m, ox == m
+        self.starts = [0] + torch.bincount(parity, minlength=4).cumsum(0).tolist()
+
+    def rows(self, odd_row: bool, odd_column: bool) -> slice:
+        """The slice of the class of pillars in odd (or even) rows and odd (or even) columns."""
+        k = 2 * odd_row + odd_column
+        return slice(self.starts[k], self.starts[k + 1])
