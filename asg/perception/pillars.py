@@ -51,13 +51,15 @@ class PillarEncoder(nn.Module):
             f = torch.cat([p, p[:, :3] - mean[inv], (p[:, 0] - cx)[:, None], (p[:, 1] - cy)[:, None]], dim=1)
             feats.append((f, inv, uniq))
         all_f = torch.cat([f for f, _, _ in feats]) if feats else torch.zeros(0, 9)
-        h = torch.relu(self.norm(self.linear(all_f)))
+        h = self.norm(self.linear(all_f))
         # one max over every cloud's pillars at once (pillar indices offset per cloud), then one
-        # split: per-cloud slices of h would each back-propagate a zero tensor of h's full size
+        # split: per-cloud slices of h would each back-propagate a zero tensor of h's full size.
+        # The ReLU after the max: max_i relu(h_i) = relu(max_i h_i) (it is monotone), the same
+        # bits, on a pillar's row rather than on every point's
         offsets = torch.tensor([0] + [len(u) for _, _, u in feats]).cumsum(0)
         inv_all = torch.cat([inv + offsets[k] for k, (_, inv, _) in enumerate(feats)]) if feats \
             else torch.zeros(0, dtype=torch.long)
-        pooled_all = pillar_max(h, inv_all, int(offsets[-1]))
+        pooled_all = torch.relu(pillar_max(h, inv_all, int(offsets[-1])))
         cells = [uniq for _, _, uniq in feats]
         pooled = list(torch.split(pooled_all, [len(u) for u in cells]))
         return Pillars(cells, pooled, n)
@@ -73,8 +75,9 @@ def pillar_max(h: torch.Tensor, pillar: torch.Tensor, pillars: int) -> torch.Ten
     With gradients, the maximum is taken by index (the winning point of each pillar and channel,
     found without gradients, then gathered): the gradient flows to that point alone, as in
     max-pooling, and the backward pass is one scatter instead of a reduction's tie counting
-    (about 10 % of an AttFuse training step). Where several points tie, the last one wins (ties
-    are points whose feature is 0 after the ReLU, whose gradient is 0 either way)."""
+    (about 10 % of an AttFuse training step). Where several points tie, the last one wins (the
+    encoder takes the maximum before its ReLU, where equal features are rare; where the maximum is
+    not above 0, the ReLU passes no gradient to it either way)."""
     channels = h.shape[1]
     index = pillar[:, None].expand(-1, channels)
     if not torch.is_grad_enabled() or not h.requires_grad:
