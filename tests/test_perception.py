@@ -855,3 +855,24 @@ def test_v2xvit_noisy_starts_as_v2xvit_and_then_reads_the_delay(tmp_path):
         late = noisy([KindedClouds(clouds, (True, False, False), (0.0, 0.1, 0.0))])[0]
         assert not torch.allclose(current, late, atol=1e-4)
         assert torch.allclose(noisy([KindedClouds(clouds, (True, False, False), ())])[0], current)  # () = all current
+
+
+def test_patch_features_are_the_cells_around_each_anchor_cell():
+    """Each candidate's patch: the feature vectors of the cells around its cell, row by row, the
+    grid's edge repeated beyond it; the same from a channels-last map and a contiguous one, and
+    for no candidate at all."""
+    from asg.perception.head import patch_features
+
+    torch.manual_seed(3)
+    c, h, w, patch = 4, 5, 6, 3
+    features = torch.randn(c, h, w)
+    cells = torch.tensor([0, w - 1, 2 * w + 3, h * w - 1, (h - 1) * w])
+    expected = []
+    for cell in cells.tolist():
+        y, x = divmod(cell, w)
+        expected.append(torch.cat([features[:, min(max(y + dy, 0), h - 1), min(max(x + dx, 0), w - 1)]
+                                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)]))
+    channels_last = features[None].contiguous(memory_format=torch.channels_last)[0]
+    for given in (features, channels_last):
+        assert torch.equal(patch_features(given, cells, patch), torch.stack(expected))
+    assert patch_features(features, cells[:0], patch).shape == (0, c * patch * patch)

@@ -77,8 +77,11 @@ def patch_features(features: torch.Tensor, cell_idx: torch.Tensor, patch: int) -
     c, h, w = features.shape
     cy, cx = cell_idx // w, cell_idx % w
     r = patch // 2
-    return torch.cat([features[:, (cy + dy).clamp(0, h - 1), (cx + dx).clamp(0, w - 1)].t()
-                      for dy in range(-r, r + 1) for dx in range(-r, r + 1)], dim=1)
+    cells = torch.stack([(cy + dy).clamp(0, h - 1) * w + (cx + dx).clamp(0, w - 1)
+                         for dy in range(-r, r + 1) for dx in range(-r, r + 1)], dim=1)  # (K, patch^2)
+    # one copy of whole rows from the cell-major map (a view of the channels-last features)
+    rows = features.permute(1, 2, 0).reshape(h * w, c).index_select(0, cells.reshape(-1))
+    return rows.view(len(cell_idx), patch * patch * c)
 
 
 def rescore(cls_prob: torch.Tensor, iou_logit: torch.Tensor, power: float) -> torch.Tensor:

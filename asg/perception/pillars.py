@@ -48,7 +48,7 @@ class PillarEncoder(nn.Module):
             mean = torch.zeros(len(uniq), 3, device=p.device).index_add_(0, inv, p[:, :3]) / count.clamp(min=1)[:, None]
             cx = (flat % n).float() * cfg.pillar_m - cfg.range_m + cfg.pillar_m / 2
             cy = (flat // n).float() * cfg.pillar_m - cfg.range_m + cfg.pillar_m / 2
-            f = torch.cat([p, p[:, :3] - mean[inv], (p[:, 0] - cx)[:, None], (p[:, 1] - cy)[:, None]], dim=1)
+            f = torch.cat([p, p[:, :3] - mean.index_select(0, inv), (p[:, 0] - cx)[:, None], (p[:, 1] - cy)[:, None]], dim=1)
             feats.append((f, inv, uniq))
         all_f = torch.cat([f for f, _, _ in feats]) if feats else torch.zeros(0, 9)
         h = self.norm(self.linear(all_f))
@@ -166,9 +166,9 @@ class _ParityClasses:
         iy, ix = local // n, local % n
         parity = (iy % 2) * 2 + ix % 2
         order = torch.argsort(parity, stable=True)
-        oy, ox = (iy[order] + 1) // 2, (ix[order] + 1) // 2
-        self.feats = feats[order]
-        self.target = sample[order] * m * m + oy * m + ox
+        oy, ox = (iy.index_select(0, order) + 1) // 2, (ix.index_select(0, order) + 1) // 2
+        self.feats = feats.index_select(0, order)  # rows copied whole: several times faster than feats[order]
+        self.target = sample.index_select(0, order) * m * m + oy * m + ox
         self.past_y, self.past_x = oy == m, ox == m
         self.starts = [0] + torch.bincount(parity, minlength=4).cumsum(0).tolist()
 
