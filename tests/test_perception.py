@@ -876,3 +876,17 @@ def test_patch_features_are_the_cells_around_each_anchor_cell():
     for given in (features, channels_last):
         assert torch.equal(patch_features(given, cells, patch), torch.stack(expected))
     assert patch_features(features, cells[:0], patch).shape == (0, c * patch * patch)
+
+
+def test_occupied_cells_are_torch_unique_with_its_inverse():
+    """The pillars' cells counted on the grid are torch.unique's, sorted, with each point's
+    position among them: for no point, one, repeats, and the grid's first and last cells."""
+    from asg.perception.pillars import occupied_cells
+
+    torch.manual_seed(4)
+    for flat in (torch.zeros(0, dtype=torch.long), torch.tensor([7]), torch.tensor([99, 0, 99, 5, 0]),
+                 torch.randint(0, 100, (500,))):
+        cells, inverse = occupied_cells(flat, 100)
+        expected_cells, expected_inverse = torch.unique(flat, return_inverse=True)
+        assert torch.equal(cells, expected_cells) and torch.equal(inverse, expected_inverse)
+        assert cells.dtype == inverse.dtype == torch.long

