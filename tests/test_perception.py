@@ -890,3 +890,24 @@ def test_occupied_cells_are_torch_unique_with_its_inverse():
         expected_cells, expected_inverse = torch.unique(flat, return_inverse=True)
         assert torch.equal(cells, expected_cells) and torch.equal(inverse, expected_inverse)
         assert cells.dtype == inverse.dtype == torch.long
+
+
+def test_inference_takes_the_pillar_max_by_chunks_of_points():
+    """Inference folds the points' learned features into the pillar max a chunk of points at a
+    time (asg.perception.pillars.POINTS_A_CHUNK): the same pillars and features as the one pass
+    training takes, for clouds longer than a chunk, with pillars spanning chunks."""
+    from asg.perception.config import load_detector_config
+    from asg.perception.pillars import POINTS_A_CHUNK, PillarEncoder
+
+    torch.manual_seed(5)
+    encoder = PillarEncoder(load_detector_config()).eval()
+    torch.nn.init.normal_(encoder.norm.running_mean)
+    clouds = [torch.cat([torch.rand(n, 2) * 20 - 10, torch.rand(n, 1) * 2 - 1.5, torch.rand(n, 1)], dim=1)
+              for n in (POINTS_A_CHUNK * 2 + 17, 5, 0)]
+    with torch.no_grad():
+        chunked = encoder.encode(clouds)
+    one_pass = encoder.encode(clouds)  # with gradients: training's path
+    assert [len(c) for c in chunked.cells] == [len(c) for c in one_pass.cells] and len(chunked.cells[0]) < len(clouds[0])
+    for a, b, cells_a, cells_b in zip(chunked.features, one_pass.features, chunked.cells, one_pass.cells):
+        assert torch.equal(cells_a, cells_b)
+        assert torch.equal(a, b.detach())

@@ -26,6 +26,10 @@ def pillar_indices(points: torch.Tensor, cfg: DetectorConfig) -> tuple[torch.Ten
     return p, iy * n + ix
 
 
+#: points whose learned features inference computes at once (4096 x 64 floats: 1 MB, a core's cache)
+POINTS_A_CHUNK = 4096
+
+
 def occupied_cells(flat: torch.Tensor, cells: int) -> tuple[torch.Tensor, torch.Tensor]:
     """``torch.unique(flat, return_inverse=True)`` of pillar indices ``flat`` (K,) in [0, cells):
     the occupied pillars in ascending order (P,) and each point's position among them (K,),
@@ -60,7 +64,6 @@ class PillarEncoder(nn.Module):
             f = torch.cat([p, p[:, :3] - mean.index_select(0, inv), (p[:, 0] - cx)[:, None], (p[:, 1] - cy)[:, None]], dim=1)
             feats.append((f, inv, uniq))
         all_f = torch.cat([f for f, _, _ in feats]) if feats else torch.zeros(0, 9)
-        h = self.norm(self.linear(all_f))
         # one max over every cloud's pillars at once (pillar indices offset per cloud), then one
         # split: per-cloud slices of h would each back-propagate a zero tensor of h's full size.
         # The ReLU after the max: max_i relu(h_i) = relu(max_i h_i) (it is monotone), the same
@@ -68,10 +71,27 @@ class PillarEncoder(nn.Module):
         offsets = torch.tensor([0] + [len(u) for _, _, u in feats]).cumsum(0)
         inv_all = torch.cat([inv + offsets[k] for k, (_, inv, _) in enumerate(feats)]) if feats \
             else torch.zeros(0, dtype=torch.long)
-        pooled_all = torch.relu(pillar_max(h, inv_all, int(offsets[-1])))
+        if self.training or torch.is_grad_enabled():  # batch statistics, or the max's gradient: one pass
+            pooled_all = torch.relu(pillar_max(self.norm(self.linear(all_f)), inv_all, int(offsets[-1])))
+        else:
+            pooled_all = torch.relu_(self._pooled_by_chunks(all_f, inv_all, int(offsets[-1])))
         cells = [uniq for _, _, uniq in feats]
         pooled = list(torch.split(pooled_all, [len(u) for u in cells]))
         return Pillars(cells, pooled, n)
+
+    def _pooled_by_chunks(self, point_feats: torch.Tensor, pillar: torch.Tensor, pillars: int) -> torch.Tensor:
+        """Inference's pillar max of the points' learned features, before the ReLU: ``point_feats``
+        (K, 9), ``pillar`` (K,) each point's pillar in [0, pillars) → (pillars, C). The points
+        go through the linear layer POINTS_A_CHUNK at a time, each chunk's features folded into
+        the running maximum while they are in the core's cache: the learned features of every
+        point at once (K x 64 floats, 64 MB for ACS-A's 24 agents) would go to memory and back.
+        A maximum is exact in any order: the same bits (tests/test_perception.py)."""
+        out = torch.full((pillars, self.linear.out_features), float("-inf"))  # every pillar holds a point
+        for start in range(0, len(point_feats), POINTS_A_CHUNK):
+            h = self.norm(self.linear(point_feats[start:start + POINTS_A_CHUNK]))
+            index = pillar[start:start + POINTS_A_CHUNK, None].expand(-1, h.shape[1])
+            _scatter_amax(out, index, h)
+        return out
 
     def forward(self, clouds: list[torch.Tensor]) -> torch.Tensor:
         return self.encode(clouds).canvas()
