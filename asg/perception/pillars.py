@@ -77,7 +77,7 @@ class PillarEncoder(nn.Module):
             pooled_all = torch.relu_(self._pooled_by_chunks(all_f, inv_all, int(offsets[-1])))
         cells = [uniq for _, _, uniq in feats]
         pooled = list(torch.split(pooled_all, [len(u) for u in cells]))
-        return Pillars(cells, pooled, n)
+        return Pillars(cells, pooled, n, stacked=pooled_all)
 
     def _pooled_by_chunks(self, point_feats: torch.Tensor, pillar: torch.Tensor, pillars: int) -> torch.Tensor:
         """Inference's pillar max of the points' learned features, before the ReLU: ``point_feats``
@@ -128,12 +128,22 @@ def _scatter_amax(out: torch.Tensor, index: torch.Tensor, values: torch.Tensor, 
 
 class Pillars:
     """Per sample b: ``cells[b]`` (P_b,) the flat index (row y * n + column x) of each occupied
-    pillar, ``features[b]`` (P_b, C) its learned features; every other pillar is zero."""
+    pillar, ``features[b]`` (P_b, C) its learned features; every other pillar is zero.
+    ``stacked``: every sample's features in one (sum P_b, C) tensor, when ``features`` are its
+    slices (the encoder's), so that :meth:`all_features` copies nothing."""
 
-    def __init__(self, cells: list[torch.Tensor], features: list[torch.Tensor], grid_size: int):
+    def __init__(self, cells: list[torch.Tensor], features: list[torch.Tensor], grid_size: int,
+                 stacked: torch.Tensor | None = None):
         self.cells = cells
         self.features = features
         self.grid_size = grid_size
+        self.stacked = stacked
+
+    def all_features(self) -> torch.Tensor:
+        """Every sample's features, sample after sample: (sum P_b, C)."""
+        if self.stacked is not None:
+            return self.stacked
+        return torch.cat(self.features) if self.features else torch.zeros(0, 0)
 
     def canvas(self) -> torch.Tensor:
         """BEV canvases (B, C, n, n), channels-last in memory (each cell's C features adjacent,
@@ -190,7 +200,7 @@ class _ParityClasses:
     def __init__(self, pillars: Pillars, m: int):
         n, batch = pillars.grid_size, len(pillars.cells)
         cells = torch.cat([c + b * n * n for b, c in enumerate(pillars.cells)]) if batch else torch.zeros(0, dtype=torch.long)
-        feats = torch.cat(pillars.features) if batch else torch.zeros(0, 0)
+        feats = pillars.all_features()
         sample, local = cells // (n * n), cells % (n * n)
         iy, ix = local // n, local % n
         parity = (iy % 2) * 2 + ix % 2
