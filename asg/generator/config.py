@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
@@ -16,6 +16,9 @@ from ..objective import ObjectiveConfig
 from ..scene.neighbours import COMM_RANGE_M
 from ..search import SpaceConfig
 from ..sensors.lidar_spec import DEFAULT_LIDAR
+
+if TYPE_CHECKING:  # (the targets import torch: the config does not need it to load)
+    from ..perception.targets import Target
 
 #: ``--acs off``: no collaborator search (the scene's own collaborators)
 ACS_OFF = "off"
@@ -45,7 +48,7 @@ class GenerateConfig:
     space: SpaceConfig = field(default_factory=SpaceConfig)
 
     @property
-    def target(self):
+    def target(self) -> "Target":
         """The target ``fusion`` names (asg.perception.targets.Target): what the run asks about
         it (its detector, attention, digests) it asks this object, never the name."""
         from ..perception.targets import resolve_target

@@ -13,7 +13,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 from sumo_scenarios.atomic import remove_stale_partials
 from sumo_scenarios.checks import inside
@@ -26,6 +26,9 @@ from ..io.run_record import RUN_RECORD, claim, with_defaults
 from .config import GenerateConfig
 from .pipeline import Generator
 from ..scene import Scene
+
+if TYPE_CHECKING:  # (the targets load torch: only a run that asks for its target needs it)
+    from ..perception.targets import Target
 
 #: temporary work (a simulated log) inside the run folder, removed when the run ends
 WORK_DIR = ".work"
@@ -299,7 +302,7 @@ def run_settings(cfg: GenerateConfig, seed: int, count: int, source: dict) -> di
     return settings
 
 
-def shipped_digests(target, weights: str | None, acs_attention: bool) -> dict[str, str]:
+def shipped_digests(target: "Target", weights: str | None, acs_attention: bool) -> dict[str, str]:
     """{weights name: sha256} of the shipped weights files a run against ``target`` loads (its own
     when it is given no ``weights`` file; the shipped AttFuse's for attention-based ACS)."""
     from ..perception.targets import shipped_weights_of
