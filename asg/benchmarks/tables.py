@@ -199,11 +199,13 @@ def transfer_table(run: TableRun) -> tuple[list[dict], int]:
     models = run.models or MODELS
     for source in models:
         _challenging(source, "train", run)
+    # each source's set named once (an OpenCOOD folder's label hashes its checkpoint)
+    attacked = {source: set_name(resolve_target(source), "train") for source in models}
     for target in models:
         normal = _evaluate(target, "normal", run)
         rows.append({"source": "normal", "target": target, "ap": normal["ap"], "paper": None})
         for source in models:
-            res = _evaluate(target, set_name(resolve_target(source), "train"), run)
+            res = _evaluate(target, attacked[source], run)
             counts.add(res["frames"])
             rows.append({"source": source, "target": target, "ap": res["ap"],
                          "paper": paper.TRANSFER.get((source, target))})
