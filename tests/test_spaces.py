@@ -62,6 +62,38 @@ def test_every_member_of_q_is_within_bounds_and_plausible(kinds):
     assert np.array_equal(q.members, again.members)
 
 
+@pytest.mark.parametrize("level", ["paper", "traffic"])
+def test_every_move_of_q_passes_the_recheck_at_its_level(level):
+    """Q's moves (drawn by the checker's array tests) all pass the independent re-check at the
+    run's level: at ``traffic``, none drives the wrong way, and Q is not left empty by it."""
+    scene = _scene()
+    space = SearchSpace(scene, ("v2", "v3", "u0"), SpaceConfig(n_q=150, plausibility=level))
+    q = FeasibleSet(space, np.random.default_rng(7))
+    assert len(q) > 100
+    for x in q.members:
+        assert recheck(scene, space.apply(x), level, 30.0).ok
+
+
+def test_a_slot_places_its_draws_at_once_as_one_at_a_time():
+    """A moved vehicle's poses and footprints computed for a whole batch of draws are the floats
+    its one-at-a-time path gives (so Q does not depend on the path)."""
+    from asg.scene.agent import footprint_xy, stacked_footprints_xy
+
+    scene = _scene()
+    rng = np.random.default_rng(5)
+    for slot in SearchSpace(scene, ("v2", "v3"), SpaceConfig(dyaw_deg=180.0)).slots:
+        draws = slot.draw(rng, 4000)
+        poses = slot.poses(draws)
+        agents = [slot.agent(x) for x in draws]
+        assert poses.present.all()
+        assert np.array_equal(poses.centres_xy, [(a.x_m, a.y_m) for a in agents])
+        assert np.array_equal(poses.yaws_rad, [a.yaw_rad for a in agents])
+    x, y = rng.uniform(-3000, 3000, (2, 20000))
+    yaw, length, width = rng.uniform(-7, 7, 20000), rng.uniform(0.5, 20, 20000), rng.uniform(0.5, 4, 20000)
+    one_at_a_time = np.stack([footprint_xy(*v) for v in zip(x, y, yaw, length, width)])
+    assert np.array_equal(stacked_footprints_xy(x, y, yaw, length, width), one_at_a_time)
+
+
 def test_link_changes_what_the_ego_receives_not_what_sensors_see():
     scene = _scene()
     spec = load_lidar_spec("v2xp")

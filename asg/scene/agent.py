@@ -126,3 +126,16 @@ def footprint_xy(x_m: float, y_m: float, yaw_rad: float, length_m: float, width_
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
     local = _CORNER_SIGNS * np.array([length_m / 2, width_m / 2])
     return local @ np.array([[c, s], [-s, c]]) + np.array([x_m, y_m])
+
+
+def stacked_footprints_xy(x_m, y_m, yaw_rad, length_m, width_m) -> np.ndarray:
+    """Corners (M, 4, 2) of M rectangles given as arrays (M,), the same floats as
+    :func:`footprint_xy` gives one at a time (each rectangle's corners by its own 2 x 2 matrix
+    product and ``math``'s cosine; :func:`footprints_xy` rounds differently in the last bits)."""
+    x_m, y_m, yaw_rad, length_m, width_m = np.broadcast_arrays(*(np.asarray(v, dtype=float).reshape(-1) for v in
+                                                               (x_m, y_m, yaw_rad, length_m, width_m)))
+    c = np.fromiter(map(math.cos, yaw_rad), dtype=float, count=len(yaw_rad))
+    s = np.fromiter(map(math.sin, yaw_rad), dtype=float, count=len(yaw_rad))
+    local = _CORNER_SIGNS[None] * np.stack([length_m / 2, width_m / 2], axis=-1)[:, None, :]  # (M, 4, 2)
+    rotation = np.stack([np.stack([c, s], axis=-1), np.stack([-s, c], axis=-1)], axis=1)  # (M, 2, 2)
+    return np.matmul(local, rotation) + np.stack([x_m, y_m], axis=-1)[:, None, :]

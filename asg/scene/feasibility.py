@@ -17,7 +17,7 @@ from shapely.geometry import MultiPoint
 from sumo_scenarios.buildings import Building
 from sumo_scenarios.log import NEAR_RADIUS_M
 
-from .agent import Agent
+from .agent import Agent, stacked_footprints_xy
 from .scene import Scene
 
 #: the evaluation range around the ego (|x|, |y| <= this in the ego frame), metres: what AP counts,
@@ -32,10 +32,17 @@ PLAUSIBILITY_LEVELS: tuple[str, ...] = get_args(PlausibilityLevel)
 
 
 def box_object(a: Agent) -> fcl.CollisionObject:
-    c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
+    """``a``'s box as an fcl object (network frame)."""
+    return box_object_at(a, a.x_m, a.y_m, a.yaw_rad)
+
+
+def box_object_at(body: Agent, x_m: float, y_m: float, yaw_rad: float) -> fcl.CollisionObject:
+    """The box of ``body``'s size and ground height, its centre at (``x_m``, ``y_m``) heading
+    ``yaw_rad`` (network frame), as an fcl object."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return fcl.CollisionObject(fcl.Box(a.length_m, a.width_m, a.height_m),
-                               fcl.Transform(rot, np.array([a.x_m, a.y_m, a.z_m + a.height_m / 2])))
+    return fcl.CollisionObject(fcl.Box(body.length_m, body.width_m, body.height_m),
+                               fcl.Transform(rot, np.array([x_m, y_m, body.z_m + body.height_m / 2])))
 
 
 def collide_boxes(a: fcl.CollisionObject, b: fcl.CollisionObject) -> bool:
@@ -61,7 +68,12 @@ def in_eval_range(ego: Agent, agents: Sequence[Agent]) -> np.ndarray:
     """(n,) bool: box centres within |x|, |y| <= EVAL_RANGE_M in the ego's frame."""
     if not agents:
         return np.zeros(0, dtype=bool)
-    xy = np.array([[a.x_m, a.y_m] for a in agents]) - np.array([ego.x_m, ego.y_m])
+    return centres_in_eval_range(ego, np.array([[a.x_m, a.y_m] for a in agents]))
+
+
+def centres_in_eval_range(ego: Agent, centres_xy: np.ndarray) -> np.ndarray:
+    """(n,) bool: centres (n, 2) of the network frame within |x|, |y| <= EVAL_RANGE_M in the ego's frame."""
+    xy = np.asarray(centres_xy, dtype=float).reshape(-1, 2) - np.array([ego.x_m, ego.y_m])
     c, s = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
     local = np.stack([c * xy[:, 0] + s * xy[:, 1], -s * xy[:, 0] + c * xy[:, 1]], axis=1)
     return np.all(np.abs(local) <= EVAL_RANGE_M, axis=1)
@@ -126,20 +138,32 @@ class FeasibilityChecker:
         """(n,) bool: box centres within the evaluation range of the ego frame."""
         return in_eval_range(self.scene.ego, agents)
 
+    def centres_in_range(self, centres_xy: np.ndarray) -> np.ndarray:
+        """(n,) bool: :meth:`in_range` of box centres (n, 2) given as an array (network frame)."""
+        return centres_in_eval_range(self.scene.ego, centres_xy)
+
     def on_road(self, agents: Sequence[Agent]) -> np.ndarray:
         """(n,) bool: on the drivable area and, at the ``traffic`` level, in a lane of its own direction."""
-        ok = self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
+        return self.on_road_at(*_pose_arrays(agents))
+
+    def on_road_at(self, centres_xy: np.ndarray, yaws_rad: np.ndarray, lengths_m: np.ndarray,
+                   widths_m: np.ndarray) -> np.ndarray:
+        """:meth:`on_road` of n boxes given as arrays: centres (n, 2), headings, lengths and widths (n,)."""
+        footprints_xy = stacked_footprints_xy(centres_xy[:, 0], centres_xy[:, 1], yaws_rad, lengths_m, widths_m)
+        ok = self.scene.lane_map.footprints_on_road(footprints_xy)
         if self.traffic:  # the costlier lane-direction test only where the area test passed
             idx = np.flatnonzero(ok)
-            ok[idx] = ~self.wrong_way([agents[i] for i in idx])
+            if len(idx):
+                ok[idx] = self.scene.lane_map.in_own_lanes(centres_xy[idx], yaws_rad[idx], footprints_xy[idx],
+                                                            self.max_heading_rad)
         return ok
 
     def wrong_way(self, agents: Sequence[Agent]) -> np.ndarray:
         """(n,) bool: not in a lane of its own direction (see LaneMap.in_own_lane)."""
         if not agents:
             return np.zeros(0, dtype=bool)
-        centres_xy, yaws_rad = np.array([[a.x_m, a.y_m] for a in agents]), np.array([a.yaw_rad for a in agents])
-        footprints_xy = np.stack([a.footprint_xy() for a in agents])
+        centres_xy, yaws_rad, lengths_m, widths_m = _pose_arrays(agents)
+        footprints_xy = stacked_footprints_xy(centres_xy[:, 0], centres_xy[:, 1], yaws_rad, lengths_m, widths_m)
         return ~self.scene.lane_map.in_own_lanes(centres_xy, yaws_rad, footprints_xy, self.max_heading_rad)
 
     def check(self, moved: Mapping[str, Agent]) -> Plausibility:
@@ -148,6 +172,15 @@ class FeasibilityChecker:
         agents = [moved[i] for i in self.movable_ids if i in moved]
         if not agents:
             return Plausibility(0, 0, 0, 0 if self.traffic else None)
-        on_area = self.scene.lane_map.footprints_on_road(np.stack([a.footprint_xy() for a in agents]))
+        centres_xy, yaws_rad, lengths_m, widths_m = _pose_arrays(agents)
+        on_area = self.scene.lane_map.footprints_on_road(
+            stacked_footprints_xy(centres_xy[:, 0], centres_xy[:, 1], yaws_rad, lengths_m, widths_m))
         return Plausibility(self.collides(agents), int((~on_area).sum()), int((~self.in_range(agents)).sum()),
                             int(self.wrong_way(agents).sum()) if self.traffic else None)
+
+
+def _pose_arrays(agents: Sequence[Agent]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (n, 2), headings, lengths and widths (n,) of ``agents`` (network frame)."""
+    return (np.array([[a.x_m, a.y_m] for a in agents], dtype=float).reshape(-1, 2),
+            np.array([a.yaw_rad for a in agents], dtype=float), np.array([a.length_m for a in agents], dtype=float),
+            np.array([a.width_m for a in agents], dtype=float))

@@ -25,7 +25,7 @@ from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 
 from ..scene import Agent, Scene
-from ..scene.feasibility import PLAUSIBILITY_LEVELS, FeasibilityChecker, PlausibilityLevel, box_object, collide_boxes
+from ..scene.feasibility import PLAUSIBILITY_LEVELS, FeasibilityChecker, PlausibilityLevel, box_object_at, collide_boxes
 from ..scene.link import LinkState
 from .spaces import SPACES, DropoutConfig, InsertConfig, LatencyConfig, PoseErrorConfig, Slot, SpaceContext
 
@@ -301,26 +301,28 @@ class FeasibleSet:
         xs: list[np.ndarray] = []
         objects: list = []
         xy: list[tuple[float, float]] = []
-        drawn = 0
+        drawn, body = 0, slot.body
         while len(xs) < n_q and drawn < budget:
             batch = min(512, budget - drawn)
             draws = slot.draw(rng, batch)
             drawn += batch
-            placed = [slot.agent(x) for x in draws]
-            real = [i for i, a in enumerate(placed) if a is not None]
+            poses = slot.poses(draws)
+            real = np.flatnonzero(poses.present)
             ok = np.ones(batch, dtype=bool)
-            if real:
-                agents = [placed[i] for i in real]
-                ok[real] = checker.on_road(agents) & checker.in_range(agents)
-            for x, a, good in zip(draws, placed, ok):
-                if not good:
-                    continue
-                box = box_object(a) if a is not None else None
-                if box is not None and checker.touches_fixed(box):
-                    continue
-                xs.append(x)
+            if len(real):
+                centres_xy, sizes = poses.centres_xy[real], np.ones(len(real))
+                ok[real] = (checker.on_road_at(centres_xy, poses.yaws_rad[real], sizes * body.length_m,
+                                               sizes * body.width_m) & checker.centres_in_range(centres_xy))
+            for i in np.flatnonzero(ok):
+                box, centre = None, (FAR_M, FAR_M)
+                if poses.present[i]:
+                    centre = tuple(poses.centres_xy[i])
+                    box = box_object_at(body, *centre, poses.yaws_rad[i])
+                    if checker.touches_fixed(box):
+                        continue
+                xs.append(draws[i])
                 objects.append(box)
-                xy.append((a.x_m, a.y_m) if a is not None else (FAR_M, FAR_M))
+                xy.append(centre)
                 if len(xs) >= n_q:
                     break
         return _Pool(np.array(xs).reshape(-1, slot.width), objects, np.array(xy).reshape(-1, 2), drawn, slot.radius_m)

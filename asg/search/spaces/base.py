@@ -19,6 +19,16 @@ from ...scene import Agent, Scene
 from ...registry import Registry
 
 
+@dataclass(frozen=True)
+class SlotPoses:
+    """Where n members of one slot place its vehicle (network frame): present (n,) bool, centres
+    (n, 2) and headings (n,) (NaN where absent)."""
+
+    present: np.ndarray
+    centres_xy: np.ndarray
+    yaws_rad: np.ndarray
+
+
 class Slot(ABC):
     """One vehicle a member may place: ``width`` normalised numbers decode to its agent (None: absent)."""
 
@@ -26,6 +36,9 @@ class Slot(ABC):
     width: int
     #: radius (m) of the circle around its footprint (pairs of slots farther apart cannot collide)
     radius_m: float
+    #: the vehicle whose size and ground height the slot places (a moved one as the scene has it,
+    #: an inserted one's template)
+    body: Agent
 
     @abstractmethod
     def draw(self, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -34,6 +47,15 @@ class Slot(ABC):
     @abstractmethod
     def agent(self, x: np.ndarray) -> Agent | None:
         """The vehicle ``x`` (width,) places, in the network frame; None if absent."""
+
+    def poses(self, draws: np.ndarray) -> SlotPoses:
+        """Where each of ``draws`` (n, width) places the vehicle: the poses :meth:`agent` gives
+        (an override computes them at once, to the same floats)."""
+        agents = [self.agent(x) for x in draws]
+        present = np.array([a is not None for a in agents], dtype=bool)
+        centres_xy = np.array([(a.x_m, a.y_m) if a is not None else (np.nan, np.nan) for a in agents]).reshape(-1, 2)
+        yaws_rad = np.array([a.yaw_rad if a is not None else np.nan for a in agents], dtype=float)
+        return SlotPoses(present, centres_xy, yaws_rad)
 
     @abstractmethod
     def identity(self) -> np.ndarray:

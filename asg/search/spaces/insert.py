@@ -41,7 +41,7 @@ class InsertSlot(Slot):
 
     def __init__(self, agent_id: str, template: Agent, ctx_scene, lanes: list[tuple[LineString, object]]):
         self.agent_id = agent_id
-        self.template = template
+        self.template = self.body = template
         self.scene = ctx_scene
         self.lanes = lanes
         self.lengths = np.array([line.length for line, _ in lanes])

@@ -8,14 +8,16 @@ import math
 import numpy as np
 
 from ...scene import Agent
-from .base import SPACES, PerturbationSpace, Slot
+from sumo_scenarios.geometry import wrap_rad
+
+from .base import SPACES, PerturbationSpace, Slot, SlotPoses
 
 
 class MoveSlot(Slot):
     width = 3
 
     def __init__(self, base: Agent, scale: np.ndarray, yaw_levels: np.ndarray | None = None):
-        self.base = base
+        self.base = self.body = base
         self.agent_id = base.agent_id
         self.scale = scale  # (3,) dx_m, dy_m, dyaw_rad at x = 1
         self.yaw_levels = yaw_levels  # (L,) the allowed turns in normalised units, or None: any
@@ -30,6 +32,12 @@ class MoveSlot(Slot):
 
     def agent(self, x: np.ndarray) -> Agent:
         return self.base.moved(*(np.asarray(x) * self.scale))
+
+    def poses(self, draws: np.ndarray) -> SlotPoses:
+        """:meth:`agent`'s poses of ``draws`` (n, 3) at once: the same products, sums and wrap."""
+        d = np.asarray(draws, dtype=float).reshape(-1, 3) * self.scale
+        centres_xy = np.stack([self.base.x_m + d[:, 0], self.base.y_m + d[:, 1]], axis=1)
+        return SlotPoses(np.ones(len(d), dtype=bool), centres_xy, wrap_rad(self.base.yaw_rad + d[:, 2]))
 
     def identity(self) -> np.ndarray:
         return np.zeros(3)
