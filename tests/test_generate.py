@@ -191,6 +191,23 @@ def test_acs_that_ends_easier_than_the_start_says_so(busy_scene, monkeypatch):
     assert any(n.startswith("ACS ended easier") for n in real.notes) == (after_loss > real.loss_normal)
 
 
+def test_acs_renders_each_combination_as_its_own_world_does(busy_scene):
+    """The collaborator search renders the attention's frame and every combination in one world
+    of all its candidates: the chosen combination's frame is the one its own scene renders."""
+    from asg.sensors.frame import render_frame
+    from asg.sensors.renderers import world_for
+
+    gen = make_gen()
+    rng = np.random.default_rng(2)
+    initial = gen.normal_collaborators(busy_scene, rng, [])
+    best = gen.collaborator_search(initial, rng, []).best
+    own = render_frame(world_for(best.scene, gen.spec))
+    assert best.frame.sensing_ids == own.sensing_ids == best.scene.sensing_ids
+    for aid in own.sensing_ids:
+        assert np.array_equal(best.frame.clouds[aid], own.clouds[aid])
+    assert np.array_equal(best.frame.ego_boxes, own.ego_boxes)
+
+
 def test_a_new_collaborator_search_is_one_class_and_one_registry_line(busy_scene, capsys, tmp_path):
     """A strategy registered under "acs" runs in the generator and from the command line."""
     from dataclasses import replace

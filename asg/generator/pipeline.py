@@ -124,24 +124,27 @@ class Generator:
         size = self.cfg.sensing_agents - 1
         if len(cands) < size:
             notes.append(f"ACS: {len(cands)} candidate collaborators for {size} places; using what exists")
+        # one world for every candidate: who senses does not change what is there, and a sensor's
+        # rays are cast once (the attention's frame casts every candidate's, the combinations reuse them)
+        world = world_for(scene.with_collaborators(cands), self.spec)
         attention_of = None
         if strategy.needs_attention:
             if self.acs_model is None:
                 raise InputError(f"ACS-{self.cfg.acs} needs an attention model (AttFuse); pass --acs random or off")
-            attention_of = self._attention_of
+            attention_of = lambda s: self._attention_of(render_frame(world, s.sensing_ids))
         combos, probs = strategy.propose(scene, cands, size, rng, attention_of)
         combos = combos or [tuple()]
         scenes = [scene.with_collaborators(combo) for combo in combos]
-        frames = [render_frame(world_for(s, self.spec)) for s in scenes]
+        frames = [render_frame(world, s.sensing_ids) for s in scenes]
         best: Scored | None = None
         for s, frame, judged in zip(scenes, frames, self.candidates.map(self._judged, frames)):  # one batch
             if best is None or judged.loss < best.loss:
                 best = Scored(s, judged.loss, judged.ap, frame, judged.detections)
         return AcsOutcome(best, probs, len(combos))
 
-    def _attention_of(self, scene: Scene) -> dict[str, float]:
-        """The ACS model's attention weight of each sensing agent of ``scene``; InputError if it gives none."""
-        weights = self.acs_model.attention_weights(render_frame(world_for(scene, self.spec)), self.cfg.attention_cells)
+    def _attention_of(self, frame: CooperativeFrame) -> dict[str, float]:
+        """The ACS model's attention weight of each sensing agent of ``frame``; InputError if it gives none."""
+        weights = self.acs_model.attention_weights(frame, self.cfg.attention_cells)
         if weights is None:
             raise InputError(f"ACS-{self.cfg.acs}: the ACS model gave no attention weights (its attention_weights "
                              "returned None); return a model with attention from the factory, or pass --acs random or off")
