@@ -125,6 +125,11 @@ def test_per_frame_ap_keeps_each_frames_order_hand_computed():
     assert average_precision([f1_reversed, f2], 0.5, "per-frame") == pytest.approx(0.5 + 0.5 * 2 / 3)
     both = ap_by_method([f1, f2])
     assert both["global"] == ap_at([f1, f2]) and both["per-frame"] == ap_at([f1, f2], method="per-frame")
+    for method in ("global", "per-frame"):  # every threshold of one call as average_precision's own
+        shifted = [(f[0] + (0.8, 0.3, 0, 0, 0, 0, 0.2), f[1], f[2]) for f in (f1, f2)]
+        assert ap_at(shifted, (0.1, 0.3, 0.5, 0.7), method) == {
+            f"{t:g}": average_precision(shifted, t, method) for t in (0.1, 0.3, 0.5, 0.7)}
+        assert len(set(ap_at(shifted, (0.1, 0.3, 0.5, 0.7), method).values())) > 1
 
 
 def test_per_frame_ap_equals_opencoods_unsorted_evaluation():

@@ -170,9 +170,10 @@ def both_yardsticks(ours, per_frame, key: str = "0.7", missing: str = "-") -> st
 
 def ap_at(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS,
           method: str = DEFAULT_AP_METHOD) -> dict[str, float]:
-    """{"0.3": AP, "0.5": AP, "0.7": AP} over the same frames, ranked by ``method``."""
-    frames = list(frames)
-    return {f"{t:g}": average_precision(frames, t, method) for t in thresholds}
+    """{"0.3": AP, "0.5": AP, "0.7": AP} over the same frames, ranked by ``method`` (each frame's
+    IoU matrix computed once for every threshold)."""
+    matches = [frame_matches(f, thresholds) for f in frames]
+    return {f"{t:g}": ap_from_matches(*_gathered(matches, t), method=method) for t in thresholds}
 
 
 def ap_by_method(frames: Sequence[Frame], thresholds: Sequence[float] = REPORTED_THRESHOLDS) -> dict[str, dict[str, float]]:
