@@ -90,3 +90,26 @@ def test_a_missing_set_names_the_command_that_builds_it(data_root):
                        ("challenging-opencood-m-ab12cd34-train", "--fusion opencood:DIR --split train")):
         with pytest.raises(InputError, match=f"run 'asg dataset build challenging {hint}'"):
             challenging_scenes(name)
+
+
+def test_evaluate_loads_a_weights_file_once(capsys, data_root, tmp_path, monkeypatch):
+    """``asg evaluate --weights FILE`` in one process: the detector that checked the file is the one
+    scored (the file read once), and its AP is the shipped weights' own."""
+    import shutil
+
+    from asg.perception import weights_io
+
+    copy = tmp_path / "mine.pt"
+    shutil.copy(weights_io.weights_path(NONE.shipped_weights), copy)
+    reads = []
+    load_state = weights_io.load_state
+    monkeypatch.setattr(weights_io, "load_state",
+                        lambda model, path, *a, **k: reads.append(str(path)) or load_state(model, path, *a, **k))
+
+    def ap(*extra: str) -> dict:
+        assert main(["evaluate", "--fusion", "none", "--set", "normal-val", "--json", *extra]) == 0
+        return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+    mine = ap("--weights", str(copy))
+    assert reads.count(str(copy)) == 1
+    assert ap() == mine

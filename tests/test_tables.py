@@ -258,3 +258,20 @@ def test_every_built_set_is_read_and_exported_by_its_name(data_root, tmp_path, c
         assert [s.scene_id for s in scenes_of(name)] == ids, name
     assert main(["export", "detector-train", "--format", "opv2v", "--out", str(tmp_path / "dt")]) == 0
     assert (tmp_path / "dt").is_dir() and any((tmp_path / "dt").iterdir())
+
+
+def test_a_measurement_resolves_each_model_once(tmp_path, monkeypatch):
+    """Every table of a run (and the run copied per AP method) asks the run for a model's target:
+    the name is resolved once, and the same object answers each time."""
+    from dataclasses import replace
+
+    from asg.benchmarks.tables import TableRun
+    from asg.perception import targets
+
+    calls = []
+    resolve = targets.resolve_target
+    monkeypatch.setattr(targets, "resolve_target", lambda name: calls.append(name) or resolve(name))
+    run = TableRun(out=tmp_path)
+    first = run.target("attfuse")
+    assert replace(run, ap_method="per-frame").target("attfuse") is first is run.target("attfuse")
+    assert first == resolve("attfuse") and calls == ["attfuse"]

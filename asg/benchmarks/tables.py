@@ -65,6 +65,16 @@ class TableRun:
     #: detector evaluations already scored in this measurement, {(model, set): result}: a table
     #: written with a second AP method rescores them instead of detecting again
     scored: dict = field(default_factory=dict, compare=False, repr=False)
+    #: the targets of the models named, {model: Target}, each resolved once a measurement (:meth:`target`)
+    targets: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def target(self, model: str):
+        """``model``'s target (asg.perception.targets), resolved once for every table of the run."""
+        if model not in self.targets:
+            from ..perception.targets import resolve_target
+
+            self.targets[model] = resolve_target(model)
+        return self.targets[model]
 
 
 def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None] = print,
@@ -81,11 +91,9 @@ def run_tables(names: tuple[str, ...], run: TableRun, log: Callable[[str], None]
 def _detectors(run: TableRun) -> str:
     """What detected, for a table's header: the factory standing in for every model, or the shipped
     weights and any OpenCOOD model folders among the models (named in the rows)."""
-    from ..perception.targets import resolve_target
-
     if run.detector_factory:
         return run.detector_factory
-    headers = list(dict.fromkeys(resolve_target(m).header for m in run.models or ()))
+    headers = list(dict.fromkeys(run.target(m).header for m in run.models or ()))
     return ", and ".join(headers) or "shipped"
 
 
@@ -129,12 +137,11 @@ def finetune_table(run: TableRun) -> tuple[list[dict], int]:
     older build of the set would leave behind)."""
     from functools import cache
 
-    from ..perception.targets import resolve_target
     from ..workflows.challenging import build_challenging
 
     @cache
     def own_set(model: str) -> str:
-        return build_challenging(resolve_target(model), "val", run.executor, count=run.scenes,
+        return build_challenging(run.target(model), "val", run.executor, count=run.scenes,
                                  detector_factory=run.detector_factory).name
 
     challenging = own_set("attfuse")
@@ -161,7 +168,6 @@ def harden_rows(run: TableRun) -> list[dict]:
         return []
     from dataclasses import replace
 
-    from ..perception.targets import resolve_target
     from ..workflows.harden import DATA_KINDS, harden, load_harden_config
 
     base = run.harden_config or load_harden_config()
@@ -169,7 +175,7 @@ def harden_rows(run: TableRun) -> list[dict]:
         base = replace(base, scenes_per_round=run.scenes)
     rows = []
     for data in DATA_KINDS:
-        card = harden(resolve_target("attfuse"), run.harden_rounds, run.out / "harden" / data, config=replace(base, data=data),
+        card = harden(run.target("attfuse"), run.harden_rounds, run.out / "harden" / data, config=replace(base, data=data),
                       executor=run.executor, detector_factory=run.detector_factory, log=lambda *_: None)
         for row in card["rounds"][1:]:
             model = f"harden-{data}-r{row['round']}"
@@ -192,7 +198,6 @@ def harden_rows(run: TableRun) -> list[dict]:
 def transfer_table(run: TableRun) -> tuple[list[dict], int]:
     """Table III: each model scored on the challenging scenes generated against each model (train
     split), and on the normal scenes they came from."""
-    from ..perception.targets import resolve_target
     from ..workflows.challenging import set_name
 
     rows, counts = [], set()
@@ -200,7 +205,7 @@ def transfer_table(run: TableRun) -> tuple[list[dict], int]:
     for source in models:
         _challenging(source, "train", run)
     # each source's set named once (an OpenCOOD folder's label hashes its checkpoint)
-    attacked = {source: set_name(resolve_target(source), "train") for source in models}
+    attacked = {source: set_name(run.target(source), "train") for source in models}
     for target in models:
         normal = _evaluate(target, "normal", run)
         rows.append({"source": "normal", "target": target, "ap": normal["ap"], "paper": None})
@@ -306,10 +311,9 @@ def spaces_table(run: TableRun) -> tuple[list[dict], int]:
 def _challenging(model: str, split: str, run: TableRun) -> dict:
     """{"scenes", "normal", "challenging"}: the model's challenging set of ``split`` (built or
     resumed), pooled over its first ``run.scenes`` scenes."""
-    from ..perception.targets import resolve_target
     from ..workflows.challenging import build_challenging, first_scenes_ap
 
-    out = build_challenging(resolve_target(model), split, run.executor, count=run.scenes, detector_factory=run.detector_factory)
+    out = build_challenging(run.target(model), split, run.executor, count=run.scenes, detector_factory=run.detector_factory)
     return first_scenes_ap(out, run.scenes, run.ap_method)
 
 
@@ -317,11 +321,9 @@ def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
     """{"ap": AP by threshold ranked by ``run.ap_method``, "frames"} of ``model`` on ``set_name``
     (detected once per measurement: see TableRun.scored)."""
     from ..evaluation import evaluate
-    from ..perception.targets import resolve_target
-
     key = (model, set_name)
     if key not in run.scored:
-        run.scored[key] = evaluate(resolve_target(model), set_name, limit=run.scenes, executor=run.executor,
+        run.scored[key] = evaluate(run.target(model), set_name, limit=run.scenes, executor=run.executor,
                                    detector_factory=run.detector_factory)
     res = run.scored[key]
     ap = PooledAP.from_result(res).of(run.ap_method)
@@ -345,9 +347,7 @@ def _generator_run(run: TableRun, model: str, *, acs: str, search: str, aps: boo
     cfg = with_space_flags(load_generate_config(fusion=model, acs=acs, search=search, aps=aps, perturbed=movers),
                            plausibility, kinds)
     source = SceneSource(scenes=scenes or Path("normal"))
-    from ..perception.targets import resolve_target
-
-    name = f"{resolve_target(model).label}-acs_{acs}-{search if aps else 'no_aps'}"
+    name = f"{run.target(model).label}-acs_{acs}-{search if aps else 'no_aps'}"
     if kinds is not None:
         name = f"{scenes.name if scenes else 'normal'}-{name}-space_{kinds.replace(',', '+')}"
     if plausibility is not None:
