@@ -103,13 +103,11 @@ def _worker_run(state: tuple[V2XDetector, LidarSpec, GroundTruth], item: tuple[i
 
 def evaluate(target: Target, set_name: str, limit: int | None = None, progress=None,
              weights_file: str | None = None, executor=None, detector_factory: str | None = None,
-             keep_matches: bool = False, truth: GroundTruth = GroundTruth.ASG,
-             detector: V2XDetector | None = None) -> dict:
+             keep_matches: bool = False, truth: GroundTruth = GroundTruth.ASG) -> dict:
     """AP of ``target``'s detector (its shipped weights, or ``weights_file``, or what
-    ``detector_factory`` returns; ``detector``: that detector already built, for this process) on a
-    set (see scenes_of), its scenes on ``executor`` (default: this process), against the ground
-    truth ``truth``; the frames are pooled in the set's order (``keep_matches``: see
-    :func:`scored`). A set with no scenes is one InputError."""
+    ``detector_factory`` returns) on a set (see scenes_of), its scenes on ``executor`` (default:
+    this process), against the ground truth ``truth``; the frames are pooled in the set's order
+    (``keep_matches``: see :func:`scored`). A set with no scenes is one InputError."""
     import itertools
 
     from .executors import Job
@@ -119,8 +117,8 @@ def evaluate(target: Target, set_name: str, limit: int | None = None, progress=N
     if not scenes:
         raise InputError(f"set {set_name!r} has no scenes to score; rebuild it ('asg dataset build') or pick another set")
     if executor is None:
-        detector = detector or target_detector(target, weights_file, detector_factory)
-        result = evaluate_detector(detector, scenes, progress, keep_matches, truth=truth)
+        result = evaluate_detector(target_detector(target, weights_file, detector_factory), scenes, progress, keep_matches,
+                                   truth=truth)
     else:
         frames: dict[int, tuple] = {}
         job = Job(_worker_setup, _worker_run, (target, weights_file, detector_factory, truth.value))

@@ -59,3 +59,32 @@ def test_no_module_outside_the_target_registry_branches_on_a_targets_kind():
     found = [f"{p.relative_to(ROOT)}:{n}" for p in sorted((ROOT / "asg").rglob("*.py")) if p not in allowed
              for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if KIND_BRANCHES.search(line)]
     assert not found, found
+
+
+def test_the_detector_a_weights_check_built_is_handed_over_once(tmp_path, monkeypatch):
+    """A shipped model's check of a weights file keeps its detector for the next caller with that
+    file (the file read once a command); the caller after that, or after the file changed, reads it."""
+    import os
+    import shutil
+
+    from asg.perception import weights_io
+
+    target = resolve_target("early")
+    mine = str(tmp_path / "mine.pt")
+    shutil.copy(weights_io.weights_path(target.shipped_weights), mine)
+    reads = []
+    load_state = weights_io.load_state
+    monkeypatch.setattr(weights_io, "load_state",
+                        lambda model, path, *a, **k: reads.append(str(path)) or load_state(model, path, *a, **k))
+    target.check(mine)
+    first = resolve_target("early").detector(mine)
+    assert reads.count(mine) == 1
+    assert resolve_target("early").detector(mine) is not first and reads.count(mine) == 2
+    target.check(mine)
+    os.utime(mine, ns=(1, 1))  # the file changed since its check: read again
+    assert target.detector(mine) is not first and reads.count(mine) == 4
+    target.check(mine)
+    resolve_target("early").detector()  # the shipped weights: another file
+    resolve_target("early").detector(mine, cfg=first.cfg)  # other settings: its own detector
+    assert reads.count(mine) == 6
+    assert target.detector(mine) is not first and reads.count(mine) == 6  # the checked one, still there

@@ -33,20 +33,15 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import console, print_result, progress_bar
 
     weights = None if args.weights is None else str(args.weights)
-    target = resolve_target(args.fusion)  # one line for an unknown fusion
+    target = resolve_target(args.fusion).check(weights)  # one line for an unknown fusion or a foreign file
     truth = check_ground_truth(GroundTruth(args.ground_truth), target)
     # without --workers or --executor: this process on every thread; else workers of one thread
     spread = args.workers is not None or args.executor != "local"
-    # a foreign --weights file is one line before anything runs; in this process the detector that
-    # checked it is the one scored (its weights loaded once)
-    detector = None if spread else target.detector(weights)
-    if spread:
-        target.check(weights)
     with progress_bar() as bar, (build_executor(args.executor, args.workers or 1, threads=1, address=args.address)
                                  if spread else contextlib.nullcontext()) as executor:
         task = bar.add_task(f"evaluating {args.fusion}", total=args.limit)
         result = evaluate(target, args.set, args.limit, lambda n: bar.update(task, completed=n),
-                          weights_file=weights, executor=executor, truth=truth, detector=detector)
+                          weights_file=weights, executor=executor, truth=truth)
     if note := target.evaluation_note():
         console.print(f"[yellow]note: {note}")
     if result["without_collaborators"]:
