@@ -649,6 +649,28 @@ def test_v2vnet_passes_the_pairwise_messages_and_starts_near_the_ego_alone():
     assert v2vnet.fusion.message.weight.grad.abs().sum() > 0  # the messages get gradients from the start
 
 
+def test_v2vnet_inference_in_place_gives_the_training_paths_bits():
+    """V2VNet at inference writes its GRU step and its messages into the tensors they make: the
+    same bits as the training path (with every agent present and with an absent one), and the
+    inputs left as they were."""
+    from asg.perception.fusion.v2vnet import MessagePassing
+
+    torch.manual_seed(3)
+    passing = MessagePassing(8)
+    feats = torch.randn(2, 3, 8, 7, 9)
+    for mask in (torch.ones(2, 3, dtype=torch.bool), torch.tensor([[True, True, True], [True, False, True]])):
+        before = feats.clone()
+        with torch.no_grad():
+            fast = passing(feats, mask)[0]
+            fast_messages = passing.messages(feats, mask)
+            x, h = feats[:, 0], feats[:, 1]
+            fast_step = passing.gru(x, h)
+        assert torch.equal(feats, before)
+        assert torch.equal(fast, passing(feats, mask)[0].detach())
+        assert torch.equal(fast_messages, passing.messages(feats, mask).detach())
+        assert torch.equal(fast_step, passing.gru(x, h).detach())
+
+
 def test_where2comm_sends_the_cells_its_confidence_asks_for():
     """Where2comm with AttFuse's weights: a threshold of 0 sends every cell (the network is AttFuse);
     a threshold no confidence reaches sends none (the ego alone: AttFuse on the ego's cloud); in

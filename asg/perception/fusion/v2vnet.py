@@ -34,9 +34,19 @@ class ConvGRUCell(nn.Module):
         self.candidate = nn.Conv2d(2 * channels, channels, 3, padding=1)
 
     def forward(self, x: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        if not torch.is_grad_enabled():
+            return self._step_in_place(x, h)
         reset, update = torch.sigmoid(self.gates(torch.cat([x, h], dim=1))).chunk(2, dim=1)
         candidate = torch.tanh(self.candidate(torch.cat([x, reset * h], dim=1)))
         return (1 - update) * h + update * candidate
+
+    def _step_in_place(self, x: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        """:meth:`forward` at inference: the same operations on the same values (1 - u is -u + 1
+        exactly; products and sums commute), written into the tensors the step makes instead of a
+        new tensor for each."""
+        reset, update = self.gates(torch.cat([x, h], dim=1)).sigmoid_().chunk(2, dim=1)
+        candidate = self.candidate(torch.cat([x, reset * h], dim=1)).tanh_()
+        return update.neg().add_(1).mul_(h).add_(candidate.mul_(update))
 
 
 class MessagePassing(nn.Module):
@@ -61,8 +71,9 @@ class MessagePassing(nn.Module):
         received = F.conv2d(_maps(h[:, :r].reshape(b * r, c, height, width)), w_to, self.message.bias,
                             padding=1).view(b, r, c, height, width)
         present = mask.to(h.dtype)[:, :, None, None, None]
-        mean_sent = (sent * present).sum(dim=1, keepdim=True) / present.sum(dim=1, keepdim=True)
-        return mean_sent + received
+        weighted = sent if bool(mask.all()) else sent * present  # every agent present: x * 1 is x
+        mean_sent = weighted.sum(dim=1, keepdim=True) / present.sum(dim=1, keepdim=True)
+        return mean_sent + received if torch.is_grad_enabled() else received.add_(mean_sent)
 
     def forward(self, feats: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, None]:
         """feats (B, N, C, H, W), mask (B, N) of present agents (the ego, index 0, always) -> the
