@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 
-from ...scene import Agent
 from sumo_scenarios.geometry import wrap_rad
 
+from ...scene import Agent
 from .base import SPACES, PerturbationSpace, Slot, SlotPoses
 
 
