@@ -321,6 +321,7 @@ def _evaluate(model: str, set_name: str, run: TableRun) -> dict:
     """{"ap": AP by threshold ranked by ``run.ap_method``, "frames"} of ``model`` on ``set_name``
     (detected once per measurement: see TableRun.scored)."""
     from ..evaluation import evaluate
+
     key = (model, set_name)
     if key not in run.scored:
         run.scored[key] = evaluate(run.target(model), set_name, limit=run.scenes, executor=run.executor,

@@ -134,37 +134,25 @@ class FeasibilityChecker:
         return {k for i, o in enumerate(objs) for j in range(i + 1, len(objs))
                 if collide_boxes(o, objs[j]) for k in (i, j)}
 
-    def in_range(self, agents: Sequence[Agent]) -> np.ndarray:
-        """(n,) bool: box centres within the evaluation range of the ego frame."""
-        return in_eval_range(self.scene.ego, agents)
-
-    def centres_in_range(self, centres_xy: np.ndarray) -> np.ndarray:
-        """(n,) bool: :meth:`in_range` of box centres (n, 2) given as an array (network frame)."""
+    def in_range(self, centres_xy: np.ndarray) -> np.ndarray:
+        """(n,) bool: box centres (n, 2) of the network frame within the evaluation range of the ego frame."""
         return centres_in_eval_range(self.scene.ego, centres_xy)
 
-    def on_road(self, agents: Sequence[Agent]) -> np.ndarray:
-        """(n,) bool: on the drivable area and, at the ``traffic`` level, in a lane of its own direction."""
-        return self.on_road_at(*_pose_arrays(agents))
-
-    def on_road_at(self, centres_xy: np.ndarray, yaws_rad: np.ndarray, lengths_m: np.ndarray,
-                   widths_m: np.ndarray) -> np.ndarray:
-        """:meth:`on_road` of n boxes given as arrays: centres (n, 2), headings, lengths and widths (n,)."""
-        footprints_xy = stacked_footprints_xy(centres_xy[:, 0], centres_xy[:, 1], yaws_rad, lengths_m, widths_m)
+    def on_road(self, centres_xy: np.ndarray, yaws_rad: np.ndarray, length_m, width_m) -> np.ndarray:
+        """(n,) bool: boxes given as arrays (centres (n, 2), headings (n,), lengths and widths (n,)
+        or one for all) on the drivable area and, at the ``traffic`` level, in a lane of their own
+        direction."""
+        footprints_xy = stacked_footprints_xy(centres_xy[:, 0], centres_xy[:, 1], yaws_rad, length_m, width_m)
         ok = self.scene.lane_map.footprints_on_road(footprints_xy)
         if self.traffic:  # the costlier lane-direction test only where the area test passed
             idx = np.flatnonzero(ok)
             if len(idx):
-                ok[idx] = self.scene.lane_map.in_own_lanes(centres_xy[idx], yaws_rad[idx], footprints_xy[idx],
-                                                            self.max_heading_rad)
+                ok[idx] = self._in_own_lanes(centres_xy[idx], yaws_rad[idx], footprints_xy[idx])
         return ok
 
-    def wrong_way(self, agents: Sequence[Agent]) -> np.ndarray:
-        """(n,) bool: not in a lane of its own direction (see LaneMap.in_own_lane)."""
-        if not agents:
-            return np.zeros(0, dtype=bool)
-        centres_xy, yaws_rad, lengths_m, widths_m = _pose_arrays(agents)
-        footprints_xy = stacked_footprints_xy(centres_xy[:, 0], centres_xy[:, 1], yaws_rad, lengths_m, widths_m)
-        return ~self.scene.lane_map.in_own_lanes(centres_xy, yaws_rad, footprints_xy, self.max_heading_rad)
+    def _in_own_lanes(self, centres_xy: np.ndarray, yaws_rad: np.ndarray, footprints_xy: np.ndarray) -> np.ndarray:
+        """(n,) bool: in a lane of its own direction (see LaneMap.in_own_lane)."""
+        return self.scene.lane_map.in_own_lanes(centres_xy, yaws_rad, footprints_xy, self.max_heading_rad)
 
     def check(self, moved: Mapping[str, Agent]) -> Plausibility:
         """Collisions, off-road and out-of-range counts of the ``moved`` vehicles (by id) at their
@@ -172,15 +160,11 @@ class FeasibilityChecker:
         agents = [moved[i] for i in self.movable_ids if i in moved]
         if not agents:
             return Plausibility(0, 0, 0, 0 if self.traffic else None)
-        centres_xy, yaws_rad, lengths_m, widths_m = _pose_arrays(agents)
-        on_area = self.scene.lane_map.footprints_on_road(
-            stacked_footprints_xy(centres_xy[:, 0], centres_xy[:, 1], yaws_rad, lengths_m, widths_m))
-        return Plausibility(self.collides(agents), int((~on_area).sum()), int((~self.in_range(agents)).sum()),
-                            int(self.wrong_way(agents).sum()) if self.traffic else None)
-
-
-def _pose_arrays(agents: Sequence[Agent]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Centres (n, 2), headings, lengths and widths (n,) of ``agents`` (network frame)."""
-    return (np.array([[a.x_m, a.y_m] for a in agents], dtype=float).reshape(-1, 2),
-            np.array([a.yaw_rad for a in agents], dtype=float), np.array([a.length_m for a in agents], dtype=float),
-            np.array([a.width_m for a in agents], dtype=float))
+        centres_xy = np.array([[a.x_m, a.y_m] for a in agents], dtype=float)
+        yaws_rad = np.array([a.yaw_rad for a in agents], dtype=float)
+        footprints_xy = stacked_footprints_xy(centres_xy[:, 0], centres_xy[:, 1], yaws_rad,
+                                              [a.length_m for a in agents], [a.width_m for a in agents])
+        on_area = self.scene.lane_map.footprints_on_road(footprints_xy)
+        wrong_way = int((~self._in_own_lanes(centres_xy, yaws_rad, footprints_xy)).sum()) if self.traffic else None
+        return Plausibility(self.collides(agents), int((~on_area).sum()), int((~self.in_range(centres_xy)).sum()),
+                            wrong_way)

@@ -310,9 +310,9 @@ class FeasibleSet:
             real = np.flatnonzero(poses.present)
             ok = np.ones(batch, dtype=bool)
             if len(real):
-                centres_xy, sizes = poses.centres_xy[real], np.ones(len(real))
-                ok[real] = (checker.on_road_at(centres_xy, poses.yaws_rad[real], sizes * body.length_m,
-                                               sizes * body.width_m) & checker.centres_in_range(centres_xy))
+                centres_xy = poses.centres_xy[real]
+                ok[real] = (checker.on_road(centres_xy, poses.yaws_rad[real], body.length_m, body.width_m)
+                            & checker.in_range(centres_xy))
             for i in np.flatnonzero(ok):
                 box, centre = None, (FAR_M, FAR_M)
                 if poses.present[i]:
