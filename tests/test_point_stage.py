@@ -176,12 +176,16 @@ def test_point_stage_settings_are_checked():
 
 
 def test_box_points_from_the_grid_are_every_point_inside():
-    """The BEV grid only narrows which points each box tests: the same points as testing the whole
-    cloud, for boxes anywhere (cells' edges, turned boxes, far from every point), NaN points left out."""
+    """The BEV grid only narrows which points each box tests, and the boxes are tested together:
+    the same features, to the bit, as one box at a time against the whole cloud, for boxes anywhere
+    (cells' edges, turned boxes, far from every point, more than POINTS points inside), NaN points
+    left out."""
     from asg.perception.point_stage import GROW_M
 
     rng = np.random.default_rng(5)
     cloud = np.column_stack([rng.uniform(-30, 30, (4000, 2)), rng.uniform(-2, 1, 4000), rng.random(4000)]).astype(np.float32)
+    dense = np.column_stack([rng.normal([4.0, -8.0], 1.5, (1500, 2)), rng.uniform(-2, 1, 1500), rng.random(1500)])
+    cloud = np.vstack([cloud, dense.astype(np.float32)])[rng.permutation(5500)]
     cloud[::97, 0] = np.nan
     boxes = np.column_stack([np.concatenate([rng.uniform(-32, 32, (60, 2)), [[4.0, -8.0], [100.0, 100.0]]]),
                              rng.uniform(-1.5, 0.5, 62), rng.uniform(3, 6, 62), rng.uniform(1.5, 2.5, 62),
@@ -195,6 +199,9 @@ def test_box_points_from_the_grid_are_every_point_inside():
                                 & (np.abs(d[:, 2]) <= np.float32(b[5]) / 2 + GROW_M))
         if len(inside) > POINTS:
             inside = inside[np.linspace(0, len(inside) - 1, POINTS).astype(int)]
-        assert mask[k].sum() == len(inside)
-        assert np.array_equal(feats[k, :len(inside), 0], along[inside]) and np.array_equal(feats[k, :len(inside), 6], cloud[inside, 3])
-    assert mask.any(axis=1).sum() > 40 and not mask[-1].any()
+        local = np.stack([along[inside], across[inside], d[inside, 2]], axis=1)
+        expected = np.zeros((POINTS, 7), np.float32)
+        expected[:len(inside)] = np.column_stack([local, local / (b[3:6].astype(np.float32) / 2), cloud[inside, 3]])
+        assert mask[k].sum() == len(inside) and mask[k, :len(inside)].all()
+        assert feats[k].tobytes() == expected.tobytes()
+    assert mask.any(axis=1).sum() > 40 and not mask[-1].any() and mask[-2].all()

@@ -67,7 +67,9 @@ def box_points(boxes: np.ndarray, cloud: np.ndarray) -> tuple[np.ndarray, np.nda
     Deterministic: with more than POINTS inside, evenly spaced ones in the cloud's order.
 
     Each box tests only the points of the grid cells (``_CELL_M``) its grown footprint's circle
-    reaches (:class:`_BevGrid`), in the cloud's order: the same points, the same float32 sums."""
+    reaches (:class:`_BevGrid`), in the cloud's order: the same points, the same float32 sums.
+    Every box's candidate points are tested at once (one array of (box, point) pairs), each pair
+    by the float32 operations a box's own loop would do."""
     feats = np.zeros((len(boxes), POINTS, POINT_FEATURES), dtype=np.float32)
     mask = np.zeros((len(boxes), POINTS), dtype=bool)
     if not len(boxes):
@@ -75,28 +77,45 @@ def box_points(boxes: np.ndarray, cloud: np.ndarray) -> tuple[np.ndarray, np.nda
     xyz = np.ascontiguousarray(cloud[:, :3], dtype=np.float32)
     part = boxes.astype(np.float32)
     reach_m = np.hypot(boxes[:, 3] / 2 + GROW_M, boxes[:, 4] / 2 + GROW_M) + _CELL_SLACK_M
-    near = _BevGrid(xyz).near(boxes[:, :2], reach_m)
-    for k, cand in enumerate(near):
-        d = xyz[cand] - part[k, :3]  # (n, 3)
-        c, s = np.cos(part[k, 6]), np.sin(part[k, 6])
-        along, across = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
-        inside = ((np.abs(along) <= part[k, 3] / 2 + GROW_M) & (np.abs(across) <= part[k, 4] / 2 + GROW_M)
-                  & (np.abs(d[:, 2]) <= part[k, 5] / 2 + GROW_M))
-        sel = np.flatnonzero(inside)
-        if len(sel) > POINTS:
-            sel = sel[np.linspace(0, len(sel) - 1, POINTS).astype(int)]
-        n = len(sel)
-        local = np.stack([along[sel], across[sel], d[sel, 2]], axis=1)
-        feats[k, :n, :3] = local
-        feats[k, :n, 3:6] = local / (part[k, 3:6] / 2)
-        feats[k, :n, 6] = cloud[cand[sel], 3]
-        mask[k, :n] = True
+    box, cand = _BevGrid(xyz).near(boxes[:, :2], reach_m)  # (M,) each: a box and a point near it
+    d = xyz[cand] - part[box, :3]  # (M, 3) in the cloud's axes, from the box's centre
+    c, s = np.cos(part[:, 6])[box], np.sin(part[:, 6])[box]
+    along, across = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
+    half = part[:, 3:6] / 2 + GROW_M  # (K, 3) the grown box's half length, width, height
+    inside = np.flatnonzero((np.abs(along) <= half[box, 0]) & (np.abs(across) <= half[box, 1])
+                            & (np.abs(d[:, 2]) <= half[box, 2]))
+    inside = inside[np.argsort(box[inside] * len(xyz) + cand[inside])]  # by box, then the cloud's order
+    row, slot = _kept_points(box[inside], len(boxes))
+    pair = inside[row]  # the kept pairs
+    k = box[pair]
+    local = np.stack([along[pair], across[pair], d[pair, 2]], axis=1)
+    feats[k, slot, :3] = local
+    feats[k, slot, 3:6] = local / (part[k, 3:6] / 2)
+    feats[k, slot, 6] = cloud[cand[pair], 3]
+    mask[k, slot] = True
     return feats, mask
+
+
+def _kept_points(box: np.ndarray, boxes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Of the points inside the boxes (``box`` (n,) ascending: each point's box, in the cloud's
+    order within a box), the ones a box keeps: all of them up to POINTS, else POINTS evenly spaced
+    (``np.linspace``'s picks); returns their positions in ``box`` and their slots (0..POINTS-1)."""
+    counts = np.bincount(box, minlength=boxes)
+    first = np.cumsum(counts) - counts
+    slot = np.arange(len(box)) - first[box]  # each point's rank among its box's
+    keep = slot < POINTS
+    for k in np.flatnonzero(counts > POINTS):
+        picked = first[k] + np.linspace(0, counts[k] - 1, POINTS).astype(int)  # strictly increasing
+        keep[first[k]:first[k] + counts[k]] = False
+        keep[picked] = True
+        slot[picked] = np.arange(POINTS)
+    row = np.flatnonzero(keep)
+    return row, slot[row]
 
 
 #: the side (m) of the cells :func:`box_points` sorts a cloud's points into, and the margin (m)
 #: added to a box's reach so that float32 rounding at its edge cannot leave a point out
-_CELL_M = 4.0
+_CELL_M = 2.0
 _CELL_SLACK_M = 0.05
 
 
@@ -118,24 +137,28 @@ class _BevGrid:
     def _cells(v) -> np.ndarray:
         return np.floor(np.asarray(v, dtype=np.float64) / _CELL_M).astype(np.int64)
 
-    def near(self, centres_xy: np.ndarray, reach_m: np.ndarray) -> list[np.ndarray]:
-        """Per centre (K, 2), the indices (ascending: the cloud's order) of the points in the cells
-        the square of half-side ``reach_m`` (K,) around it touches."""
+    def near(self, centres_xy: np.ndarray, reach_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The points in the cells the square of half-side ``reach_m`` (K,) around each centre
+        (K, 2) touches, as pairs: (M,) the centre's index, ascending, and (M,) the point's index
+        (within a centre in the order of the cells, not the cloud's)."""
         xy = np.asarray(centres_xy, dtype=np.float64)
         r = np.asarray(reach_m, dtype=np.float64)
         x0, x1 = self._cells(xy[:, 0] - r), self._cells(xy[:, 0] + r)
         y0 = np.maximum(self._cells(xy[:, 1] - r), self.y0)
         y1 = np.minimum(self._cells(xy[:, 1] + r), self.y0 + self.rows - 1)
-        out = []
-        for k in range(len(xy)):
-            if y1[k] < y0[k]:
-                out.append(np.zeros(0, dtype=np.int64))
-                continue
-            cols = np.arange(x0[k], x1[k] + 1)
-            lo = np.searchsorted(self.keys, cols * self.rows + (y0[k] - self.y0), side="left")
-            hi = np.searchsorted(self.keys, cols * self.rows + (y1[k] - self.y0), side="right")
-            out.append(np.sort(np.concatenate([self.order[a:b] for a, b in zip(lo, hi)])))
-        return out
+        columns = np.where(y1 >= y0, x1 - x0 + 1, 0)  # a centre whose rows miss the grid: none
+        centre = np.repeat(np.arange(len(xy)), columns)  # one entry a (centre, column)
+        column = x0[centre] + _ranks(columns)
+        lo = np.searchsorted(self.keys, column * self.rows + (y0[centre] - self.y0), side="left")
+        hi = np.searchsorted(self.keys, column * self.rows + (y1[centre] - self.y0), side="right")
+        lengths = hi - lo
+        return np.repeat(centre, lengths), self.order[np.repeat(lo, lengths) + _ranks(lengths)]
+
+
+def _ranks(lengths: np.ndarray) -> np.ndarray:
+    """0..n-1 for each n of ``lengths``, one after the other: (sum lengths,)."""
+    starts = np.cumsum(lengths) - lengths
+    return np.arange(int(lengths.sum())) - np.repeat(starts, lengths)
 
 
 def box_features(boxes: np.ndarray, scores: np.ndarray, mask: np.ndarray) -> np.ndarray:
