@@ -1018,3 +1018,29 @@ def test_a_detector_that_never_returns_and_swallows_every_exception_is_stopped(t
     assert proc.returncode == 2, proc.stderr
     assert_one_line_error(proc.stderr, "ran over 1 s")
     assert "catches every exception" in proc.stderr
+
+
+@pytest.mark.parametrize("maker", ["mkstemp", "mkdtemp"])
+def test_a_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch, maker):
+    """Ctrl-C (or asg's SIGTERM) the moment the temporary file or folder exists, before the writer
+    holds its name: the signal takes effect once it does, and the writer removes it (a SIGTERM to
+    a Ray run once left ``.summary.*.tmp.json`` behind)."""
+    import tempfile
+
+    from sumo_scenarios import atomic
+
+    real = getattr(tempfile, maker)
+
+    def made_then_signalled(*args, **kwargs):
+        made = real(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)
+        return made
+
+    monkeypatch.setattr(tempfile, maker, made_then_signalled)
+    with pytest.raises(KeyboardInterrupt):
+        if maker == "mkstemp":
+            atomic.write_text_atomic(tmp_path / "summary.json", "{}")
+        else:
+            with atomic.atomic_dir(tmp_path / "scene"):
+                pass
+    assert list(tmp_path.iterdir()) == []
