@@ -1037,10 +1037,15 @@ def test_a_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeyp
         return made
 
     monkeypatch.setattr(tempfile, maker, made_then_signalled)
-    with pytest.raises(KeyboardInterrupt):
-        if maker == "mkstemp":
-            atomic.write_text_atomic(tmp_path / "summary.json", "{}")
-        else:
-            with atomic.atomic_dir(tmp_path / "scene"):
-                pass
+    # Ctrl-C's own handler: a job started in the background of a shell (CI's) inherits SIGINT ignored
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            if maker == "mkstemp":
+                atomic.write_text_atomic(tmp_path / "summary.json", "{}")
+            else:
+                with atomic.atomic_dir(tmp_path / "scene"):
+                    pass
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert list(tmp_path.iterdir()) == []
