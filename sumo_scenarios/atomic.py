@@ -8,9 +8,8 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import secrets
 import shutil
-import signal
-import tempfile
 from pathlib import Path
 from typing import Iterator
 
@@ -26,21 +25,18 @@ def atomic_path(final_path: str | os.PathLike) -> Iterator[Path]:
     final.parent.mkdir(parents=True, exist_ok=True)
     suffix = "".join(final.suffixes)
     tmp: Path | None = None
-    held = _hold_signals()  # a signal's exception between making the file and naming it would leave it
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=".tmp" + suffix, dir=final.parent)
-        os.close(fd)
-        tmp = Path(tmp_name)
-        _release_signals(held)  # a signal held meanwhile raises here, where the file is known
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
+        while tmp is None:  # named before it exists: whenever a signal's exception comes, the finally knows it
+            tmp = final.parent / f".{final.stem}.{secrets.token_hex(6)}.tmp{suffix}"
+            try:
+                os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))  # the umask applies
+            except FileExistsError:  # another writer's: not ours to remove
+                tmp = None
         yield tmp
         os.replace(tmp, final)
     except OSError as exc:
         raise _naming(exc, final) from None
     finally:
-        _release_signals(held)
         if tmp is not None and tmp.exists():
             tmp.unlink()
 
@@ -61,13 +57,13 @@ def atomic_dir(final_dir: str | os.PathLike) -> Iterator[Path]:
     final = Path(final_dir)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp: Path | None = None
-    held = _hold_signals()
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
-        _release_signals(held)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)
+        while tmp is None:  # named before it exists (see atomic_path)
+            tmp = final.parent / f".{final.name}.{secrets.token_hex(6)}.tmp"
+            try:
+                os.mkdir(tmp, 0o777)  # the umask applies
+            except FileExistsError:
+                tmp = None
         yield tmp
         final.mkdir(parents=True, exist_ok=True)
         for item in sorted(tmp.iterdir()):
@@ -78,26 +74,8 @@ def atomic_dir(final_dir: str | os.PathLike) -> Iterator[Path]:
     except OSError as exc:
         raise _naming(exc, final) from None
     finally:
-        _release_signals(held)
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _hold_signals():
-    """Block SIGINT and SIGTERM for this thread until :func:`_release_signals`, so that a Python
-    handler's exception (Ctrl-C's KeyboardInterrupt, asg's for SIGTERM) comes after the statements
-    between the two, not among them; returns the previous mask (None where signals cannot be
-    blocked: nothing is held)."""
-    if not hasattr(signal, "pthread_sigmask"):
-        return None
-    return signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-
-
-def _release_signals(held) -> None:
-    """Put back the mask :func:`_hold_signals` returned (a signal that came meanwhile is delivered
-    now); again is harmless."""
-    if held is not None:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 #: errno values of a write that a full disk or quota cut short, or that the file system refused

@@ -1020,28 +1020,27 @@ def test_a_detector_that_never_returns_and_swallows_every_exception_is_stopped(t
     assert "catches every exception" in proc.stderr
 
 
-@pytest.mark.parametrize("maker", ["mkstemp", "mkdtemp"])
+@pytest.mark.parametrize("maker", ["open", "mkdir"])
 def test_a_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch, maker):
-    """Ctrl-C (or asg's SIGTERM) the moment the temporary file or folder exists, before the writer
-    holds its name: the signal takes effect once it does, and the writer removes it (a SIGTERM to
-    a Ray run once left ``.summary.*.tmp.json`` behind)."""
-    import tempfile
-
+    """Ctrl-C (or asg's SIGTERM) the moment the temporary file or folder exists: the writer knows
+    its name already and removes it (a SIGTERM to a Ray run once left ``.summary.*.tmp.json``
+    behind, made a few statements before the writer's ``try``)."""
     from sumo_scenarios import atomic
 
-    real = getattr(tempfile, maker)
+    real = getattr(os, maker)
 
     def made_then_signalled(*args, **kwargs):
         made = real(*args, **kwargs)
         os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # the handler runs here, whichever thread the kernel gave the signal to
         return made
 
-    monkeypatch.setattr(tempfile, maker, made_then_signalled)
+    monkeypatch.setattr(os, maker, made_then_signalled)
     # Ctrl-C's own handler: a job started in the background of a shell (CI's) inherits SIGINT ignored
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         with pytest.raises(KeyboardInterrupt):
-            if maker == "mkstemp":
+            if maker == "open":
                 atomic.write_text_atomic(tmp_path / "summary.json", "{}")
             else:
                 with atomic.atomic_dir(tmp_path / "scene"):
