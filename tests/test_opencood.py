@@ -3,10 +3,12 @@ OpenCOOD's own inference (its dataset reading ``asg export --format opv2v``, its
 post-processor), and bad folders are one line."""
 from __future__ import annotations
 
+import functools
 import json
 import sys
 from dataclasses import replace
 from pathlib import Path
+from types import MethodType
 
 import numpy as np
 import pytest
@@ -860,6 +862,45 @@ def test_ego_row_attention_is_opencoods_attfusion(monkeypatch, tmp_path):
     cells = agents.view(3, 64, -1).permute(2, 0, 1)  # (cells, agents, C), as AttFusion feeds its attention
     row = torch.softmax(torch.bmm(cells, cells.transpose(1, 2)) / fusion.att.sqrt_dim, -1)[:, 0, :]
     assert torch.allclose(ego_row_weights(agents, fusion.att.sqrt_dim).view(3, -1).T, row, atol=1e-6)
+
+
+def test_the_pillar_nets_max_before_its_batch_norm_is_opencoods_to_the_bit(scenes, tmp_path):
+    """The adapter's PFN layer (the max, or the min where the batch norm's weight is negative, of its
+    linear map, then the batch norm and ReLU, a slice of pillars at a time) gives OpenCOOD's layer's
+    output to the bit, on a real frame's pillars (more than one slice) with batch norm weights of
+    both signs, and the same boxes; in training mode (the batch's statistics) and for a frame
+    without pillars it is OpenCOOD's code. OpenCOOD's class stays as shipped."""
+    import torch
+
+    from asg.perception.opencood.pillar_max import SLICE_PILLARS, pfn_forward, pfn_layer_type
+    from asg.sensors import load_lidar_spec, simulate_frame
+
+    det = build_detector(f"opencood:{make_model_dir(tmp_path / 'pfn', 'intermediate', score_threshold=THRESHOLD)}")
+    layer_type = pfn_layer_type()
+    layers = [m for m in det.model.modules() if isinstance(m, layer_type)]
+    assert len(layers) == 1 and layers[0].forward.__func__ is not layer_type.forward
+    layer, shipped = layers[0], functools.partial(layer_type.forward, layers[0])
+    generator = torch.Generator().manual_seed(5)
+    norm = layer.norm
+    with torch.no_grad():
+        for values in (norm.weight, norm.bias, norm.running_mean):
+            values.copy_(torch.randn(values.shape, generator=generator))
+        norm.running_var.copy_(torch.rand(norm.running_var.shape, generator=generator) * 3)
+    assert (norm.weight < 0).any() and (norm.weight > 0).any()
+    seen = []
+    layer.register_forward_pre_hook(lambda module, args: seen.append(args[0]))
+    frame = simulate_frame(scenes["rsu", 2][0], load_lidar_spec())
+    boxes, scores = det.detect(frame)
+    inputs = seen[0]
+    assert inputs.shape[0] > SLICE_PILLARS and len(boxes) > 0
+    with torch.no_grad():
+        assert torch.equal(layer(inputs), shipped(inputs))
+        assert torch.equal(layer(inputs[:0]), shipped(inputs[:0]))
+    del layer.forward
+    assert all(np.array_equal(a, b) for a, b in zip((boxes, scores), det.detect(frame)))
+    layer.forward = MethodType(pfn_forward, layer)
+    layer.train()
+    assert torch.equal(layer(inputs), shipped(inputs))  # the batch's statistics, not the running ones
 
 
 def test_a_trainer_that_fails_is_one_line_naming_its_log(tmp_path):

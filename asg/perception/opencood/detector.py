@@ -1,7 +1,8 @@
 """An OpenCOOD model as a target: a cooperative frame in, boxes in the ego's sensor frame out, every
 step between them OpenCOOD's own code (its dataset's processing, model forward and post-processor),
 AttFuse's fusion computed by the ego's row of its attention (asg/perception/opencood/attention.py:
-OpenCOOD's function, several times faster on CPU)."""
+OpenCOOD's function, several times faster on CPU) and its pillar net's batch norm and max over points
+taken in the other order (asg/perception/opencood/pillar_max.py: the same bits)."""
 from __future__ import annotations
 
 import shutil
@@ -18,6 +19,7 @@ from ...sensors.frame import CooperativeFrame
 from ..data import in_range
 from .attention import ego_row_weights, use_ego_row
 from .folder import FUSION_KINDS, MODELS, checkpoint_of, load_checkpoint, read_hypes
+from .pillar_max import use_pillar_max
 from .runtime import module
 
 #: OpenCOOD shuffles each agent's cloud with numpy's global generator before voxelising (which points
@@ -55,6 +57,7 @@ class OpenCOODDetector:
         load_checkpoint(self.model, checkpoint_of(folder))
         self.model.eval()
         self.fusions = use_ego_row(self.model)  # AttFuse's attention by the ego's row: OpenCOOD's function, faster
+        use_pillar_max(self.model)  # its pillar net's max before its batch norm: the same bits, faster
         self.infer = getattr(module("tools.inference_utils"), f"inference_{self.kind}_fusion")
         self._corner_to_center = module("utils.box_utils").corner_to_center
 
