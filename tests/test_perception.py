@@ -671,6 +671,29 @@ def test_v2vnet_inference_in_place_gives_the_training_paths_bits():
         assert torch.equal(fast_step, passing.gru(x, h).detach())
 
 
+def test_v2vnets_sum_over_agents_and_single_maps_keep_torchs_bits():
+    """V2VNet's sum over the agents is torch's sum over dim 1 to the bit (one to five agents of
+    channels-last maps, at inference and in training); a single map cut from a batch gets the batch
+    stride of its own size (the same values, no copy), so that torch.cat keeps two such maps
+    channels-last."""
+    import torch.nn.functional as F
+
+    from asg.perception.fusion.v2vnet import _maps, _sum_over_agents
+
+    torch.manual_seed(4)
+    weight = _maps(torch.randn(16, 16, 3, 3))
+    for n in range(1, 6):
+        maps = F.conv2d(_maps(torch.randn(2 * n, 16, 24, 20)), weight, padding=1).view(2, n, 16, 24, 20)
+        with torch.no_grad():
+            assert torch.equal(_sum_over_agents(maps), maps.sum(dim=1, keepdim=True))
+        assert torch.equal(_sum_over_agents(maps.requires_grad_()), maps.sum(dim=1, keepdim=True))
+    batch = _maps(torch.randn(3, 16, 24, 20))
+    single = _maps(batch[1:2].reshape(1, 16, 24, 20))
+    assert torch.equal(single, batch[1:2]) and single.data_ptr() == batch[1:2].data_ptr()
+    assert single.stride() == (16 * 24 * 20, 1, 20 * 16, 16)
+    assert torch.cat([single, single], dim=1).is_contiguous(memory_format=torch.channels_last)
+
+
 def test_where2comm_sends_the_cells_its_confidence_asks_for():
     """Where2comm with AttFuse's weights: a threshold of 0 sends every cell (the network is AttFuse);
     a threshold no confidence reaches sends none (the ego alone: AttFuse on the ego's cloud); in

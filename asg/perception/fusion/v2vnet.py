@@ -72,7 +72,7 @@ class MessagePassing(nn.Module):
                             padding=1).view(b, r, c, height, width)
         present = mask.to(h.dtype)[:, :, None, None, None]
         weighted = sent if bool(mask.all()) else sent * present  # every agent present: x * 1 is x
-        mean_sent = weighted.sum(dim=1, keepdim=True) / present.sum(dim=1, keepdim=True)
+        mean_sent = _sum_over_agents(weighted) / present.sum(dim=1, keepdim=True)
         return mean_sent + received if torch.is_grad_enabled() else received.add_(mean_sent)
 
     def forward(self, feats: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, None]:
@@ -89,10 +89,28 @@ class MessagePassing(nn.Module):
         return self.out(h[:, 0]), None
 
 
+def _sum_over_agents(x: torch.Tensor) -> torch.Tensor:
+    """x (B, N, C, H, W) -> (B, 1, C, H, W): ((x_0 + x_1) + x_2) + ..., the order in which torch's sum
+    over dim 1 adds them (the same bits), in the layout of x's maps. torch's sum over the agents of
+    channels-last maps, and the sum's layout in the add after it, took 1.4 ms each a round for three
+    agents at 96 x 96 cells; these adds 0.05 ms."""
+    total = x[:, 0].clone()
+    for j in range(1, x.shape[1]):
+        total = total + x[:, j] if torch.is_grad_enabled() else total.add_(x[:, j])
+    return total.unsqueeze(1)
+
+
 def _maps(x: torch.Tensor) -> torch.Tensor:
     """``x`` (B, C, H, W) channels-last in memory, the detector's layout (its weights' too): a
-    convolution then needs no reorder of its input, and gives the same values."""
-    return x.contiguous(memory_format=torch.channels_last)
+    convolution then needs no reorder of its input, and gives the same values. A single map cut
+    from a batch (B = 1, its batch stride that of the batch) is given the batch stride C x H x W, a
+    view of the same memory: torch.cat laid out such maps channel-first, and each convolution after
+    it then reordered its input (1-1.5 ms a GRU convolution at 96 x 96 cells)."""
+    x = x.contiguous(memory_format=torch.channels_last)
+    if x.shape[0] == 1 and x.stride(0) != x.numel():
+        _, c, _, width = x.shape
+        x = x.as_strided(x.shape, (x.numel(), 1, width * c, c))
+    return x
 
 
 class V2VNet(AttFuse):
