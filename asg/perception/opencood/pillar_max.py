@@ -5,7 +5,7 @@ time, with the same bits.
 OpenCOOD's last PFN layer maps each of a pillar's T point slots to C features (a linear map), puts
 every one of them through the batch norm and a ReLU, and keeps each feature's largest value over the
 slots (the empty ones included). For the few thousand pillars of a frame the (P, T, C) map is tens
-of MB, written and read four times, and the batch norm runs on a transposed view of it, which
+of MB, written and read several times over, and the batch norm runs on a transposed view of it, which
 torch's CPU kernels take by their slow element-by-element path.
 
 At inference the batch norm is, for each channel c, the float operations
@@ -16,8 +16,8 @@ So the largest value over the points equals the batch norm and ReLU of the large
 output where weight_c >= 0 and of the smallest where weight_c < 0, to the bit; here they are
 computed on (P, 1, C) instead of (P, T, C). The linear map and the max or min run on
 :data:`SLICE_PILLARS` pillars at a time, whose map stays in the cache (OpenCOOD's own forward maps
-more than 50,000 pillars in parts of 50,000 the same way: a row of the product does not depend on
-the others). Training, a layer that is not the last, or one without a batch norm runs OpenCOOD's own
+more than 50,000 pillars in parts of 50,000 the same way; the bits are tested against its layer).
+Training, a layer that is not the last, or one without a batch norm runs OpenCOOD's own
 code.
 """
 from __future__ import annotations
