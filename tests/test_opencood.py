@@ -864,6 +864,7 @@ def test_ego_row_attention_is_opencoods_attfusion(monkeypatch, tmp_path):
     assert torch.allclose(ego_row_weights(agents, fusion.att.sqrt_dim).view(3, -1).T, row, atol=1e-6)
 
 
+@pytest.mark.numeric
 def test_the_pillar_nets_max_before_its_batch_norm_is_opencoods_to_the_bit(scenes, tmp_path):
     """The adapter's PFN layer (the max, or the min where the batch norm's weight is negative, of its
     linear map, then the batch norm and ReLU, a slice of pillars at a time) gives OpenCOOD's layer's
