@@ -12,11 +12,9 @@ three scales of depth-1, 2, 2 AttFuse took 74.4 s by OpenCOOD's code and 1.6 s s
 """
 from __future__ import annotations
 
-from types import MethodType
-
 import torch
 
-from .runtime import module
+from .runtime import compute_instances_by, module
 
 
 def ego_row_weights(agents: torch.Tensor, sqrt_dim: float) -> torch.Tensor:
@@ -41,8 +39,4 @@ def attfusion_type() -> type:
 def use_ego_row(model: torch.nn.Module) -> list[torch.nn.Module]:
     """Every ``AttFusion`` of ``model`` computes by the ego's row (this instance only: OpenCOOD's
     class, and any other model of it, stay as shipped); returns them."""
-    fusion_type = attfusion_type()
-    fusions = [m for m in model.modules() if isinstance(m, fusion_type)]
-    for fusion in fusions:
-        fusion.forward = MethodType(ego_row_forward, fusion)
-    return fusions
+    return compute_instances_by(model, attfusion_type(), ego_row_forward)

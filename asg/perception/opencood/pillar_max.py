@@ -22,11 +22,9 @@ code.
 """
 from __future__ import annotations
 
-from types import MethodType
-
 import torch
 
-from .runtime import module
+from .runtime import compute_instances_by, module
 
 #: pillars a slice: the linear map's output of a slice (512 x 32 x 64 floats for OpenCOOD's usual
 #: T and C, 4 MiB) stays in the cache between the product and the max
@@ -65,8 +63,4 @@ def pfn_layer_type() -> type:
 def use_pillar_max(model: torch.nn.Module) -> list[torch.nn.Module]:
     """Every ``PFNLayer`` of ``model`` computes its inference by :func:`pfn_forward` (this instance
     only: OpenCOOD's class stays as shipped); returns them."""
-    layer_type = pfn_layer_type()
-    layers = [m for m in model.modules() if isinstance(m, layer_type)]
-    for layer in layers:
-        layer.forward = MethodType(pfn_forward, layer)
-    return layers
+    return compute_instances_by(model, pfn_layer_type(), pfn_forward)
