@@ -8,7 +8,6 @@ import json
 import sys
 from dataclasses import replace
 from pathlib import Path
-from types import MethodType
 
 import numpy as np
 import pytest
@@ -873,7 +872,7 @@ def test_the_pillar_nets_max_before_its_batch_norm_is_opencoods_to_the_bit(scene
     without pillars it is OpenCOOD's code. OpenCOOD's class stays as shipped."""
     import torch
 
-    from asg.perception.opencood.pillar_max import SLICE_PILLARS, pfn_forward, pfn_layer_type
+    from asg.perception.opencood.pillar_max import SLICE_PILLARS, pfn_layer_type, use_pillar_max
     from asg.sensors import load_lidar_spec, simulate_frame
 
     det = build_detector(f"opencood:{make_model_dir(tmp_path / 'pfn', 'intermediate', score_threshold=THRESHOLD)}")
@@ -899,7 +898,7 @@ def test_the_pillar_nets_max_before_its_batch_norm_is_opencoods_to_the_bit(scene
         assert torch.equal(layer(inputs[:0]), shipped(inputs[:0]))
     del layer.forward
     assert all(np.array_equal(a, b) for a, b in zip((boxes, scores), det.detect(frame)))
-    layer.forward = MethodType(pfn_forward, layer)
+    use_pillar_max(det.model)
     layer.train()
     assert torch.equal(layer(inputs), shipped(inputs))  # the batch's statistics, not the running ones
 
