@@ -64,6 +64,34 @@ def test_an_unedited_recording_renders_its_recorded_points_bit_for_bit(recorded)
     assert np.allclose(frame.gt_boxes_world, native.gt_boxes_world[order], atol=1e-9)
 
 
+def test_a_high_sensors_view_comes_back_in_its_lidars_frame(sumo_log, tmp_path):
+    """An RSU ego's view (4.5 m up) is exported in a frame lowered to a car's sensor height; imported,
+    it is given back in its LiDAR's own frame, as the native scene has it: the same poses, the same
+    ground truth in the ego's frame, the RSU's height, the points within a micrometre, and an export of the imported scene lowers it by the same again."""
+    scene = next(extract_scenes(sumo_log, ExtractParams(every=20, ego="rsu", min_vehicles=8)))
+    assert scene.ego.kind == "rsu"
+    save_scene(scene, tmp_path / "native" / f"{scene.scene_id}.yaml")
+    assert export(tmp_path / "native", "opv2v", tmp_path / "export") == 1
+    record = yaml.safe_load((tmp_path / "export" / scene.scene_id / "ids.yaml").read_text())
+    ids, lowered = ({str(k): str(v) for k, v in record[key].items()} for key in ("ids", "frames_lowered_m"))
+    assert float(lowered[ids[scene.ego_id]]) > 2.0
+    (imported,) = import_scenes(tmp_path / "export")
+    native, frame = simulate_frame(scene, SPEC), simulate_frame(imported, SPEC)
+    for agent in scene.sensing_ids:
+        pose, ours = native.poses[agent], frame.poses[ids[agent]]
+        assert np.allclose([pose.x_m, pose.y_m, pose.z_m, pose.yaw_rad], [ours.x_m, ours.y_m, ours.z_m, ours.yaw_rad])
+        a, b = native.clouds[agent][:, :3], frame.clouds[ids[agent]][:, :3]
+        assert np.abs(a - b).max() <= 1e-6  # the float32 rounding of the export's raise and the import's fall
+    rsu = imported.agent(ids[scene.ego_id])
+    assert rsu.kind == "rsu" and rsu.z_m == pytest.approx(scene.ego.z_m, abs=1e-5)
+    assert rsu.height_m == pytest.approx(scene.ego.height_m, abs=1e-5)
+    assert np.allclose(np.sort(frame.ego_boxes, axis=0), np.sort(native.ego_boxes, axis=0), atol=1e-5)
+    save_scene(imported, tmp_path / "scenes" / f"{imported.scene_id}.yaml")
+    assert export(tmp_path / "scenes", "opv2v", tmp_path / "again") == 1
+    again = yaml.safe_load((tmp_path / "again" / imported.scene_id / "ids.yaml").read_text())["frames_lowered_m"]
+    assert again == record["frames_lowered_m"]
+
+
 def test_an_imported_scene_saved_and_loaded_exports_the_recorded_files_again(recorded, tmp_path):
     scene, export_dir, imported, ids = recorded
     save_scene(imported, tmp_path / "scenes" / f"{imported.scene_id}.yaml")

@@ -32,8 +32,8 @@ from sumo_scenarios.numpy_yaml import add_numpy_data
 
 from .agent import SIZE_LIMITS_M, Agent
 from .recorded_pcd import in_scene_frame, read_recorded_pcd_with_digest
-from .recording import (MAX_LOWERED_M, RECORDING_SOURCE, Handedness, RecordedLidar, RecordedView, Recording,
-                        RecordingFormat, opencood_ego)
+from .recording import (MAX_LOWERED_M, RECORDING_SOURCE, STANDARD_SENSOR_HEIGHT_M, Handedness, RecordedLidar,
+                        RecordedView, Recording, RecordingFormat, opencood_ego)
 from .scan_area import scan_area
 from .scan_ground import GroundPlane, ground_or_none
 from .scene import Scene
@@ -329,20 +329,26 @@ def _sensing_agents(agents: list[str], metas: dict, vehicles: dict[str, Agent], 
                     planes: dict[str, GroundPlane | None]) -> list[Agent]:
     """Each agent folder as an agent: the labelled vehicle of its id, else an RSU (a negative id or
     ``RSU: true``) or a vehicle of UNLABELLED_CAR_M below its LiDAR, on the ground its scan shows
-    (``planes``: each agent's, None where its scan shows no road)."""
+    (``planes``: each agent's, in its file's frame; None where its scan shows no road), or for a view
+    asg's export wrote in a lowered frame, on the ground that frame was put above (exactly
+    STANDARD_SENSOR_HEIGHT_M below it: an export of the imported scene lowers it by the same again)."""
     out = []
     for a in agents:
         if a in vehicles:
             out.append(vehicles[a])
             continue
         x, y, z, yaw = views[a].sensor
-        ground_z = None if planes[a] is None else z + planes[a].c
+        lidar_z = views[a].lidar_pose[2]
+        if views[a].origin_z_m:
+            ground_z = z - STANDARD_SENSOR_HEIGHT_M
+        else:
+            ground_z = None if planes[a] is None else z + planes[a].c
         if int(a) < 0 or metas[a].get("RSU") is True:
-            ground = z - RSU_POLE_M if ground_z is None else ground_z
-            out.append(Agent(a, "rsu", "rsu", x, y, ground, yaw, 0.4, 0.4, max(z - ground, 0.5)))
+            ground = lidar_z - RSU_POLE_M if ground_z is None else ground_z
+            out.append(Agent(a, "rsu", "rsu", x, y, ground, yaw, 0.4, 0.4, max(lidar_z - ground, 0.5)))
         else:
             length, width, height = UNLABELLED_CAR_M
-            ground = z - 1.9 if ground_z is None else ground_z
+            ground = lidar_z - STANDARD_SENSOR_HEIGHT_M if ground_z is None else ground_z
             out.append(Agent(a, "vehicle", "car", x, y, ground, yaw, length, width, height))
     return out
 

@@ -25,13 +25,18 @@ _NUMPY_TYPE = {("F", 4): "<f4", ("F", 8): "<f8", ("U", 4): "<u4", ("U", 1): "u1"
 
 
 def recorded_cloud(view: RecordedView, handed: Handedness) -> np.ndarray:
-    """(N, 4) float32 x, y, z, intensity of a recorded view in the scene's sensor frame (x forward,
-    y left: y mirrored from a left-handed file, a sign flip that keeps every value exact);
-    InputError if the file is gone or is not the one imported (its sha256 or point count)."""
+    """(N, 4) float32 x, y, z, intensity of a recorded view in its LiDAR's frame (x forward, y left:
+    y mirrored from a left-handed file, a sign flip that keeps every value exact; the file's values
+    themselves unless the view was written in a lowered frame, whose z is then lowered by
+    ``origin_z_m`` in float32, the inverse of the export's raise to within one unit in the last
+    place); InputError if the file is gone or is not the one imported (its sha256 or point count)."""
     cloud = read_recorded_pcd(Path(view.cloud), view.sha256)
     if len(cloud) != view.points:
         raise InputError(f"{view.cloud}: {len(cloud)} points where the scene recorded {view.points}; re-import it")
-    return in_scene_frame(cloud, handed)
+    cloud = in_scene_frame(cloud, handed)
+    if view.origin_z_m:
+        cloud[:, 2] -= np.float32(view.origin_z_m)
+    return cloud
 
 
 def in_scene_frame(cloud: np.ndarray, handed: Handedness) -> np.ndarray:

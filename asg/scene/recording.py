@@ -42,6 +42,9 @@ RECORDING_SOURCE = "recording"
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 #: the furthest a view's frame may lie below its LiDAR (m; asg's export lowers a 4.5 m RSU by 2.6)
 MAX_LOWERED_M = 20.0
+#: the height above the ground of OPV2V's vehicle LiDAR (m): the frame asg's export writes a high
+#: sensor's view in (asg.sensors.ego_frame), so a lowered view's ground lies this far below its frame
+STANDARD_SENSOR_HEIGHT_M = 1.9
 #: the most points one recorded cloud may hold (OPV2V: about 60k; a 128-channel scan: about 250k)
 MAX_CLOUD_POINTS = 4_000_000
 
@@ -104,7 +107,8 @@ class RecordedView:
     """One sensing agent's recorded scan: its cloud file (absolute), that file's sha256 and point
     count, and the pose of its view's frame in the scene's frame (x_m, y_m, z_m, yaw_rad; roll and
     pitch kept). ``origin_z_m``: how far above that frame's origin the LiDAR's rays start (0 but
-    where the view was written in a lowered frame, as asg's export writes a high sensor's)."""
+    where the view was written in a lowered frame, as asg's export writes a high sensor's); the
+    renderer gives the view in its LiDAR's own frame (:attr:`lidar_pose`)."""
     cloud: str
     sha256: str
     points: int
@@ -112,6 +116,13 @@ class RecordedView:
     roll_deg: float = 0.0
     pitch_deg: float = 0.0
     origin_z_m: float = 0.0
+
+    @property
+    def lidar_pose(self) -> tuple[float, float, float, float]:
+        """(x_m, y_m, z_m, yaw_rad) of the LiDAR itself in the scene's frame: ``sensor`` raised by
+        ``origin_z_m`` (the frame a native scene's frame of this agent has)."""
+        x, y, z, yaw = self.sensor
+        return x, y, z + self.origin_z_m, yaw
 
     def to_dict(self) -> dict:
         return {"cloud": self.cloud, "sha256": self.sha256, "points": self.points,

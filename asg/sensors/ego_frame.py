@@ -11,8 +11,7 @@ boxes raised by the difference, its LiDAR pose lowered by it (OPV2V), the differ
 """
 from __future__ import annotations
 
-#: the height above the ground of the frame the ego view is written in (m): OPV2V's vehicle LiDAR
-STANDARD_SENSOR_HEIGHT_M = 1.9
+from ..scene.recording import STANDARD_SENSOR_HEIGHT_M  # noqa: F401  (the frame's height above the ground)
 #: an ego sensor higher than this above the ground (an RSU, a truck's or bus's roof) is lowered
 LOWER_ABOVE_M = 2.4
 

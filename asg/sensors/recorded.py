@@ -4,7 +4,9 @@ recording, with each scan's own rays (as AdvCP edits OPV2V's shared scans).
 :class:`RecordedWorld` stands behind the same interface as :class:`asg.sensors.world.World`
 (``render_many``, ``render``, ``sensor_pose``, ``prepare``, ``scene``, ``spec``, ``movable_ids``);
 the scene's source picks it (asg.sensors.renderers). With no vehicle changed, each sensing agent gets
-its recorded points exactly (the file's float32 values, y mirrored from a left-handed recording).
+its recorded points exactly (the file's float32 values, y mirrored from a left-handed recording), in
+its LiDAR's frame: a view that asg's export wrote in a lowered frame (a high sensor's) is given back
+in its LiDAR's frame, as the native scene had it (asg.scene.recorded_pcd.recorded_cloud).
 A vehicle whose pose differs from the recording (moved, inserted, removed) is, in each sensing
 agent's scan (its sensor frame: x forward, y left, z up, metres):
 
@@ -79,7 +81,7 @@ class RecordedWorld:
         return self.lidar.carla_protocol()
 
     def sensor_pose(self, agent_id: str) -> SensorPose:
-        return SensorPose(*self.recording.views[agent_id].sensor)
+        return SensorPose(*self.recording.views[agent_id].lidar_pose)
 
     def prepare(self, sensor_ids: Iterable[str]) -> None:
         for sid in sensor_ids:
@@ -130,7 +132,7 @@ class RecordedWorld:
         added = [current[i] for i in changed if i in current and i != sid]
         if added:
             self._put_in(sid, scan, added)
-        return scan.points(self._origin(sid))
+        return scan.points()
 
     def _take_out(self, sid: str, scan: "_Scan", taken: np.ndarray, behind: list[Agent]) -> None:
         """The ``taken`` (N,) bool rays cast again against what lies behind (a ray hitting nothing
@@ -154,7 +156,7 @@ class RecordedWorld:
             window = _window(pose, agent, self._range_m())
             idx = np.concatenate([sorted_az.within(window), n + _in_window(baz, window)])
             limit = np.where(scan.keep[idx], scan.t[idx], self._range_m())
-            hit, t_hit, cos = self._cast(agent, pose, scan.dirs[idx], limit, self._origin(sid))
+            hit, t_hit, cos = self._cast(agent, pose, scan.dirs[idx], limit)
             sel = idx[hit]
             scan.t[sel], scan.intensity[sel] = t_hit[hit], REFLECTIVITY[SURFACES["vehicle"]] * cos[hit]
             scan.keep[sel] = scan.edited[sel] = True
@@ -178,27 +180,27 @@ class RecordedWorld:
         ``az`` (K,) their azimuths) cast against the scan's ground plane and the ``behind``
         vehicles' meshes (inf: nothing)."""
         plane = self._plane(sid)
-        t = plane.ray_distance(dirs, self._origin(sid)) if plane is not None else np.full(len(dirs), np.inf)
+        t = plane.ray_distance(dirs) if plane is not None else np.full(len(dirs), np.inf)
         t = np.where(t <= self._range_m(), t, np.inf)
         surface = np.full(len(dirs), SURFACES["ground"], dtype=np.int64)
         cos = np.abs(dirs @ _plane_normal(plane)) if plane is not None else np.ones(len(dirs))
         for agent in self._facing(sid, az, behind):
             idx = _in_window(az, self._recorded_window(sid, agent))
-            hit, t_hit, c_hit = self._cast(agent, pose, dirs[idx], np.minimum(t[idx], self._range_m()), self._origin(sid))
+            hit, t_hit, c_hit = self._cast(agent, pose, dirs[idx], np.minimum(t[idx], self._range_m()))
             sel = idx[hit]
             t[sel], surface[sel], cos[sel] = t_hit[hit], SURFACES["vehicle"], c_hit[hit]
         return t, surface, cos.astype(np.float32)
 
-    def _cast(self, agent: Agent, pose: SensorPose, dirs: np.ndarray, limit: np.ndarray, origin: np.ndarray):
+    def _cast(self, agent: Agent, pose: SensorPose, dirs: np.ndarray, limit: np.ndarray):
         """(hit (K,) bool, distance (K,), |cos incidence| (K,)) of rays (K, 3, sensor frame) from
-        ``origin`` (3,) against ``agent``'s mesh, hits beyond ``limit`` (K,) ignored."""
+        the LiDAR against ``agent``'s mesh, hits beyond ``limit`` (K,) ignored."""
         if not len(dirs):
             return np.zeros(0, bool), np.zeros(0), np.zeros(0)
         caster, normals = self._template(agent)
         c, s = math.cos(agent.yaw_rad), math.sin(agent.yaw_rad)
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         d_world = dirs @ pose.rotation().T
-        o_local = (pose.origin + pose.rotation() @ origin - (agent.x_m, agent.y_m, agent.z_m)) @ rot
+        o_local = (pose.origin - (agent.x_m, agent.y_m, agent.z_m)) @ rot
         d_local = d_world @ rot
         t, prim = caster.first_hits(np.broadcast_to(o_local, d_local.shape), d_local, limit)
         hit = (prim >= 0) & (t < limit)
@@ -216,19 +218,13 @@ class RecordedWorld:
         return beams[idx], beam_az[idx]
 
     def _rays_of(self, sid: str):
-        """The scan's points as rays from its LiDAR (:meth:`_origin`): (xyz (N, 3) float64,
-        distance (N,), unit directions (N, 3), azimuth (N,) rad), all in its view's frame; cached."""
+        """The scan's points as rays from its LiDAR (its frame's origin): (xyz (N, 3) float64,
+        distance (N,), unit directions (N, 3), azimuth (N,) rad), all in its frame; cached."""
         if sid not in self._rays:
             xyz = self._cloud(sid)[:, :3].astype(np.float64)
-            v = xyz - self._origin(sid)
-            t = np.linalg.norm(v, axis=1)
-            self._rays[sid] = (xyz, t, v / np.maximum(t, 1e-9)[:, None], np.arctan2(v[:, 1], v[:, 0]))
+            t = np.linalg.norm(xyz, axis=1)
+            self._rays[sid] = (xyz, t, xyz / np.maximum(t, 1e-9)[:, None], np.arctan2(xyz[:, 1], xyz[:, 0]))
         return self._rays[sid]
-
-    def _origin(self, sid: str) -> np.ndarray:
-        """(3,) where the LiDAR's rays start in its view's frame: the origin, but above it where a
-        view was written in a lowered frame (asg's export of a high sensor)."""
-        return np.array([0.0, 0.0, self.recording.views[sid].origin_z_m])
 
     def _facing(self, sid: str, az: np.ndarray, vehicles: list[Agent]) -> list[Agent]:
         """Those of ``vehicles`` (at their recorded poses) whose azimuth window holds one of the
@@ -275,7 +271,7 @@ class RecordedWorld:
             el = lidar.elevations_rad()
             beams = lidar.directions()
             beam_az = np.tile(lidar.azimuths_rad(), lidar.channels)  # row-major (channel, azimuth), as directions()
-            xyz = self._cloud(sid)[:, :3].astype(np.float64) - self._origin(sid)
+            xyz = self._cloud(sid)[:, :3].astype(np.float64)
             r = np.linalg.norm(xyz, axis=1)
             ok = r > 1e-6
             p_el = np.arcsin(np.clip(xyz[ok, 2] / r[ok], -1, 1))
@@ -343,14 +339,14 @@ class _Scan:
         self.keep = np.concatenate([self.keep, np.zeros(k, bool)])
         self.edited = np.concatenate([self.edited, np.ones(k, bool)])
 
-    def points(self, origin: np.ndarray) -> np.ndarray:
-        """(M, 4) float32: the recorded rows as recorded unless edited, edited ones from ``origin``
-        (3,) along their rays, dropped ones out, the beams that now return appended."""
+    def points(self) -> np.ndarray:
+        """(M, 4) float32: the recorded rows as recorded unless edited, edited ones from the LiDAR
+        along their rays, dropped ones out, the beams that now return appended."""
         n = len(self.cloud)
         out = np.concatenate([self.cloud, np.zeros((len(self.t) - n, 4), np.float32)]) if len(self.t) > n \
             else self.cloud.copy()
         rows = np.flatnonzero(self.edited & self.keep)
-        out[rows, :3] = origin + self.dirs[rows] * self.t[rows, None]
+        out[rows, :3] = self.dirs[rows] * self.t[rows, None]
         out[rows, 3] = self.intensity[rows]
         return out if self.keep.all() else out[self.keep]
 
