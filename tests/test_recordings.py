@@ -137,6 +137,25 @@ def test_an_edit_agrees_with_the_simulator_rendering_the_same_move(recorded):
                    for a in scene.sensing_ids)
 
 
+def test_a_world_that_edits_one_move_after_another_gives_what_a_fresh_world_gives(recorded):
+    """A search renders many moves in one world, which keeps each vehicle's removal from one move
+    to the next: the same bits as a new world for each move, whichever vehicles change (one, the
+    other, both, one removed, none)."""
+    from asg.sensors.recorded import RecordedWorld
+
+    _, _, imported, _ = recorded
+    a, b = _movers(imported)
+    moves = [{a.agent_id: a.moved(1.5, -1.0, 0.3), b.agent_id: b.moved(-1.0, 0.5, -0.2)},
+             {a.agent_id: a.moved(0.5, 0.5, 0.1)}, {b.agent_id: b.moved(2.0, 0.0, 0.0)},
+             {a.agent_id: None, b.agent_id: b.moved(-1.0, 0.5, -0.2)}, {},
+             {a.agent_id: a.moved(1.0, 1.0, 0.0), b.agent_id: b.moved(1.0, -0.5, 0.2)}]
+    world = RecordedWorld(imported, SPEC)
+    for moved in moves:
+        once = RecordedWorld(imported, SPEC).render_many(imported.sensing_ids, moved)
+        kept = world.render_many(imported.sensing_ids, moved)
+        assert all(np.array_equal(kept[k], once[k]) for k in imported.sensing_ids), moved
+
+
 def test_a_vehicle_taken_out_and_put_back_at_its_pose_gives_the_recorded_scan(recorded):
     """Removal (its points out, their rays re-cast on the fitted ground and the other vehicles) then
     insertion (the scan's rays on its mesh) at the very same pose: at least 99 % of the recorded

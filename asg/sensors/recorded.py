@@ -73,6 +73,7 @@ class RecordedWorld:
         self._windows: dict[tuple[str, str], tuple | None] = {}
         self._sorted: dict[tuple[str, bool], _Azimuths] = {}
         self._templates: dict[tuple, tuple] = {}
+        self._taken: dict[tuple, tuple] = {}  # _taken_out's results
         self._recorded = {a.agent_id: a for a in self.recording.vehicles}
 
     # ---- the interface -------------------------------------------------------------------
@@ -123,37 +124,43 @@ class RecordedWorld:
     def _edited(self, sid: str, cloud: np.ndarray, current: Mapping[str, Agent], changed: list[str]) -> np.ndarray:
         """``sid``'s scan with the ``changed`` vehicles taken out (at their recorded poses) and put in
         (at their ``current`` ones); its own body is never edited."""
-        xyz, t, dirs, az = self._rays_of(sid)
+        _, t, dirs, az = self._rays_of(sid)
         scan = _Scan(cloud, t.copy(), dirs, az)
-        removed = [self._recorded[i] for i in changed if i in self._recorded and i != sid]
-        if removed:
-            behind = [a for i, a in current.items() if i not in changed and i != sid]
-            self._take_out(sid, scan, self._points_of(sid, xyz, removed), behind)
+        removed_ids = tuple(i for i in changed if i in self._recorded and i != sid)
+        if removed_ids:
+            idx, t_new, intensity, keep = self._taken_out(sid, removed_ids, current, changed)
+            scan.t[idx], scan.intensity[idx], scan.keep[idx], scan.edited[idx] = t_new, intensity, keep, True
         added = [current[i] for i in changed if i in current and i != sid]
         if added:
             self._put_in(sid, scan, added)
         return scan.points()
 
-    def _take_out(self, sid: str, scan: "_Scan", taken: np.ndarray, behind: list[Agent]) -> None:
-        """The ``taken`` (N,) bool rays cast again against what lies behind (a ray hitting nothing
-        in range dropped)."""
-        idx = np.flatnonzero(taken)
-        if not len(idx):
-            return
-        t_new, surf, cos = self._background(sid, self.sensor_pose(sid), scan.dirs[idx], scan.az[idx], behind)
-        scan.t[idx], scan.intensity[idx] = t_new, REFLECTIVITY[surf] * cos
-        scan.keep[idx] = np.isfinite(t_new) & (t_new <= self._range_m())
-        scan.edited[idx] = True
+    def _taken_out(self, sid: str, removed_ids: tuple[str, ...], current: Mapping[str, Agent], changed: list[str]):
+        """The rays of ``sid``'s scan that hit the recorded vehicles ``removed_ids``, cast again
+        against what lies behind them: (indices (K,), distance (K,), intensity (K,) float32, still
+        returning (K,) bool; a ray hitting nothing in range dropped). What lies behind is every
+        vehicle the frame did not change, where the recording has it, so the result depends on
+        ``sid`` and the recorded vehicles changed alone: cached by them (a search moves the same
+        vehicles at every step)."""
+        key = (sid, tuple(i for i in changed if i in self._recorded))
+        if key not in self._taken:
+            xyz, _, dirs, az = self._rays_of(sid)
+            idx = np.flatnonzero(self._points_of(sid, xyz, [self._recorded[i] for i in removed_ids]))
+            behind = [a for i, a in current.items() if i not in changed and i != sid]
+            t_new, surf, cos = self._background(sid, self.sensor_pose(sid), dirs[idx], az[idx], behind)
+            self._taken[key] = (idx, t_new, (REFLECTIVITY[surf] * cos).astype(np.float32),
+                                np.isfinite(t_new) & (t_new <= self._range_m()))
+        return self._taken[key]
 
     def _put_in(self, sid: str, scan: "_Scan", added: list[Agent]) -> None:
         """Each of ``added`` cast against the rays in its azimuth window (the scan's, and the
         LiDAR's beams where it recorded no return), a return replaced where its mesh is nearer."""
         pose, n = self.sensor_pose(sid), len(scan.cloud)
-        bdirs, baz = self._missing_beams(sid, pose, added)
+        windows = [_window(pose, agent, self._range_m()) for agent in added]
+        bdirs, baz = self._missing_beams(sid, windows)
         scan.extend(bdirs, baz)
         sorted_az = self._sorted_az(sid)
-        for agent in added:
-            window = _window(pose, agent, self._range_m())
+        for agent, window in zip(added, windows):
             idx = np.concatenate([sorted_az.within(window), n + _in_window(baz, window)])
             limit = np.where(scan.keep[idx], scan.t[idx], self._range_m())
             hit, t_hit, cos = self._cast(agent, pose, scan.dirs[idx], limit)
@@ -208,13 +215,16 @@ class RecordedWorld:
         cos[hit] = np.abs(np.einsum("ij,ij->i", d_local[hit], normals[prim[hit]]))
         return hit, t, cos
 
-    def _missing_beams(self, sid: str, pose: SensorPose, agents: list[Agent]) -> tuple[np.ndarray, np.ndarray]:
+    def _missing_beams(self, sid: str, windows: list) -> tuple[np.ndarray, np.ndarray]:
         """Unit directions (K, 3, sensor frame) and azimuths (K,) of the recorded LiDAR's beams
-        within the agents' windows along which the scan recorded no return."""
+        within the azimuth ``windows`` (:func:`_window`'s) along which the scan recorded no return,
+        in the beams' order."""
         beams, beam_az, empty = self._beam_pattern(sid)
         sorted_az = self._sorted_az(sid, beams=True)
-        idx = np.unique(np.concatenate([sorted_az.within(_window(pose, a, self._range_m())) for a in agents]))
-        idx = idx[empty[idx]] if len(idx) else idx
+        wanted = np.zeros(len(empty), dtype=bool)
+        for window in windows:
+            wanted[sorted_az.within(window)] = True
+        idx = np.flatnonzero(wanted & empty)
         return beams[idx], beam_az[idx]
 
     def _rays_of(self, sid: str):
