@@ -27,6 +27,7 @@ shape; sensor frames keep the recorded yaw only (roll and pitch are recorded but
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from typing import Iterable, Mapping
@@ -38,6 +39,7 @@ from sumo_scenarios.geometry import wrap_rad
 from ..scene import Agent, Scene
 from ..scene.agent import footprint_xy, in_any_box
 from ..scene.recorded_pcd import recorded_cloud
+from ..scene.recording import Handedness, RecordedView
 from ..scene.scan_ground import GROUND_TOLERANCE_M, GroundPlane, ground_or_none
 from .lidar_spec import LidarSpec
 from .meshes import REFLECTIVITY, SURFACES, agent_template
@@ -67,7 +69,6 @@ class RecordedWorld:
                              fov_down_deg=recorded.lower_deg, points_per_s=recorded.points_per_s,
                              rotation_hz=recorded.rotation_hz, range_m=recorded.range_m).validate()
         self._clouds: dict[str, np.ndarray] = {}
-        self._planes: dict[str, GroundPlane | None] = {}
         self._beams: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._rays: dict[str, tuple] = {}
         self._windows: dict[tuple[str, str], tuple | None] = {}
@@ -269,9 +270,8 @@ class RecordedWorld:
         return self._clouds[sid]
 
     def _plane(self, sid: str) -> GroundPlane | None:
-        if sid not in self._planes:  # None: no road in view (removed rays hit only vehicles, or nothing)
-            self._planes[sid] = ground_or_none(self._cloud(sid))
-        return self._planes[sid]
+        """The ground of ``sid``'s scan (None: no road in view; removed rays hit only vehicles, or nothing)."""
+        return _ground_of(self.recording.views[sid], self.recording.handed)
 
     def _beam_pattern(self, sid: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(beam directions (C * A, 3) of the recorded LiDAR, their azimuths (C * A,), (C * A,) bool:
@@ -388,6 +388,13 @@ def _in_window(az: np.ndarray, window: tuple[float, float, float] | None) -> np.
     centre, lo, hi = window
     rel = (az - centre + math.pi) % (2 * math.pi) - math.pi
     return np.flatnonzero((rel >= lo) & (rel <= hi))
+
+
+@functools.lru_cache(maxsize=256)
+def _ground_of(view: RecordedView, handed: Handedness) -> GroundPlane | None:
+    """The ground fitted to a recorded view's cloud in its LiDAR's frame (None: no road in view),
+    kept across worlds: a scene's search builds several, and the fit is seeded (the same plane)."""
+    return ground_or_none(recorded_cloud(view, handed))
 
 
 def _plane_normal(plane: GroundPlane) -> np.ndarray:
