@@ -37,7 +37,8 @@ class GroundPlane:
         return p[:, 2] - (self.a * p[:, 0] + self.b * p[:, 1] + self.c)
 
     def ray_distance(self, dirs: np.ndarray, origin: np.ndarray = np.zeros(3)) -> np.ndarray:
-        """(N,) distance along unit rays (N, 3) from ``origin`` (3,; the sensor: the frame's origin) to the plane (inf: parallel or upward of it)."""
+        """(N,) distance along unit rays (N, 3) from ``origin`` (3,; the sensor: the frame's origin)
+        to the plane (inf: parallel or upward of it)."""
         d = np.asarray(dirs, dtype=np.float64)
         o = np.asarray(origin, dtype=np.float64)
         denom = d[:, 2] - self.a * d[:, 0] - self.b * d[:, 1]

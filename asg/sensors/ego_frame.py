@@ -11,7 +11,9 @@ boxes raised by the difference, its LiDAR pose lowered by it (OPV2V), the differ
 """
 from __future__ import annotations
 
-from ..scene.recording import STANDARD_SENSOR_HEIGHT_M  # noqa: F401  (the frame's height above the ground)
+# the height above the ground of the frame the ego view is written in (m): OPV2V's vehicle LiDAR, one
+# of the layout's conventions (asg.scene.recording), where an import reads a lowered view back
+from ..scene.recording import STANDARD_SENSOR_HEIGHT_M
 #: an ego sensor higher than this above the ground (an RSU, a truck's or bus's roof) is lowered
 LOWER_ABOVE_M = 2.4
 
