@@ -67,7 +67,8 @@ def test_an_unedited_recording_renders_its_recorded_points_bit_for_bit(recorded)
 def test_a_high_sensors_view_comes_back_in_its_lidars_frame(sumo_log, tmp_path):
     """An RSU ego's view (4.5 m up) is exported in a frame lowered to a car's sensor height; imported,
     it is given back in its LiDAR's own frame, as the native scene has it: the same poses, the same
-    ground truth in the ego's frame, the RSU's height, the points within a micrometre, and an export of the imported scene lowers it by the same again."""
+    ground truth in the ego's frame, the RSU's height, the points within a micrometre, and an
+    export of the imported scene lowers it by the same again."""
     scene = next(extract_scenes(sumo_log, ExtractParams(every=20, ego="rsu", min_vehicles=8)))
     assert scene.ego.kind == "rsu"
     save_scene(scene, tmp_path / "native" / f"{scene.scene_id}.yaml")

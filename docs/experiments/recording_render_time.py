@@ -61,8 +61,9 @@ def cases(set_name: str, count: int, folder: Path) -> list[tuple]:
 def frame_ms(worlds: list[tuple], recorded: bool) -> float:
     frames, t = 0, time.perf_counter()
     for rec, imported, moves, sim, native, native_moves in worlds:
+        world, scene = (rec, imported) if recorded else (sim, native)
         for m in moves if recorded else native_moves:
-            render_frame(rec, imported.sensing_ids, moved=m) if recorded else render_frame(sim, native.sensing_ids, moved=m)
+            render_frame(world, scene.sensing_ids, moved=m)
             frames += 1
     return 1e3 * (time.perf_counter() - t) / frames
 
