@@ -127,17 +127,16 @@ class RecordedWorld:
         (at their ``current`` ones); its own body is never edited."""
         _, t, dirs, az = self._rays_of(sid)
         scan = _Scan(cloud, t.copy(), dirs, az)
-        removed_ids = tuple(i for i in changed if i in self._recorded and i != sid)
-        if removed_ids:
-            idx, t_new, intensity, keep = self._taken_out(sid, removed_ids, current, changed)
+        if any(i in self._recorded and i != sid for i in changed):
+            idx, t_new, intensity, keep = self._taken_out(sid, current, changed)
             scan.t[idx], scan.intensity[idx], scan.keep[idx], scan.edited[idx] = t_new, intensity, keep, True
         added = [current[i] for i in changed if i in current and i != sid]
         if added:
             self._put_in(sid, scan, added)
         return scan.points()
 
-    def _taken_out(self, sid: str, removed_ids: tuple[str, ...], current: Mapping[str, Agent], changed: list[str]):
-        """The rays of ``sid``'s scan that hit the recorded vehicles ``removed_ids``, cast again
+    def _taken_out(self, sid: str, current: Mapping[str, Agent], changed: list[str]):
+        """The rays of ``sid``'s scan that hit the recorded vehicles among ``changed`` (not ``sid``), cast again
         against what lies behind them: (indices (K,), distance (K,), intensity (K,) float32, still
         returning (K,) bool; a ray hitting nothing in range dropped). What lies behind is every
         vehicle the frame did not change, where the recording has it, so the result depends on
@@ -146,7 +145,8 @@ class RecordedWorld:
         key = (sid, tuple(i for i in changed if i in self._recorded))
         if key not in self._taken:
             xyz, _, dirs, az = self._rays_of(sid)
-            idx = np.flatnonzero(self._points_of(sid, xyz, [self._recorded[i] for i in removed_ids]))
+            removed = [self._recorded[i] for i in key[1] if i != sid]
+            idx = np.flatnonzero(self._points_of(sid, xyz, removed))
             behind = [a for i, a in current.items() if i not in changed and i != sid]
             t_new, surf, cos = self._background(sid, self.sensor_pose(sid), dirs[idx], az[idx], behind)
             self._taken[key] = (idx, t_new, (REFLECTIVITY[surf] * cos).astype(np.float32),

@@ -19,17 +19,9 @@ import yaml
 
 from asg.objective.ap import ap_by_method
 from asg.perception import build_detector, resolve_target
-from asg.perception.data import in_range
 from asg.scene.scene import load_scene
-from asg.sensors import load_lidar_spec, render_frame, world_for
-
-SPEC = load_lidar_spec()
-
-
-def detections(target, frame) -> tuple:
-    boxes, scores = target.detect(frame)
-    gt = frame.ego_boxes
-    return boxes, scores, gt[in_range(gt)]
+from asg.sensors import render_frame, world_for
+from recording_fidelity import SPEC, detections
 
 
 def native_of(final, initial, native, ids: dict[str, str]):
