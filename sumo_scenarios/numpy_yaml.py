@@ -10,6 +10,10 @@ exact shapes numpy's pickling protocol gives (``_reconstruct`` with an ndarray s
 scalar a Python number. Only boolean, integer and float dtypes are read; any other Python tag, any
 other function name and any other argument shape stays a ``ConstructorError``. Nothing named by a
 tag is imported or called.
+
+:func:`add_opencood_floats` teaches a loader the other rule OpenCOOD's ``load_yaml`` adds to PyYAML:
+a float needs no dot (``1e-10`` is a number, where YAML 1.1 reads a string). OpenCOOD reads its
+hypes and every frame yaml of a recording with it.
 """
 from __future__ import annotations
 
@@ -119,6 +123,24 @@ def _construct_apply(loader, suffix: str, node):
     if suffix in _SCALAR:
         return _scalar(node, args, state)
     raise _refuse(node, "a call other than numpy's array, scalar or dtype")
+
+
+#: OpenCOOD's float resolver (``opencood.hypes_yaml.yaml_utils.load_yaml``): YAML 1.1's floats and
+#: those written without a dot (``1e-10``, ``-2E5``)
+OPENCOOD_FLOAT = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |\.[0-9_]+(?:[eE][-+][0-9]+)?
+    |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""", re.X)
+
+
+def add_opencood_floats(loader: type) -> type:
+    """Teach ``loader`` (a subclass of PyYAML's SafeLoader or CSafeLoader) OpenCOOD's float rule,
+    in place, on a resolver table of its own (PyYAML's loaders keep theirs); returns it."""
+    loader.yaml_implicit_resolvers = {k: list(v) for k, v in loader.yaml_implicit_resolvers.items()}
+    loader.add_implicit_resolver("tag:yaml.org,2002:float", OPENCOOD_FLOAT, list("-+0123456789."))
+    return loader
 
 
 def add_numpy_data(loader: type) -> type:

@@ -239,6 +239,38 @@ def test_the_ground_fit_of_a_scan_finds_the_road(recorded):
         fit_ground(cloud[cloud[:, 2] > -1.0])
 
 
+def test_numbers_written_without_a_dot_read_as_opencood_reads_them(recorded, tmp_path):
+    """OpenCOOD's ``load_yaml`` reads ``2384e-1`` as a number (YAML 1.1 reads a string): a frame
+    whose pose and boxes are written so imports as the same scene."""
+    from decimal import Decimal
+
+    _, export_dir, imported, _ = recorded
+    src = _copy(export_dir, tmp_path / "src")
+    scenario = _scenario(src)
+    rewritten = 0
+    for yml in scenario.glob("*/000000.yaml"):
+        meta = yaml.safe_load(yml.read_text())
+        tokens = {}
+
+        def undotted(x: float) -> str:  # 238.4 -> "2384e-1", the same decimal value
+            sign, digits, exponent = Decimal(repr(float(x))).as_tuple()
+            tokens[key := f"NUMBER{len(tokens)}"] = f"{'-' if sign else ''}{int(''.join(map(str, digits)))}e{exponent}"
+            return key
+
+        meta["lidar_pose"] = [undotted(v) for v in meta["lidar_pose"]]
+        for box in meta["vehicles"].values():
+            box["location"] = [undotted(v) for v in box["location"]]
+        text = yaml.safe_dump(meta)
+        for key, token in sorted(tokens.items(), key=lambda kv: -len(kv[0])):
+            text = text.replace(f"'{key}'", token).replace(key, token)
+        assert "e-1" in text and "NUMBER" not in text
+        yml.write_text(text)
+        rewritten += 1
+    assert rewritten == 3
+    (again,) = import_scenes(src)
+    assert again.agents == imported.agents and again.ego_id == imported.ego_id
+
+
 def test_an_opv2v_ascii_scan_reads_as_open3d_reads_it(tmp_path):
     """OPV2V's own PCDs are ASCII ``x y z rgb`` with the intensity in the red byte of a packed
     colour printed as a float (a subnormal below red 128): read as Open3D reads them (red / 255)."""

@@ -28,7 +28,7 @@ import yaml
 from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.lanes import LaneMap
-from sumo_scenarios.numpy_yaml import add_numpy_data
+from sumo_scenarios.numpy_yaml import add_numpy_data, add_opencood_floats
 
 from .agent import SIZE_LIMITS_M, Agent
 from .recorded_pcd import in_scene_frame, read_recorded_pcd_with_digest
@@ -63,7 +63,8 @@ RSU_POLE_M = 4.5
 
 
 class FrameLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc, valid-type]
-    """Safe YAML (libyaml's parser where installed) with numpy's data tags read as lists and numbers
+    """Safe YAML (libyaml's parser where installed) with OpenCOOD's float rule (``1e-05`` is a number,
+    as OpenCOOD's ``load_yaml`` reads a frame) and numpy's data tags read as lists and numbers
     (V2V4Real's poses); a key written twice in one mapping (two boxes under one vehicle id) refused."""
 
     def construct_mapping(self, node, deep=False):
@@ -79,7 +80,7 @@ class FrameLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignor
         return super().construct_mapping(node, deep)
 
 
-add_numpy_data(FrameLoader)
+add_numpy_data(add_opencood_floats(FrameLoader))
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from pathlib import Path
 import yaml
 
 from sumo_scenarios.errors import InputError
-from sumo_scenarios.numpy_yaml import add_numpy_data
+from sumo_scenarios.numpy_yaml import add_numpy_data, add_opencood_floats
 
 from .runtime import module
 from .settings import check_settings
@@ -39,25 +39,14 @@ class HypesLoader(yaml.SafeLoader):
     plain lists and numbers (:mod:`sumo_scenarios.numpy_yaml`); every other Python tag refused."""
 
 
-HypesLoader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
-HypesLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-    |\.[0-9_]+(?:[eE][-+][0-9]+)?
-    |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
-    |[-+]?\.(?:inf|Inf|INF)
-    |\.(?:nan|NaN|NAN))$""", re.X),
-    list("-+0123456789."))
-add_numpy_data(HypesLoader)
+add_numpy_data(add_opencood_floats(HypesLoader))
 
 
 if getattr(yaml, "__with_libyaml__", False):
     class LibyamlHypesLoader(yaml.CSafeLoader):
         """:class:`HypesLoader`'s rules on libyaml's parser (the same dicts, several times faster)."""
 
-    LibyamlHypesLoader.yaml_implicit_resolvers = HypesLoader.yaml_implicit_resolvers
-    add_numpy_data(LibyamlHypesLoader)
+    add_numpy_data(add_opencood_floats(LibyamlHypesLoader))
 else:  # PyYAML built without libyaml
     LibyamlHypesLoader = HypesLoader
 
