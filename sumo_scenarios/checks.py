@@ -16,6 +16,11 @@ from .errors import InputError
 #: coordinates further than this from a net's origin (m) are refused: SUMO nets are offset to the
 #: origin, so anything larger is a corrupt or hostile file (and breaks collision checking)
 MAX_COORD_M = 1.0e6
+#: ground heights beyond this (m) are refused (SUMO nets with elevation stay far inside it)
+MAX_ABS_Z_M = 10_000.0
+#: 540 km/h either way: faster is not traffic (a negative speed is a vehicle backing up, as
+#: highway-env's do when stopped close behind another)
+MAX_SPEED_MPS = 150.0
 
 #: ids that become file or folder names: letters, digits and ``_ - . # : +``, not starting with a dot
 _SAFE_ID = re.compile(r"[A-Za-z0-9_\-#:+][A-Za-z0-9_.\-#:+]{0,127}")

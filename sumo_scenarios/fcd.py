@@ -4,6 +4,9 @@ SUMO reports a vehicle's position at the centre of its *front bumper*, its ``ang
 clockwise from north (navigation convention). :func:`yaw_rad_from_sumo_angle` and
 :func:`center_from_front` convert to the yaw (rad, counter-clockwise from +x) and box centre
 that the rest of the project uses.
+
+A log is a file a user hands in: every vehicle needs a safe id (it may become a file name) and
+numbers that are finite and in range; one that has not is refused in one line naming it.
 """
 from __future__ import annotations
 
@@ -16,6 +19,7 @@ from pathlib import Path
 from typing import Iterable, Iterator
 
 from .atomic import atomic_path
+from .checks import MAX_ABS_Z_M, MAX_COORD_M, MAX_SPEED_MPS, is_safe_id
 from .errors import InputError
 from .geometry import wrap_rad
 
@@ -26,6 +30,15 @@ from .geometry import wrap_rad
 #: (docs/logs-and-scenes.md). A net with elevation adds :data:`FCD_ELEVATION_ATTRIBUTES`.
 FCD_ATTRIBUTES = ("x", "y", "angle", "type", "speed", "lane")
 FCD_ELEVATION_ATTRIBUTES = ("z", "slope")
+#: a vehicle's numbers in a log: (attribute, its value when absent (None: required), lowest, highest).
+#: SUMO writes angles in [0, 360) and slopes in [-90, 90] degrees
+_NUMBERS = (("x", None, -MAX_COORD_M, MAX_COORD_M), ("y", None, -MAX_COORD_M, MAX_COORD_M),
+            ("z", 0.0, -MAX_ABS_Z_M, MAX_ABS_Z_M), ("angle", 0.0, -360.0, 720.0),
+            ("speed", 0.0, -MAX_SPEED_MPS, MAX_SPEED_MPS), ("slope", 0.0, -90.0, 90.0))
+_ATTRIBUTES = tuple((name, default) for name, default, _, _ in _NUMBERS)
+_LO, _HI = tuple(n[2] for n in _NUMBERS), tuple(n[3] for n in _NUMBERS)
+#: the latest time step a log may hold (s): a year
+MAX_TIME_S = 3.2e7
 
 
 @dataclass(frozen=True)
@@ -71,7 +84,8 @@ def front_from_center(x_m: float, y_m: float, yaw_rad: float, length_m: float) -
 def read_fcd(path: str | Path) -> Iterator[FcdFrame]:
     """Yield the frames of an fcd-output log (``.xml`` or ``.xml.gz``) in time order.
 
-    A missing, truncated or foreign file raises InputError naming it.
+    A missing, truncated or foreign file, and a vehicle with an unsafe id or a number that is
+    missing, not finite or out of range (``_NUMBERS``), raise InputError naming it.
     """
     p = Path(path)
     if not p.is_file():
@@ -83,26 +97,71 @@ def read_fcd(path: str | Path) -> Iterator[FcdFrame]:
             _, root = next(context)
             if root.tag != "fcd-export":
                 raise InputError(f"{p}: not an fcd-output log (root <{root.tag}>); give SUMO fcd-output")
+            safe_ids: set[str] = set()  # ids already checked (a vehicle stays in many frames)
             for event, elem in context:
                 if event == "end" and elem.tag == "timestep":
-                    yield FcdFrame(float(elem.get("time")), tuple(_vehicle(v) for v in elem.iter("vehicle")))
+                    yield _frame(elem, p, safe_ids)
                     root.clear()
     except (ET.ParseError, EOFError, zlib.error, gzip.BadGzipFile, StopIteration) as exc:
         raise InputError(f"{p}: traffic log is truncated or corrupt ({type(exc).__name__}); re-run 'asg simulate'") from None
 
 
-def _vehicle(v: ET.Element) -> FcdVehicle:
-    return FcdVehicle(
-        vehicle_id=v.get("id"),
-        x_m=float(v.get("x")),
-        y_m=float(v.get("y")),
-        z_m=float(v.get("z", 0.0)),
-        angle_deg=float(v.get("angle", 0.0)),
-        type_id=v.get("type", ""),
-        speed_mps=float(v.get("speed", 0.0)),
-        lane_id=v.get("lane", ""),
-        slope_deg=float(v.get("slope", 0.0)),
-    )
+def _frame(elem: ET.Element, path: Path, safe_ids: set[str]) -> FcdFrame:
+    """One ``<timestep>``; InputError naming the file, the time and the first vehicle it refuses."""
+    try:
+        time_s = float(elem.get("time"))
+    except (TypeError, ValueError):
+        time_s = math.nan
+    if not -MAX_TIME_S <= time_s <= MAX_TIME_S:
+        raise InputError(f"{path}: a timestep's time {str(elem.get('time'))[:30]!r} is not a time in seconds; "
+                         "give a log written by SUMO's fcd-output ('asg simulate')")
+    vehicles = []
+    for v in elem.iter("vehicle"):
+        try:
+            vehicles.append(_vehicle(v, safe_ids))
+        except (TypeError, ValueError):
+            raise InputError(f"{path}: at time {time_s:g}: {_problem(v)}; fix the log or re-run 'asg simulate'") from None
+    return FcdFrame(time_s, tuple(vehicles))
+
+
+def _vehicle(v: ET.Element, safe_ids: set[str]) -> FcdVehicle:
+    """One ``<vehicle>``; TypeError or ValueError if :func:`_problem` finds something wrong."""
+    get = v.get
+    x, y, z, angle, speed, slope = [float(get(name, default)) for name, default in _ATTRIBUTES]  # None: TypeError
+    if not (_LO[0] <= x <= _HI[0] and _LO[1] <= y <= _HI[1] and _LO[2] <= z <= _HI[2]  # NaN fails too
+            and _LO[3] <= angle <= _HI[3] and _LO[4] <= speed <= _HI[4] and _LO[5] <= slope <= _HI[5]):
+        raise ValueError
+    vehicle_id = get("id")
+    if vehicle_id not in safe_ids:
+        if vehicle_id is None or not is_safe_id(vehicle_id):
+            raise ValueError
+        safe_ids.add(vehicle_id)
+    return FcdVehicle(vehicle_id, x, y, z, angle, get("type", ""), speed, get("lane", ""), slope)
+
+
+def _problem(v: ET.Element) -> str:
+    """What is wrong with a ``<vehicle>`` that :func:`_vehicle` refused, in words."""
+    vehicle_id = v.get("id")
+    if vehicle_id is None:
+        return "a vehicle without an id"
+    where = f"vehicle {vehicle_id[:40]!r}"
+    if not is_safe_id(vehicle_id):
+        return f"{where}: its id is not a safe name (letters, digits and _ - . # : + only, at most 128)"
+    for name, default, lo, hi in _NUMBERS:
+        text = v.get(name)
+        if text is None:
+            if default is None:
+                return f"{where}: no {name}"
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            return f"{where}: {name} {text[:30]!r} is not a number"
+        if not math.isfinite(value):
+            return f"{where}: {name} {value} is not a finite number"
+        if not lo <= value <= hi:
+            return f"{where}: {name} {value:g} is out of range ({lo:g} to {hi:g})"
+    return f"{where}: unreadable"
 
 
 def write_fcd(path: str | Path, frames: Iterable[FcdFrame]) -> None:

@@ -44,6 +44,41 @@ def test_truncated_log(tmp_path):
         list(read_fcd(path))
 
 
+VEHICLE = '<vehicle id="v1" x="1.0" y="2.0" angle="90.0" type="car" speed="3.0" lane="e_0"/>'
+BAD_VEHICLES = {
+    '<vehicle id="v1" x="nan" y="2.0"/>': "x nan is not a finite number",
+    '<vehicle id="v1" x="1e300" y="2.0"/>': "x 1e+300 is out of range",
+    '<vehicle id="v1" y="2.0"/>': "no x",
+    '<vehicle id="v1" x="abc" y="2.0"/>': "x 'abc' is not a number",
+    '<vehicle x="1.0" y="2.0"/>': "a vehicle without an id",
+    '<vehicle id="../../evil" x="1.0" y="2.0"/>': "not a safe name",
+    '<vehicle id="v1" x="1.0" y="2.0" speed="1e9"/>': "speed 1e+09 is out of range",
+    '<vehicle id="v1" x="1.0" y="2.0" angle="-inf"/>': "angle -inf is not a finite number",
+}
+
+
+@pytest.mark.parametrize("bad", sorted(BAD_VEHICLES))
+def test_a_vehicle_with_a_bad_attribute_is_refused_in_one_line_naming_it(bad, tmp_path):
+    """A log is a file a user hands in: the reader refuses what a scene could not hold (an id that
+    is no safe file name, a number that is missing, not finite or out of range), naming the vehicle
+    and the time, instead of a traceback or a scene that cannot be loaded again."""
+    path = tmp_path / "fcd.xml"
+    path.write_text(f'<fcd-export><timestep time="0.00">{VEHICLE}</timestep>'
+                    f'<timestep time="0.50">{VEHICLE}{bad}</timestep></fcd-export>')
+    frames = read_fcd(path)
+    assert next(frames).vehicles[0].vehicle_id == "v1"  # the frames before it are read
+    with pytest.raises(InputError, match="at time 0.5: ") as exc:
+        next(frames)
+    assert BAD_VEHICLES[bad] in str(exc.value) and str(path) in str(exc.value)
+
+
+def test_a_timestep_without_a_time_is_refused(tmp_path):
+    path = tmp_path / "fcd.xml"
+    path.write_text(f'<fcd-export><timestep time="soon">{VEHICLE}</timestep></fcd-export>')
+    with pytest.raises(InputError, match="time 'soon' is not a time in seconds"):
+        list(read_fcd(path))
+
+
 def test_not_fcd(tmp_path):
     path = tmp_path / "x.xml.gz"
     with gzip.open(path, "wt") as fh:

@@ -28,6 +28,20 @@ def test_highway_scenes(highway_log, tmp_path):
     assert all(s.ego.kind == "rsu" for s in scenes)
 
 
+@pytest.mark.slow
+def test_scenes_of_vehicles_backing_up_load_again(highway_log, tmp_path):
+    """highway-env's intersection vehicles back up a little when stopped close behind another (a
+    negative speed in the log): every scene extracted from it is saved and loaded again."""
+    from asg.scene import save_scene
+    from asg.scene.scene import load_scene
+
+    scenes = list(extract_scenes(highway_log, ExtractParams(every=1, ego="vehicle")))
+    assert any(a.speed_mps < 0 for s in scenes for a in s.agents)
+    for s in scenes:
+        save_scene(s, tmp_path / f"{s.scene_id}.yaml")
+        assert load_scene(tmp_path / f"{s.scene_id}.yaml").agents == s.agents
+
+
 def test_unknown_env():
     with pytest.raises(InputError, match="unknown highway-env scenario"):
         simulate_highway(HighwayRequest(out_dir=None, env_id="racetrack-v9"))  # type: ignore[arg-type]

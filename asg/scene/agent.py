@@ -73,21 +73,18 @@ class Agent:
         return Agent(
             agent_id=checks.safe_id(d["id"], where), kind=kind, type_id=str(d["type"]),
             x_m=checks.coordinate(d["x_m"], f"{where} x_m"), y_m=checks.coordinate(d["y_m"], f"{where} y_m"),
-            z_m=checks.number(d["z_m"], f"{where} z_m", -MAX_ABS_Z_M, MAX_ABS_Z_M),
+            z_m=checks.number(d["z_m"], f"{where} z_m", -checks.MAX_ABS_Z_M, checks.MAX_ABS_Z_M),
             yaw_rad=checks.number(d["yaw_rad"], f"{where} yaw_rad", -MAX_ABS_YAW_RAD, MAX_ABS_YAW_RAD),
-            speed_mps=checks.number(d.get("speed_mps", 0.0), f"{where} speed_mps", 0.0, MAX_SPEED_MPS),
+            speed_mps=checks.number(d.get("speed_mps", 0.0), f"{where} speed_mps", -checks.MAX_SPEED_MPS,
+                                    checks.MAX_SPEED_MPS),
             lane_id=None if lane is None else str(lane), **size,
         )
 
 
 #: largest sizes accepted from a file (m): a long articulated truck, a tall RSU pole
 SIZE_LIMITS_M = {"length_m": 30.0, "width_m": 5.0, "height_m": 20.0}
-#: ground heights beyond this (m) are refused (SUMO nets with elevation stay far inside it)
-MAX_ABS_Z_M = 10_000.0
 #: headings are normally within [-pi, pi]; a few turns either way are accepted, nothing wilder
 MAX_ABS_YAW_RAD = 8 * math.pi
-#: 540 km/h: faster is not traffic
-MAX_SPEED_MPS = 150.0
 
 
 #: a rectangle's corners in its own frame, in half lengths and half widths, counter-clockwise
