@@ -16,6 +16,8 @@ from .errors import InputError
 #: coordinates further than this from a net's origin (m) are refused: SUMO nets are offset to the
 #: origin, so anything larger is a corrupt or hostile file (and breaks collision checking)
 MAX_COORD_M = 1.0e6
+#: largest sizes accepted from a file (m): a long articulated truck, a tall RSU pole
+SIZE_LIMITS_M = {"length_m": 30.0, "width_m": 5.0, "height_m": 20.0}
 #: ground heights beyond this (m) are refused (SUMO nets with elevation stay far inside it)
 MAX_ABS_Z_M = 10_000.0
 #: 540 km/h either way: faster is not traffic (a negative speed is a vehicle backing up, as

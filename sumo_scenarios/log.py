@@ -19,6 +19,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 import yaml
 
+from . import checks
 from .atomic import atomic_path, write_text_atomic
 from .buildings import Building, read_buildings
 from .errors import InputError
@@ -106,7 +107,12 @@ def open_log(path: str | Path) -> TrafficLog:
     directory = p if p.is_dir() else p.parent
     if not (directory / META_NAME).is_file():
         raise InputError(f"{p}: not a traffic-log folder (no {META_NAME}); give the --out folder of 'asg simulate'")
-    meta = from_mapping(LogMeta, read_yaml(directory / META_NAME), str(directory / META_NAME))
+    where = str(directory / META_NAME)
+    meta = from_mapping(LogMeta, read_yaml(directory / META_NAME), where)
+    checks.safe_id(meta.town, f"{where} town")  # it names scenes and their files
+    for name in (meta.map_file, meta.buildings_file):
+        checks.inside(directory, directory / name, "is not in the log folder {root}; give the --out folder of 'asg simulate'")
+    _check_vehicle_types(meta.vehicle_types, where)
     map_path = directory / meta.map_file
     if map_path.name.endswith(".net.xml"):
         lane_map = LaneMap.from_sumo_net(map_path)
@@ -117,8 +123,18 @@ def open_log(path: str | Path) -> TrafficLog:
         except (OSError, EOFError, json.JSONDecodeError, KeyError) as exc:
             raise InputError(f"{map_path}: lane file unreadable ({type(exc).__name__}); re-run 'asg simulate'") from None
     buildings = tuple(read_buildings(directory / meta.buildings_file))
-    rsus = tuple(RoadsideUnit.from_dict(r) for r in meta.rsus)
+    rsus = tuple(RoadsideUnit.from_dict(r, f"{where} rsus[{i}]") for i, r in enumerate(meta.rsus))
     return TrafficLog(directory, meta, lane_map, buildings, rsus)
+
+
+def _check_vehicle_types(types: tuple[dict[str, Any], ...], where: str) -> None:
+    """Each vType of a log's meta.yaml has an id and a size a scene can hold (checks.SIZE_LIMITS_M)."""
+    for i, t in enumerate(types):
+        at = f"{where} vehicle_types[{i}]"
+        if not isinstance(t, dict) or "id" not in t:
+            raise InputError(f"{at}: expected a mapping with id, length_m, width_m and height_m")
+        for key, most in checks.SIZE_LIMITS_M.items():
+            checks.number(t.get(key), f"{at} {key}", 0.0, most, lo_open=True)
 
 
 def density_stats(frames: list[FcdFrame], rsus: list[RoadsideUnit], sizes: dict[str, float]) -> dict[str, Any]:

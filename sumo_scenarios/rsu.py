@@ -9,7 +9,9 @@ import numpy as np
 import shapely
 from shapely.geometry import Point
 
+from . import checks
 from .buildings import Building
+from .errors import InputError
 from .lanes import LaneMap
 
 #: height of an RSU's LiDAR above the ground (m), on its pole
@@ -33,8 +35,16 @@ class RoadsideUnit:
                 "junction": self.junction_id, "height_m": self.height_m}
 
     @staticmethod
-    def from_dict(d: dict) -> "RoadsideUnit":
-        return RoadsideUnit(str(d["id"]), float(d["x_m"]), float(d["y_m"]), str(d["junction"]), float(d["height_m"]))
+    def from_dict(d: dict, where: str = "rsu") -> "RoadsideUnit":
+        """An RSU from its mapping (a log's meta.yaml): its id a safe name (it names scenes and
+        their files), its numbers finite and in range; InputError naming ``where`` otherwise."""
+        if not isinstance(d, dict) or not {"id", "x_m", "y_m", "junction", "height_m"} <= set(d):
+            raise InputError(f"{where}: expected a mapping with id, x_m, y_m, junction and height_m")
+        rsu_id = checks.safe_id(d["id"], where)
+        at = f"{where} {rsu_id}"
+        height_m = checks.number(d["height_m"], f"{at} height_m", 0.0, checks.SIZE_LIMITS_M["height_m"], lo_open=True)
+        return RoadsideUnit(rsu_id, checks.coordinate(d["x_m"], f"{at} x_m"), checks.coordinate(d["y_m"], f"{at} y_m"),
+                            str(d["junction"]), height_m)
 
 
 def place_rsus(lane_map: LaneMap, buildings: Sequence[Building], max_count: int = 8,

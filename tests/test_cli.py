@@ -108,6 +108,34 @@ def test_scene_file_missing_key_via_log(capsys, tmp_path):
     assert_one_line_error(err, "not a traffic-log folder")
 
 
+#: a log's meta.yaml spoiled (what is replaced, by what) -> what the one line says
+BAD_META = {
+    ("- id: rsu0", "- id: ../../../escaped"): "rsus[0]: id '../../../escaped' is not a safe name",
+    ("town: grid_small", "town: ../up"): "town: id '../up' is not a safe name",
+    ("map_file: map.net.xml", "map_file: ../../map.net.xml"): "is not in the log folder",
+    ("  length_m: 4.6\n", "  length_m: -4.6\n"): "vehicle_types[0] length_m: -4.6 is out of range",
+    ("  height_m: 1.48\n", ""): "vehicle_types[0] height_m: expected a number",
+    ("  height_m: 4.5\n", "  height_m: .nan\n"): "height_m: nan is not a finite number",
+}
+
+
+@pytest.mark.parametrize("spoil", sorted(BAD_META))
+def test_a_spoiled_log_folder_is_one_line_and_writes_nothing(spoil, capsys, tmp_path, sumo_log):
+    """A log folder is handed in: an id in its meta.yaml names scene files (an RSU's '../..' wrote
+    a scene outside --out), its files stay in it, its sizes are ones a scene can hold."""
+    import shutil
+
+    log = shutil.copytree(sumo_log, tmp_path / "log")
+    meta = (log / "meta.yaml").read_text()
+    old, new = spoil
+    assert old in meta
+    (log / "meta.yaml").write_text(meta.replace(old, new, 1))
+    code, err = run(capsys, "scenes", "extract", str(log), "--every", "40", "--out", str(tmp_path / "a" / "b" / "s"))
+    assert code == 2
+    assert_one_line_error(err, BAD_META[spoil])
+    assert not (tmp_path / "a").exists() and not (tmp_path / "escaped.yaml").exists()
+
+
 def test_towns_list_json(capsys):
     import json
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sumo_scenarios.checks import inside, safe_id
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.log import NEAR_RADIUS_M
 
@@ -31,9 +32,9 @@ def run(args: argparse.Namespace) -> int:
     k = GenerateConfig().sensing_agents - 1 if args.collaborators is None else args.collaborators
     params = ExtractParams(every=args.every, radius_m=args.radius, ego=args.ego, min_vehicles=args.min_vehicles,
                            collaborators=k)
-    n = 0
+    n, out = 0, Path(args.out)
     for scene in extract_scenes(args.log, params):
-        save_scene(scene, Path(args.out) / f"{scene.scene_id}.yaml")
+        save_scene(scene, inside(out, out / f"{safe_id(scene.scene_id, 'scene id')}.yaml"))
         n += 1
     if n == 0:
         raise InputError(f"{args.log}: no frame had an ego with {args.min_vehicles}+ vehicles within {NEAR_RADIUS_M:g} m; "

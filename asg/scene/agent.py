@@ -62,12 +62,12 @@ class Agent:
     @staticmethod
     def from_dict(d: dict) -> "Agent":
         """An agent from its yaml mapping; every number is checked (finite, sizes positive and within
-        SIZE_LIMITS_M, coordinates within checks.MAX_COORD_M), the id must be a safe file name."""
+        checks.SIZE_LIMITS_M, coordinates within checks.MAX_COORD_M), the id must be a safe file name."""
         where = f"agent {str(d['id'])[:40]!r}"
         kind = d["kind"]
         if kind not in ("vehicle", "rsu"):
             raise InputError(f"{where}: kind {kind!r} is not one of vehicle, rsu")
-        size = {k: checks.number(d[k], f"{where} {k}", 0.0, SIZE_LIMITS_M[k], lo_open=True)
+        size = {k: checks.number(d[k], f"{where} {k}", 0.0, checks.SIZE_LIMITS_M[k], lo_open=True)
                 for k in ("length_m", "width_m", "height_m")}
         lane = d.get("lane")
         return Agent(
@@ -81,8 +81,6 @@ class Agent:
         )
 
 
-#: largest sizes accepted from a file (m): a long articulated truck, a tall RSU pole
-SIZE_LIMITS_M = {"length_m": 30.0, "width_m": 5.0, "height_m": 20.0}
 #: headings are normally within [-pi, pi]; a few turns either way are accepted, nothing wilder
 MAX_ABS_YAW_RAD = 8 * math.pi
 

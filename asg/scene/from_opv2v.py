@@ -30,7 +30,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.lanes import LaneMap
 from sumo_scenarios.numpy_yaml import add_numpy_data, add_opencood_floats
 
-from .agent import SIZE_LIMITS_M, Agent
+from .agent import Agent
 from .recorded_pcd import in_scene_frame, read_recorded_pcd_with_digest
 from .recording import (MAX_LOWERED_M, RECORDING_SOURCE, STANDARD_SENSOR_HEIGHT_M, Handedness, RecordedLidar,
                         RecordedView, Recording, RecordingFormat, opencood_ego)
@@ -318,7 +318,7 @@ def _vehicle(vid: str, box, handed: Handedness, where: str) -> Agent:
     sign = -1.0 if handed is Handedness.LEFT else 1.0
     size = {"length_m": 2 * ex, "width_m": 2 * ey, "height_m": 2 * ez}
     for key, v in size.items():
-        checks.number(v, f"{where} {key}", 0.0, SIZE_LIMITS_M[key], lo_open=True)
+        checks.number(v, f"{where} {key}", 0.0, checks.SIZE_LIMITS_M[key], lo_open=True)
     speed = checks.number(box.get("speed", 0.0), f"{where} speed", -1000.0, 1000.0)
     kind = str(box.get("obj_type", "car")).lower()
     return Agent(agent_id=vid, kind="vehicle", type_id=kind if kind in VEHICLE_TYPES else "car",
