@@ -136,6 +136,31 @@ def test_a_spoiled_log_folder_is_one_line_and_writes_nothing(spoil, capsys, tmp_
     assert not (tmp_path / "a").exists() and not (tmp_path / "escaped.yaml").exists()
 
 
+def test_a_scene_folder_of_other_settings_is_refused_and_force_replaces_it(capsys, tmp_path, sumo_log):
+    """Extracting into a folder of scenes made with other settings would mix two sets silently:
+    refused in one line, nothing changed; the same settings again write the same files; --force
+    replaces the folder's scenes. A folder of scene files with no record is refused too."""
+    out = tmp_path / "scenes"
+    extract = ["scenes", "extract", str(sumo_log), "--out", str(out)]
+    assert main([*extract, "--every", "40"]) == 0
+    first = {p.name: p.read_bytes() for p in out.glob("*.yaml")}
+    assert main([*extract, "--every", "40"]) == 0
+    assert {p.name: p.read_bytes() for p in out.glob("*.yaml")} == first
+    capsys.readouterr()
+    code, err = run(capsys, *extract, "--every", "20")
+    assert code == 2
+    assert_one_line_error(err, "other settings (every: 40 -> 20)", "--force")
+    assert {p.name: p.read_bytes() for p in out.glob("*.yaml")} == first
+    assert main([*extract, "--every", "20", "--collaborators", "0", "--force"]) == 0
+    second = {p.name for p in out.glob("*.yaml")}
+    assert len(second) > len(first) and all("collaborators: []" in (out / n).read_text() for n in second)
+    (out / "run.json").unlink()
+    capsys.readouterr()
+    code, err = run(capsys, *extract, "--every", "20", "--collaborators", "0")
+    assert code == 2
+    assert_one_line_error(err, "recorded no settings")
+
+
 def test_towns_list_json(capsys):
     import json
 

@@ -407,6 +407,16 @@ def test_import_every_and_limit(recorded, capsys, tmp_path):
     assert code == 2
 
 
+def test_an_import_into_a_folder_of_other_settings_is_refused(recorded, capsys, tmp_path):
+    _, export_dir, _, _ = recorded
+    out = tmp_path / "o"
+    assert run(capsys, "scenes", "import", str(export_dir), "--out", str(out))[0] == 0
+    code, err = run(capsys, "scenes", "import", str(export_dir), "--out", str(out), "--every", "3")
+    assert code == 2
+    assert_one_line_error(err, "other settings (every: 1 -> 3)")
+    assert run(capsys, "scenes", "import", str(export_dir), "--out", str(out), "--every", "3", "--force")[0] == 0
+
+
 def test_a_changed_scan_is_refused_when_the_scene_is_rendered(recorded, tmp_path):
     scene, export_dir, _, _ = recorded
     src = _copy(export_dir, tmp_path / "src")

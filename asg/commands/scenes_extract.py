@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import asdict
 from pathlib import Path
 
 from sumo_scenarios.checks import inside, safe_id
@@ -9,6 +10,7 @@ from sumo_scenarios.errors import InputError
 from sumo_scenarios.log import NEAR_RADIUS_M
 
 from ..cli_args import COUNT, whole
+from ..io.run_record import check_scene_folder, claim_scene_folder
 from ..progress import console
 from ..scene.from_log import EGO_KINDS, ExtractParams, extract_scenes
 from ..scene.scene import save_scene
@@ -24,6 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="sensing vehicles drawn at random within communication range of the ego, as the "
                         "data sets draw them (default: the generator's sensing_agents - 1, i.e. 2)")
     p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
+    p.add_argument("--force", action="store_true",
+                   help="remove the scene files of an --out written with other settings first")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,7 +37,11 @@ def run(args: argparse.Namespace) -> int:
     params = ExtractParams(every=args.every, radius_m=args.radius, ego=args.ego, min_vehicles=args.min_vehicles,
                            collaborators=k)
     n, out = 0, Path(args.out)
+    settings = {"command": "scenes extract", "log": str(Path(args.log).resolve()), **asdict(params)}
+    check_scene_folder(out, settings, args.force)
     for scene in extract_scenes(args.log, params):
+        if n == 0:  # the log is readable: the folder becomes this extraction's
+            claim_scene_folder(out, settings, args.force)
         save_scene(scene, inside(out, out / f"{safe_id(scene.scene_id, 'scene id')}.yaml"))
         n += 1
     if n == 0:

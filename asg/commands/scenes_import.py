@@ -3,11 +3,13 @@ scene yaml files, one per timestamp (asg.scene.from_opv2v; docs/recordings.md)."
 from __future__ import annotations
 
 import argparse
+from dataclasses import asdict
 from pathlib import Path
 
 from sumo_scenarios.checks import inside, safe_id
 
 from ..cli_args import COUNT
+from ..io.run_record import check_scene_folder, claim_scene_folder
 from ..progress import console, progress_bar
 from ..scene.from_opv2v import ImportParams, import_scenes, planned_count
 from ..scene.recording import RecordingFormat
@@ -26,20 +28,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "obey its lanes (both --plausibility levels); without it, the drivable area is read from "
                         "the scans (--plausibility paper only)")
     p.add_argument("--out", type=Path, required=True, help="folder for the scene yaml files")
+    p.add_argument("--force", action="store_true",
+                   help="remove the scene files of an --out written with other settings first")
 
 
 def run(args: argparse.Namespace) -> int:
     """Every scene is read (and refused in one line) before the first file is written."""
     params = ImportParams(every=args.every, limit=args.limit, map=args.map)
+    out = Path(args.out)
+    settings = {"command": "scenes import", "format": args.format, "source": str(Path(args.source).resolve()),
+                **asdict(params), "map": str(args.map.resolve()) if args.map else None}
+    check_scene_folder(out, settings, args.force)
     scenes = []
     with progress_bar() as bar:
         task = bar.add_task("reading the recording", total=planned_count(args.source, params))
         for scene in import_scenes(args.source, params):
             scenes.append(scene)
             bar.update(task, completed=len(scenes))
-    out = Path(args.out)
     paths = [inside(out, out / f"{safe_id(s.scene_id, 'scene id')}.yaml") for s in scenes]
-    out.mkdir(parents=True, exist_ok=True)
+    claim_scene_folder(out, settings, args.force)
     for scene, path in zip(scenes, paths):
         save_scene(scene, path)
     agents = sum(len(s.sensing_ids) for s in scenes)

@@ -3,6 +3,9 @@
 Every command that writes a resumable run folder (``asg generate`` and everything built on the
 generator, ``asg finetune``, ``asg harden``) claims it here: a folder whose record holds other
 settings is refused in one line (``force`` empties it first); a rerun with the same settings resumes.
+So do the commands that write a folder of scene files (``asg scenes extract``, ``asg scenes import``):
+:func:`check_scene_folder` before they read their source, :func:`claim_scene_folder` before the
+first scene is written.
 """
 from __future__ import annotations
 
@@ -32,28 +35,58 @@ def claim(out: Path, settings: dict, force: bool = False, *, what: str = "a run"
     in ``out``; None: the whole folder) first. ``as_today`` fills in a record written before a
     setting existed (its default)."""
     out = Path(out)
-    holds_results = holds_results or (lambda folder: (folder / RUN_RECORD).is_file())
     settings = json.loads(json.dumps(settings))
     if force and out.is_dir():
         for name in ([None] if contents is None else contents):
             p = out if name is None else out / name
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
     output_dir(out)
+    check_claim(out, settings, what=what, holds_results=holds_results, as_today=as_today)
     record = out / RUN_RECORD
-    if record.is_file() and holds_results(out):
-        old = read_record(record)
-        schema_of(SchemaFile.RUN, old, str(record))  # one from a newer asg is refused, not compared
-        diff = first_difference(as_today(unversioned(old)), settings)
-        if diff:
-            raise InputError(f"{out} holds {what} made with other settings ({diff}); give another --out, "
-                             f"or --force to start it over")
-    elif not record.is_file() and holds_results(out):
-        raise InputError(f"{out} holds {what} that recorded no settings; give another --out, or --force")
     try:
         write_text_atomic(record, json.dumps(stamped(SchemaFile.RUN, settings), indent=1, sort_keys=True))
     except OSError as exc:
         raise InputError(f"--out {out}: cannot write in it ({exc.strerror}); give a writable folder") from None
     return settings
+
+
+def check_claim(out: Path, settings: dict, *, what: str = "a run", holds_results: Callable[[Path], bool] | None = None,
+                as_today: Callable[[dict], dict] = lambda record: record) -> None:
+    """What :func:`claim` refuses (without ``force``), refused without writing anything."""
+    out = Path(out)
+    holds_results = holds_results or (lambda folder: (folder / RUN_RECORD).is_file())
+    if not out.is_dir():
+        return
+    record = out / RUN_RECORD
+    if record.is_file() and holds_results(out):
+        old = read_record(record)
+        schema_of(SchemaFile.RUN, old, str(record))  # one from a newer asg is refused, not compared
+        diff = first_difference(as_today(unversioned(old)), json.loads(json.dumps(settings)))
+        if diff:
+            raise InputError(f"{out} holds {what} made with other settings ({diff}); give another --out, "
+                             f"or --force to start it over")
+    elif not record.is_file() and holds_results(out):
+        raise InputError(f"{out} holds {what} that recorded no settings; give another --out, or --force")
+
+
+def _holds_scenes(folder: Path) -> bool:
+    return (folder / RUN_RECORD).is_file() or any(folder.glob("*.yaml"))
+
+
+def check_scene_folder(out: Path, settings: dict, force: bool) -> None:
+    """Refuse (InputError) a folder of scene files written with other settings, or with none recorded
+    (``force``: nothing is refused, :func:`claim_scene_folder` empties it); writes nothing."""
+    if not force:
+        check_claim(out, settings, what="scene files", holds_results=_holds_scenes)
+
+
+def claim_scene_folder(out: Path, settings: dict, force: bool) -> None:
+    """Make ``out`` a folder of scene files written with ``settings`` (its ``run.json``); ``force``
+    removes its scene files (``*.yaml``) and record first. The same settings again: the same files
+    are written again (an interrupted run completes)."""
+    out = Path(out)
+    contents = [RUN_RECORD, *(p.name for p in out.glob("*.yaml"))] if out.is_dir() else []
+    claim(out, settings, force, what="scene files", contents=contents, holds_results=_holds_scenes)
 
 
 def with_defaults(record: dict, defaults: dict) -> dict:
