@@ -146,7 +146,16 @@ class LaneMap:
     # ---- construction ------------------------------------------------------------------------
     @staticmethod
     def from_sumo_net(net_path: str | Path) -> "LaneMap":
-        """Read lanes (including internal junction lanes) and junction shapes from a ``.net.xml``."""
+        """Read lanes (including internal junction lanes) and junction shapes from a ``.net.xml``,
+        each checked as :meth:`Lane.from_dict` and :meth:`Junction.from_dict` check a scene's (a net is
+        a file a user hands in: a NaN in a shape would become scenes that cannot be loaded)."""
+        try:
+            return LaneMap._read_sumo_net(net_path)
+        except InputError as exc:
+            raise InputError(f"{net_path}: {exc}") from None
+
+    @staticmethod
+    def _read_sumo_net(net_path: str | Path) -> "LaneMap":
         root = parse_net_root(net_path)
         lanes: list[Lane] = []
         for edge in root.iter("edge"):
@@ -159,32 +168,23 @@ class LaneMap:
                     continue
                 if "passenger" in lane.get("disallow", "").split():
                     continue
-                xy = _parse_shape(lane.get("shape", ""))
+                where = f"lane {str(lane.get('id'))[:40]!r}"
+                xy = _parse_shape(lane.get("shape", ""), where)
                 if len(xy) < 2:
                     continue
-                lanes.append(
-                    Lane(
-                        lane_id=lane.get("id"),
-                        centerline_xy=xy,
-                        width_m=float(lane.get("width", 3.2)),
-                        speed_mps=float(lane.get("speed", 13.89)),
-                        internal=internal,
-                    )
-                )
+                lanes.append(Lane.from_dict({
+                    "id": lane.get("id"), "centerline": xy, "internal": internal,
+                    "width_m": _number_attribute(lane, "width", 3.2, where),
+                    "speed_mps": _number_attribute(lane, "speed", 13.89, where)}))
         junctions = []
         for j in root.iter("junction"):
-            if j.get("type") in ("internal", "dead_end"):
-                shape = _parse_shape(j.get("shape", ""))
-                if j.get("type") == "internal" or len(shape) < 3:
-                    continue
-            junctions.append(
-                Junction(
-                    junction_id=j.get("id"),
-                    shape_xy=_parse_shape(j.get("shape", "")),
-                    kind=j.get("type", "priority"),
-                    center_xy=(float(j.get("x", 0.0)), float(j.get("y", 0.0))),
-                )
-            )
+            where = f"junction {str(j.get('id'))[:40]!r}"
+            shape = _parse_shape(j.get("shape", ""), where)
+            if j.get("type") in ("internal", "dead_end") and (j.get("type") == "internal" or len(shape) < 3):
+                continue
+            junctions.append(Junction.from_dict({
+                "id": j.get("id"), "shape": shape, "kind": j.get("type", "priority"),
+                "center": [_number_attribute(j, "x", 0.0, where), _number_attribute(j, "y", 0.0, where)]}))
         if not any(not l.internal for l in lanes):
             raise InputError(f"{net_path}: the net has no lanes for cars; give a SUMO net with roads")
         return LaneMap(lanes, junctions)
@@ -341,11 +341,26 @@ def _centerline_steps(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([[0.0], np.cumsum(seg_len)]), np.array(heading)
 
 
-def _parse_shape(text: str) -> np.ndarray:
+def _parse_shape(text: str, where: str) -> np.ndarray:
+    """A SUMO shape ``"x,y[,z] x,y[,z] ..."`` as an (N, 2) array; InputError naming ``where`` if it is not."""
     pts = [p.split(",") for p in text.split()]
     if not pts:
         return np.zeros((0, 2))
-    return np.asarray([[float(p[0]), float(p[1])] for p in pts], dtype=float)
+    try:
+        return np.asarray([[float(p[0]), float(p[1])] for p in pts], dtype=float)
+    except (ValueError, IndexError):
+        raise InputError(f"{where}: shape {text[:40]!r} is not x,y pairs") from None
+
+
+def _number_attribute(elem: ET.Element, name: str, default: float, where: str) -> float:
+    """An element's numeric attribute (``default`` when absent), parsed; range checks are the caller's."""
+    text = elem.get(name)
+    if text is None:
+        return default
+    try:
+        return float(text)
+    except ValueError:
+        raise InputError(f"{where}: {name} {text[:30]!r} is not a number") from None
 
 
 def parse_net_root(net_path: str | Path) -> ET.Element:

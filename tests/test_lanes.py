@@ -1,6 +1,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from asg.scene.agent import footprint_xy
 
@@ -53,3 +54,36 @@ def test_crop_and_dict_round_trip(cross_map):
     assert back.to_dict() == cross_map.to_dict()
     small = cross_map.crop((-60.0, 0.0), 10.0)
     assert {l.lane_id for l in small.lanes} == {"we_0", "ew2_0"}
+
+
+#: a spoiled line of a SUMO net (what is replaced, by what) -> what the one line says
+BAD_NET = {
+    ('shape="', 'shape="nan,'): "centerline: a coordinate is not finite",
+    ('shape="', 'shape="1e300,0 '): "centerline: a coordinate is not finite or beyond",
+    ('shape="', 'shape="x,y '): "is not x,y pairs",
+    ('shape="', 'shape="5 '): "is not x,y pairs",
+    ('speed="', 'width="wide" speed="'): "width 'wide",
+    ('speed="', 'speed="-'): "speed_mps: -",
+}
+
+
+@pytest.mark.parametrize("spoil", sorted(BAD_NET))
+def test_a_spoiled_net_is_refused_in_one_line_naming_it(spoil, tmp_path):
+    """A net is a file a user hands in (``asg simulate --net``, ``asg towns import``): a lane's shape
+    that is not finite x,y pairs, or a width or speed that is not a number in range, is refused
+    naming the file and the lane, instead of a traceback or scenes that cannot be loaded again."""
+    from sumo_scenarios.errors import InputError
+    from sumo_scenarios.lanes import LaneMap
+    from sumo_scenarios.paths import nets_dir
+
+    text = (nets_dir() / "fiveleg.net.xml").read_text()
+    old, new = spoil
+    import re
+
+    lane = next(m for m in re.finditer(r"<lane [^>]*>", text) if old in m.group(0))  # the first lane that has it
+    at = lane.start() + lane.group(0).index(old)
+    path = tmp_path / "spoiled.net.xml"
+    path.write_text(text[:at] + new + text[at + len(old):])
+    with pytest.raises(InputError) as exc:
+        LaneMap.from_sumo_net(path)
+    assert str(exc.value).startswith(f"{path}: lane ") and BAD_NET[spoil] in str(exc.value), str(exc.value)
