@@ -120,8 +120,10 @@ def open_log(path: str | Path) -> TrafficLog:
         try:
             with gzip.open(map_path, "rt", encoding="utf-8") as fh:
                 lane_map = LaneMap.from_dict(json.load(fh))
-        except (OSError, EOFError, json.JSONDecodeError, KeyError) as exc:
+        except (OSError, EOFError, json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
             raise InputError(f"{map_path}: lane file unreadable ({type(exc).__name__}); re-run 'asg simulate'") from None
+        except InputError as exc:
+            raise InputError(f"{map_path}: {exc}") from None
     buildings = tuple(read_buildings(directory / meta.buildings_file))
     rsus = tuple(RoadsideUnit.from_dict(r, f"{where} rsus[{i}]") for i, r in enumerate(meta.rsus))
     return TrafficLog(directory, meta, lane_map, buildings, rsus)

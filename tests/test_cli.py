@@ -136,6 +136,21 @@ def test_a_spoiled_log_folder_is_one_line_and_writes_nothing(spoil, capsys, tmp_
     assert not (tmp_path / "a").exists() and not (tmp_path / "escaped.yaml").exists()
 
 
+@pytest.mark.parametrize("lanes", ['{"lanes": [1]}', '[1, 2]', '{"lanes": {"a": 1}}'])
+def test_a_malformed_lane_file_is_one_line(lanes, capsys, tmp_path, sumo_log):
+    """A highway-env log's lanes.json.gz of the wrong structure: one line naming it."""
+    import gzip
+    import shutil
+
+    log = shutil.copytree(sumo_log, tmp_path / "log")
+    meta = (log / "meta.yaml").read_text()
+    (log / "meta.yaml").write_text(meta.replace("map_file: map.net.xml", "map_file: lanes.json.gz"))
+    (log / "lanes.json.gz").write_bytes(gzip.compress(lanes.encode()))
+    code, err = run(capsys, "scenes", "extract", str(log), "--out", str(tmp_path / "s"))
+    assert code == 2
+    assert_one_line_error(err, "lanes.json.gz: lane file unreadable")
+
+
 def test_a_scene_folder_of_other_settings_is_refused_and_force_replaces_it(capsys, tmp_path, sumo_log):
     """Extracting into a folder of scenes made with other settings would mix two sets silently:
     refused in one line, nothing changed; the same settings again write the same files; --force
