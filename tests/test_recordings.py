@@ -417,6 +417,21 @@ def test_an_import_into_a_folder_of_other_settings_is_refused(recorded, capsys, 
     assert run(capsys, "scenes", "import", str(export_dir), "--out", str(out), "--every", "3", "--force")[0] == 0
 
 
+@pytest.mark.skipif(not Path("/dev/zero").exists(), reason="needs /dev/zero")
+def test_a_scene_naming_a_device_as_its_scan_is_refused_not_read(recorded):
+    """A scene file names its scans by path: one that names an endless device is one line, not a
+    read until memory runs out."""
+    from asg.scene.recording import Recording
+
+    _, _, imported, _ = recorded
+    views = dict(imported.recording.views)
+    views[imported.ego_id] = replace(views[imported.ego_id], cloud="/dev/zero")
+    spoiled = replace(imported, recording=replace(imported.recording, views=views))
+    assert isinstance(spoiled.recording, Recording)
+    with pytest.raises(InputError, match="not a regular file"):
+        simulate_frame(spoiled, SPEC)
+
+
 def test_a_changed_scan_is_refused_when_the_scene_is_rendered(recorded, tmp_path):
     scene, export_dir, _, _ = recorded
     src = _copy(export_dir, tmp_path / "src")

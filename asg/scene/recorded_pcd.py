@@ -59,12 +59,15 @@ def read_recorded_pcd(path: Path, sha256: str | None = None) -> np.ndarray:
 
 def read_recorded_pcd_with_digest(path: Path) -> tuple[np.ndarray, str]:
     """(:func:`read_recorded_pcd`'s cloud, the sha256 of the file's bytes), the file read once."""
-    path = Path(path)
+    path, most = Path(path), MAX_CLOUD_POINTS * 64 + MAX_HEADER_BYTES
     try:
-        data = path.read_bytes() if path.stat().st_size <= MAX_CLOUD_POINTS * 64 + MAX_HEADER_BYTES else None
+        if path.exists() and not path.is_file():  # a device or a pipe (a scene file names any path)
+            raise InputError(f"{path}: not a regular file; not a recorded scan")
+        with path.open("rb") as fh:
+            data = fh.read(most + 1)  # never more: a file may grow, or lie about its size
     except OSError as exc:
         raise InputError(f"{path}: cannot be read ({exc.strerror}); check the recording") from None
-    if data is None:
+    if len(data) > most:
         raise InputError(f"{path}: larger than a scan of {MAX_CLOUD_POINTS} points can be; not a recorded scan")
     return _parsed(data, path), hashlib.sha256(data).hexdigest()
 
