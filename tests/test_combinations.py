@@ -3,10 +3,13 @@
 Each combination of ``asg generate`` either writes its scene, whose final state the independent
 re-check finds plausible at the asked level, or is refused in one line with exit 2 before any
 scene is computed (and then only where the combination cannot work: latency on a log recorded
-less often than its delays).
+less often than its delays or on a recording, whose past is not imported; lanes read from a
+recording imported without its town's map).
+The sources: a town, a net, scene folders of a SUMO and of a highway-env log, and the SUMO scene
+exported to OPV2V's layout and imported back as a recording, without and with its town's map.
 ``-m slow`` (CI) runs a pairwise cover (every pair of values of two options appears in some run)
 on one and two workers, and a run of Ray with every value of each other option;
-``-m exhaustive`` runs the whole product, Ray included (about 25 minutes on two cores).
+``-m exhaustive`` runs the whole product, Ray included.
 """
 import itertools
 import json
@@ -20,7 +23,7 @@ from sumo_scenarios.paths import nets_dir
 
 from test_cli import assert_one_line_error
 
-SOURCES = ("town", "net", "sumo-scenes", "highway-scenes")
+SOURCES = ("town", "net", "sumo-scenes", "highway-scenes", "recording", "recording-map")
 SPACES = ("poses", "insert", "pose-error", "latency", "dropout", "poses,insert,pose-error,latency,dropout")
 LEVELS = ("paper", "traffic")
 EXECUTORS = ("one", "two")
@@ -42,9 +45,12 @@ def _pairwise() -> list[tuple[str, str, str, str]]:
 @pytest.fixture(scope="module")
 def scene_folders(tmp_path_factory, highway_log):
     """Scenes of a SUMO log recorded every 0.1 s (a later frame: latency reaches back) and of the
-    highway-env log (recorded every 0.5 s), each one scene with an RSU ego and two collaborators."""
+    highway-env log (recorded every 0.5 s), each one scene with an RSU ego and two collaborators;
+    the SUMO scene as a recording in OPV2V's layout, imported without and with its town's map."""
     from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
+    from asg.io.export import export
     from asg.scene.from_log import ExtractParams, extract_scenes
+    from asg.scene.from_opv2v import ImportParams, import_scenes
 
     root = tmp_path_factory.mktemp("combos")
     log = root / "log"
@@ -55,7 +61,23 @@ def scene_folders(tmp_path_factory, highway_log):
         scenes = list(extract_scenes(logs, ExtractParams(every=every, min_vehicles=3, collaborators=2)))
         folders[name] = root / name
         save_scene(scenes[-1], folders[name] / f"{scenes[-1].scene_id}.yaml")
+    assert export(folders["sumo-scenes"], "opv2v", root / "opv2v") == 1
+    for name, town_map in (("recording", None), ("recording-map", nets_dir() / "grid_small.net.xml")):
+        (recorded,) = import_scenes(root / "opv2v", ImportParams(map=town_map))
+        folders[name] = root / name
+        save_scene(recorded, folders[name] / f"{recorded.scene_id}.yaml")
     return folders
+
+
+def _refusal(source: str, space: str, level: str) -> str | None:
+    """What the one line says where a combination cannot work (None: it runs)."""
+    if source == "recording" and ("insert" in space or level == "traffic"):
+        return "has no lanes (a recording imported without --map)"
+    if source.startswith("recording") and "latency" in space:
+        return "earlier frames are not imported"
+    if source == "highway-scenes" and "latency" in space:  # its log records every 0.5 s > the 0.4 s delays
+        return "records every 0.5 s"
+    return None
 
 
 def _argv(source, space, level, executor, folders, out):
@@ -70,9 +92,10 @@ def _check(capsys, tmp_path, folders, source, space, level, executor):
     out = tmp_path / "run"
     code = main(_argv(source, space, level, executor, folders, out))
     err = capsys.readouterr().err
-    if source == "highway-scenes" and "latency" in space:  # its log records every 0.5 s > the 0.4 s delays
-        assert code == 2 and not out.exists()  # refused before any scene, nothing left behind
-        assert_one_line_error(err, "records every 0.5 s")
+    refusal = _refusal(source, space, level)
+    if refusal:
+        assert code == 2 and not out.exists(), err  # refused before any scene, nothing left behind
+        assert_one_line_error(err, refusal)
         return
     assert code == 0, err
     entry = json.loads((out / "summary.json").read_text())["scenes"][0]
