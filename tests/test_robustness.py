@@ -1048,3 +1048,23 @@ def test_a_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeyp
     finally:
         signal.signal(signal.SIGINT, previous)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_pipe_beside_a_users_weights_is_not_read(tmp_path):
+    """The model card beside ``--weights NAME.pt`` (NAME.json) is read for the LiDAR it was trained
+    for: a pipe there would block the read forever; it is skipped as no card."""
+    import shutil
+
+    from asg.perception.weights_io import weights_path
+    from asg.training.cards import lidar_of_weights
+
+    import threading
+
+    weights = shutil.copy(weights_path("attfuse"), tmp_path / "mine.pt")
+    os.mkfifo(tmp_path / "mine.json")
+    found = []
+    reader = threading.Thread(target=lambda: found.append(lidar_of_weights(weights)), daemon=True)
+    reader.start()
+    reader.join(30)  # a blocked read would hold the suite: the thread is left behind instead
+    assert not reader.is_alive() and found == [None]

@@ -10,6 +10,7 @@ from typing import Callable
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
+from ..io.json_file import read_json
 from ..perception.fusion import card_settings_of, fusions_of, weights_names
 from ..perception.weights_io import WEIGHTS_DIR
 from ..sensors.lidar_spec import DEFAULT_LIDAR
@@ -45,10 +46,11 @@ def trained_lidar(chunks: list[dict]) -> str:
 
 def lidar_of_weights(weights: Path) -> str | None:
     """The LiDAR preset the model card beside ``weights`` (NAME.json next to NAME.pt, as asg train
-    writes it) records them trained for; None without a readable card."""
+    writes it) records them trained for; None without a readable card (a missing one, a link, a
+    pipe or a device beside a user's weights is never read: asg.io.json_file)."""
     try:
-        card = json.loads(Path(weights).with_suffix(".json").read_text())
-    except (OSError, ValueError):
+        card = read_json(Path(weights).with_suffix(".json"), "the model card")
+    except InputError:
         return None
     lidar = card.get("lidar") if isinstance(card, dict) else None
     return lidar if isinstance(lidar, str) else None

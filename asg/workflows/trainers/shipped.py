@@ -12,6 +12,7 @@ from typing import Callable
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.errors import InputError
 
+from ...io.json_file import read_json
 from ...perception.targets import Training
 from .chunk import fit_chunk, mixed_sources
 from ..harden_stage import build_stage_set, stage_config, stage_of_round
@@ -113,8 +114,8 @@ class ShippedRoundTrainer(RoundTrainer):
 
 def _card_weights(card_path: Path, given: Path) -> Path:
     """The weights a harden card keeps: its last kept round's, else its start's."""
+    card = read_json(card_path, "the harden card (asg harden writes OUT/card.json)")
     try:
-        card = json.loads(card_path.read_text())
         card["rounds"][0]  # a card with a finished round
         kept = [r for r in card["rounds"] if is_kept(r)]
         return card_path.parent / kept[-1]["weights"] if kept else Path(card["start"]["weights"])
