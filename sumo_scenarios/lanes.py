@@ -149,14 +149,17 @@ class LaneMap:
         """Read lanes (including internal junction lanes) and junction shapes from a ``.net.xml``,
         each checked as :meth:`Lane.from_dict` and :meth:`Junction.from_dict` check a scene's (a net is
         a file a user hands in: a NaN in a shape would become scenes that cannot be loaded)."""
+        root = parse_net_root(net_path)
         try:
-            return LaneMap._read_sumo_net(net_path)
+            lane_map = LaneMap._from_net_root(root)
         except InputError as exc:
             raise InputError(f"{net_path}: {exc}") from None
+        if not any(not lane.internal for lane in lane_map.lanes):
+            raise InputError(f"{net_path}: the net has no lanes for cars; give a SUMO net with roads")
+        return lane_map
 
     @staticmethod
-    def _read_sumo_net(net_path: str | Path) -> "LaneMap":
-        root = parse_net_root(net_path)
+    def _from_net_root(root: ET.Element) -> "LaneMap":
         lanes: list[Lane] = []
         for edge in root.iter("edge"):
             internal = edge.get("function") == "internal"
@@ -185,8 +188,6 @@ class LaneMap:
             junctions.append(Junction.from_dict({
                 "id": j.get("id"), "shape": shape, "kind": j.get("type", "priority"),
                 "center": [_number_attribute(j, "x", 0.0, where), _number_attribute(j, "y", 0.0, where)]}))
-        if not any(not l.internal for l in lanes):
-            raise InputError(f"{net_path}: the net has no lanes for cars; give a SUMO net with roads")
         return LaneMap(lanes, junctions)
 
     def to_dict(self) -> dict:
