@@ -46,10 +46,10 @@ def trained_lidar(chunks: list[dict]) -> str:
 
 def lidar_of_weights(weights: Path) -> str | None:
     """The LiDAR preset the model card beside ``weights`` (NAME.json next to NAME.pt, as asg train
-    writes it) records them trained for; None without a readable card (a missing one, a link, a
-    pipe or a device beside a user's weights is never read: asg.io.json_file)."""
+    writes it) records them trained for; None without a readable card (a missing one, or a pipe
+    or a device beside a user's weights, is never read: asg.io.json_file; a link is followed)."""
     try:
-        card = read_json(Path(weights).with_suffix(".json"), "the model card")
+        card = read_json(Path(weights).with_suffix(".json").resolve(), "the model card")
     except InputError:
         return None
     lidar = card.get("lidar") if isinstance(card, dict) else None

@@ -113,7 +113,9 @@ class ShippedRoundTrainer(RoundTrainer):
 
 
 def _card_weights(card_path: Path, given: Path) -> Path:
-    """The weights a harden card keeps: its last kept round's, else its start's."""
+    """The weights a harden card keeps: its last kept round's (beside the card, a link followed),
+    else its start's."""
+    card_path = Path(card_path).resolve()
     card = read_json(card_path, "the harden card (asg harden writes OUT/card.json)")
     try:
         card["rounds"][0]  # a card with a finished round
