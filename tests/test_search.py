@@ -197,7 +197,38 @@ def test_nevergrad_takes_a_batch():
 
 
 def test_bo_puts_candidates_in_the_gps_units_as_skopt_does():
+    from skopt.space import Space
+    from skopt.utils import normalize_dimensions
+
     opt = build_optimizer("bo", 9, 50, np.random.default_rng(0))
     pts = np.random.default_rng(1).uniform(-1, 1, (500, 9))
     pts[0], pts[1] = -1.0, 1.0
-    assert np.array_equal(opt._unit(pts), np.asarray(opt.opt.space.transform(pts.tolist())))
+    space = Space(normalize_dimensions([(-1.0, 1.0)] * 9))  # what skopt's Optimizer fits its GP in
+    assert np.array_equal(opt._unit(pts), np.asarray(space.transform(pts.tolist())))
+
+
+@pytest.mark.parametrize("batch", [1, 5])
+def test_bo_fits_its_gp_as_skopts_optimizer_does(batch):
+    """The GP fitted directly (each told point in skopt's units, the kernel refitted every
+    refit_every tells and held between) is the one skopt's Optimizer fits from the same tells: the
+    same predictions to the bit, so the same search."""
+    from sklearn.base import clone
+    from skopt import Optimizer as SkOptimizer
+
+    rng = np.random.default_rng(3)
+    opt = build_optimizer("bo", 9, 40, np.random.default_rng(7), n_initial=10, refit_every=3, batch=batch)
+    sk = SkOptimizer([(-1.0, 1.0)] * 9, base_estimator=clone(opt._base), n_initial_points=10, acq_func="LCB",
+                     acq_optimizer="sampling", acq_optimizer_kwargs={"n_points": 1}, random_state=0)
+    probe = opt._unit(rng.uniform(-1, 1, (200, 9)))
+    for k in range(25):
+        x, loss = rng.uniform(-1, 1, 9), float(rng.normal())
+        fitting = k + 1 - 10
+        sk.base_estimator_.set_params(optimizer="fmin_l_bfgs_b" if fitting <= 0 or fitting % 3 == 0 else None)
+        sk.tell([float(v) for v in x], loss)
+        opt.tell(x, loss)
+        if sk.models:
+            sk.base_estimator_.set_params(kernel=sk.models[-1].kernel_)
+            mean, std = opt._model.predict(probe, return_std=True)
+            sk_mean, sk_std = sk.models[-1].predict(probe, return_std=True)
+            assert np.array_equal(mean, sk_mean) and np.array_equal(std, sk_std), k
+    assert opt._model is not None and len(sk.models) == 16
