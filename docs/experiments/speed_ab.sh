@@ -3,7 +3,7 @@
 # rounds, one JSON line each into OUT (from the repository root, after make setup).
 # usage: docs/experiments/speed_ab.sh OLD_COMMIT ROUNDS OUT.jsonl
 set -euo pipefail
-old=$1; rounds=$2; out=$3; here=$(pwd); tree=$(mktemp -d)/old
+old=$1; rounds=$2; out=$(realpath -m "$3"); here=$(pwd); tree=$(mktemp -d)/old
 git worktree add -q "$tree" "$old"
 trap 'git worktree remove --force "$tree"' EXIT
 : > "$out"
