@@ -1,9 +1,10 @@
 """One side of the BO scene A/B: run with PYTHONPATH set to a checkout of the commit measured
-(docs/experiments/bo_scene_ab.sh alternates two). Prints JSON: the median seconds a scene of
+(`docs/experiments/speed_ab.sh OLD ROUNDS OUT.jsonl docs/experiments/bo_scene_ab.py` alternates
+two). Prints JSON: the tree, the median seconds a scene of
 AttFuse + ACS-A + BO-50 over SCENES scenes of `normal` after a warm-up one (one process, two
 threads: `asg bench generate`'s setting), the median of the optimiser's ask and tell time a scene,
 and a digest of every search history (the two sides must agree on it).
-usage: PYTHONPATH=TREE .venv/bin/python docs/experiments/bo_scene_ab.py LABEL [SCENES]
+usage: PYTHONPATH=TREE .venv/bin/python docs/experiments/bo_scene_ab.py [SCENES]
 """
 import hashlib
 import itertools
@@ -11,17 +12,19 @@ import json
 import statistics
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
+import asg
 from asg.datasets import scenes_of
 from asg.generator.config import load_generate_config
 from asg.generator.pipeline import Generator
 from asg.perception import build_detector
 
 
-def main(label: str, count: int) -> None:
+def main(count: int) -> None:
     torch.set_num_threads(2)
     cfg = load_generate_config(fusion="attfuse", search="bo", acs="attention", budget=50)
     det = build_detector("attfuse")
@@ -36,10 +39,10 @@ def main(label: str, count: int) -> None:
         optimizer.append(sum(result.bo_overhead_s))
         digest.update(np.array([e.loss for e in result.history]).tobytes())
         digest.update(np.array([e.x for e in result.history]).tobytes())
-    print(json.dumps({"tree": label, "scenes": count, "median_s": round(statistics.median(seconds), 3),
+    print(json.dumps({"tree": str(Path(asg.__file__).parent.parent), "scenes": count, "median_s": round(statistics.median(seconds), 3),
                       "optimizer_s_per_scene": round(statistics.median(optimizer), 3),
                       "history_digest": digest.hexdigest()[:16]}))
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 5)
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 5)
