@@ -22,8 +22,9 @@ class BayesianOptimization(Optimizer):
 
     The GP is fitted here as skopt's ``Optimizer.tell`` fits it (a clone of the base GP, the told
     points in its [0, 1] units, the losses as told; the same numbers), without the rest of what
-    that tell does (its own sampling of next points, which this search does not use). Its kernel's hyperparameters are refitted (L-BFGS) every ``refit_every`` tells and held
-    fixed in between (the GP itself is still updated with every observation).
+    that tell does (its own sampling of next points, which this search does not use). Its kernel's
+    hyperparameters are refitted (L-BFGS) every ``refit_every`` tells and held fixed in between
+    (the GP itself is still updated with every observation).
 
     Batches (``batch`` > 1): after the random start, ``batch`` candidates are proposed before their
     losses are told, by the constant liar (``cl_min``, as skopt's ``ask(n_points)``): each point
