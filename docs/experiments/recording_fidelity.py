@@ -91,11 +91,17 @@ def detections(target, frame) -> tuple:
     return boxes, scores, gt[in_range(gt)]
 
 
-def measure_scene(native, folder: Path, targets: dict, rng: np.random.Generator) -> dict:
+def round_trip(native, folder: Path) -> tuple:
+    """(``native`` exported to OPV2V in ``folder`` and imported back, {native id: OPV2V id})."""
     save_scene(native, folder / "native" / f"{native.scene_id}.yaml")
     export(folder / "native", "opv2v", folder / "export")
     (imported,) = import_scenes(folder / "export")
     ids = {k: str(v) for k, v in yaml.safe_load((folder / "export" / native.scene_id / "ids.yaml").read_text())["ids"].items()}
+    return imported, ids
+
+
+def measure_scene(native, folder: Path, targets: dict, rng: np.random.Generator) -> dict:
+    imported, ids = round_trip(native, folder)
     moved = one_move(native, rng)
     edited_moves = {ids[k]: replace(v, agent_id=ids[k]) for k, v in moved.items()}
     sim = render_frame(world_for(native, SPEC, movable_ids=moved), moved=moved)

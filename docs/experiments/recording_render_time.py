@@ -18,18 +18,14 @@ from itertools import islice
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from asg.datasets import scenes_of
 from asg.generator.config import GenerateConfig
-from asg.io.export import export
-from asg.scene import save_scene
-from asg.scene.from_opv2v import import_scenes
 from asg.scene.neighbours import with_nearest_collaborators
 from asg.search import FeasibleSet, SearchSpace
 from asg.sensors import load_lidar_spec, render_frame, world_for
 from asg.sensors.recorded import RecordedWorld
-from recording_fidelity import one_move
+from recording_fidelity import one_move, round_trip
 
 SPEC = load_lidar_spec()
 MOVES = 20
@@ -40,11 +36,7 @@ def cases(set_name: str, count: int, folder: Path) -> list[tuple]:
     rng, out = np.random.default_rng(0), []
     for i, scene in enumerate(islice(scenes_of(set_name), count)):
         native = with_nearest_collaborators(scene, 2)
-        save_scene(native, folder / str(i) / "native" / f"{native.scene_id}.yaml")
-        export(folder / str(i) / "native", "opv2v", folder / str(i) / "export")
-        (imported,) = import_scenes(folder / str(i) / "export")
-        ids = {k: str(v) for k, v in yaml.safe_load((folder / str(i) / "export" / native.scene_id / "ids.yaml")
-                                                    .read_text())["ids"].items()}
+        imported, ids = round_trip(native, folder / str(i))
         movers = list(one_move(native, rng))
         if not movers:
             continue
