@@ -5,7 +5,6 @@ import argparse
 from dataclasses import asdict
 from pathlib import Path
 
-from sumo_scenarios.checks import inside, safe_id
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.log import NEAR_RADIUS_M
 
@@ -13,7 +12,7 @@ from ..cli_args import COUNT, whole
 from ..io.run_record import check_scene_folder, claim_scene_folder
 from ..progress import console
 from ..scene.from_log import EGO_KINDS, ExtractParams, extract_scenes
-from ..scene.scene import save_scene
+from ..scene.scene import save_scene, scene_file
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     for scene in extract_scenes(args.log, params):
         if n == 0:  # the log is readable: the folder becomes this extraction's
             claim_scene_folder(out, settings, args.force)
-        save_scene(scene, inside(out, out / f"{safe_id(scene.scene_id, 'scene id')}.yaml"))
+        save_scene(scene, scene_file(out, scene))
         n += 1
     if n == 0:
         raise InputError(f"{args.log}: no frame had an ego with {args.min_vehicles}+ vehicles within {NEAR_RADIUS_M:g} m; "

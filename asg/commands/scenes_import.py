@@ -6,14 +6,12 @@ import argparse
 from dataclasses import asdict
 from pathlib import Path
 
-from sumo_scenarios.checks import inside, safe_id
-
 from ..cli_args import COUNT
 from ..io.run_record import check_scene_folder, claim_scene_folder
 from ..progress import console, progress_bar
 from ..scene.from_opv2v import ImportParams, import_scenes, planned_count
 from ..scene.recording import RecordingFormat
-from ..scene.scene import save_scene
+from ..scene.scene import save_scene, scene_file
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         for scene in import_scenes(args.source, params):
             scenes.append(scene)
             bar.update(task, completed=len(scenes))
-    paths = [inside(out, out / f"{safe_id(s.scene_id, 'scene id')}.yaml") for s in scenes]
+    paths = [scene_file(out, s) for s in scenes]
     claim_scene_folder(out, settings, args.force)
     for scene, path in zip(scenes, paths):
         save_scene(scene, path)

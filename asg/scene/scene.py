@@ -197,6 +197,13 @@ def _items(value, key: str) -> list:
     return value
 
 
+def scene_file(folder: Path, scene: Scene) -> Path:
+    """``folder/SCENE_ID.yaml``, refused (InputError) unless the id is a safe name and the file
+    stays inside ``folder``."""
+    folder = Path(folder)
+    return checks.inside(folder, folder / f"{checks.safe_id(scene.scene_id, 'scene id')}.yaml")
+
+
 def save_scene(scene: Scene, path: str | Path) -> None:
     """Write the scene as YAML, atomically."""
     write_text_atomic(path, yaml.dump(scene.to_dict(), Dumper=_dumper(), sort_keys=False, default_flow_style=None))
