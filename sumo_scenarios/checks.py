@@ -26,6 +26,9 @@ MAX_SPEED_MPS = 150.0
 
 #: ids that become file or folder names: letters, digits and ``_ - . # : +``, not starting with a dot
 _SAFE_ID = re.compile(r"[A-Za-z0-9_\-#:+][A-Za-z0-9_.\-#:+]{0,127}")
+#: a class label (a vehicle's type): no whitespace and none of the characters SUMO refuses in a
+#: type id (``| \\ ' " ; , < > &``), at most 128 characters; empty: no type given
+_LABEL = re.compile(r"[^\s|\\'\";,<>&]{0,128}")
 
 
 def number(value: Any, where: str, lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False) -> float:
@@ -75,10 +78,27 @@ def is_safe_id(text: str) -> bool:
 def safe_id(value: Any, where: str) -> str:
     """An id that may become a file or folder name: refused if it could leave its folder
     (``/``, ``..``, an absolute path), is hidden, empty, over 128 characters or has other characters."""
+    if value is None or isinstance(value, bool):
+        raise InputError(f"{where}: id {value!r} is not a name; give the id as text")
     text = str(value)
     if not is_safe_id(text):  # the whole text: "$" would accept a final newline
         raise InputError(f"{where}: id {text[:60]!r} is not a safe name (letters, digits and _ - . # : + "
                          f"only, at most 128, not starting with a dot); rename it")
+    return text
+
+
+def is_label(text: str) -> bool:
+    """Could ``text`` be a vehicle type's name in SUMO and in the files asg writes (see :func:`label`)?"""
+    return bool(_LABEL.fullmatch(text))
+
+
+def label(value: Any, where: str) -> str:
+    """A vehicle type's name as text, refused if SUMO could not take it as a type id (whitespace,
+    ``| \\ ' " ; , < > &``) or it is over 128 characters; empty is no type (a car-like mesh)."""
+    text = "" if value is None else str(value)
+    if isinstance(value, bool) or not is_label(text):
+        raise InputError(f"{where}: type {text[:60]!r} is not a type name (no spaces or | \\ ' \" ; , < > &, "
+                         "at most 128 characters); rename it")
     return text
 
 

@@ -14,12 +14,12 @@ import gzip
 import math
 import xml.etree.ElementTree as ET
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator
 
 from .atomic import atomic_path
-from .checks import MAX_ABS_Z_M, MAX_COORD_M, MAX_SPEED_MPS, is_safe_id
+from .checks import MAX_ABS_Z_M, MAX_COORD_M, MAX_SPEED_MPS, is_label, is_safe_id
 from .errors import InputError
 from .geometry import wrap_rad
 
@@ -97,16 +97,16 @@ def read_fcd(path: str | Path) -> Iterator[FcdFrame]:
             _, root = next(context)
             if root.tag != "fcd-export":
                 raise InputError(f"{p}: not an fcd-output log (root <{root.tag}>); give SUMO fcd-output")
-            safe_ids: set[str] = set()  # ids already checked (a vehicle stays in many frames)
+            checked = _Checked()  # ids and types already checked (a vehicle stays in many frames)
             for event, elem in context:
                 if event == "end" and elem.tag == "timestep":
-                    yield _frame(elem, p, safe_ids)
+                    yield _frame(elem, p, checked)
                     root.clear()
     except (ET.ParseError, EOFError, zlib.error, gzip.BadGzipFile, StopIteration) as exc:
         raise InputError(f"{p}: traffic log is truncated or corrupt ({type(exc).__name__}); re-run 'asg simulate'") from None
 
 
-def _frame(elem: ET.Element, path: Path, safe_ids: set[str]) -> FcdFrame:
+def _frame(elem: ET.Element, path: Path, checked: "_Checked") -> FcdFrame:
     """One ``<timestep>``; InputError naming the file, the time and the first vehicle it refuses."""
     try:
         time_s = float(elem.get("time"))
@@ -118,25 +118,37 @@ def _frame(elem: ET.Element, path: Path, safe_ids: set[str]) -> FcdFrame:
     vehicles = []
     for v in elem.iter("vehicle"):
         try:
-            vehicles.append(_vehicle(v, safe_ids))
+            vehicles.append(_vehicle(v, checked))
         except (TypeError, ValueError):
             raise InputError(f"{path}: at time {time_s:g}: {_problem(v)}; fix the log or re-run 'asg simulate'") from None
     return FcdFrame(time_s, tuple(vehicles))
 
 
-def _vehicle(v: ET.Element, safe_ids: set[str]) -> FcdVehicle:
+@dataclass
+class _Checked:
+    """The vehicle ids and types a log's reader has accepted so far."""
+
+    ids: set[str] = field(default_factory=set)
+    types: set[str] = field(default_factory=set)
+
+
+def _vehicle(v: ET.Element, checked: _Checked) -> FcdVehicle:
     """One ``<vehicle>``; TypeError or ValueError if :func:`_problem` finds something wrong."""
     get = v.get
     x, y, z, angle, speed, slope = [float(get(name, default)) for name, default in _ATTRIBUTES]  # None: TypeError
     if not (_LO[0] <= x <= _HI[0] and _LO[1] <= y <= _HI[1] and _LO[2] <= z <= _HI[2]  # NaN fails too
             and _LO[3] <= angle <= _HI[3] and _LO[4] <= speed <= _HI[4] and _LO[5] <= slope <= _HI[5]):
         raise ValueError
-    vehicle_id = get("id")
-    if vehicle_id not in safe_ids:
+    vehicle_id, type_id = get("id"), get("type", "")
+    if vehicle_id not in checked.ids:
         if vehicle_id is None or not is_safe_id(vehicle_id):
             raise ValueError
-        safe_ids.add(vehicle_id)
-    return FcdVehicle(vehicle_id, x, y, z, angle, get("type", ""), speed, get("lane", ""), slope)
+        checked.ids.add(vehicle_id)
+    if type_id not in checked.types:
+        if not is_label(type_id):
+            raise ValueError
+        checked.types.add(type_id)
+    return FcdVehicle(vehicle_id, x, y, z, angle, type_id, speed, get("lane", ""), slope)
 
 
 def _problem(v: ET.Element) -> str:
@@ -147,6 +159,8 @@ def _problem(v: ET.Element) -> str:
     where = f"vehicle {vehicle_id[:40]!r}"
     if not is_safe_id(vehicle_id):
         return f"{where}: its id is not a safe name (letters, digits and _ - . # : + only, at most 128)"
+    if not is_label(v.get("type", "")):
+        return f"{where}: its type {v.get('type')[:40]!r} is not a type name (no spaces or | \\ ' \" ; , < > &)"
     for name, default, lo, hi in _NUMBERS:
         text = v.get(name)
         if text is None:

@@ -251,6 +251,57 @@ def test_sumo_routes_continue_in_sumo(scenes_dir, tmp_path):
     assert set(states) == {a.agent_id for a in scene.vehicles}
 
 
+def _resized(scene, sizes_m):
+    """``scene`` with its first vehicles made cars of the given (length, width, height) each."""
+    from dataclasses import replace
+
+    from asg.scene import Scene
+
+    vehicles = sorted(scene.vehicles, key=lambda a: a.agent_id)[:len(sizes_m)]
+    new = {a.agent_id: replace(a, type_id="car", length_m=s[0], width_m=s[1], height_m=s[2])
+           for a, s in zip(vehicles, sizes_m)}
+    d = scene.to_dict()
+    d["agents"] = [new[a["id"]].to_dict() if a["id"] in new else a for a in d["agents"]]
+    return Scene.from_dict(d), sorted(new)
+
+
+def test_vehicles_of_one_type_keep_their_own_sizes_in_sumo(scenes_dir, tmp_path):
+    """A recording's cars share a type and differ in size: each keeps its own length, width and
+    height in the routes and in SUMO's own state (one vType a size), not the first car's."""
+    import sumolib
+
+    _, scenes = scenes_dir
+    sizes = [(4.2, 1.8, 1.5), (5.1, 2.0, 1.6), (4.2, 1.8, 1.5)]
+    scene, ids = _resized(scenes[1], sizes)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    save_scene(scene, folder / f"{scene.scene_id}.yaml")
+    export(folder, "sumo", tmp_path / "out")
+    routes = str(tmp_path / "out" / f"{scene.scene_id}.rou.xml")
+    vtypes = {t.id: (float(t.length), float(t.width), float(t.height)) for t in sumolib.xml.parse(routes, "vType")}
+    of = {v.id: v.type for v in sumolib.xml.parse(routes, "vehicle")}
+    assert [vtypes[of[i]] for i in ids] == sizes and len({of[i] for i in ids}) == 2
+    state = str(tmp_path / "out" / f"{scene.scene_id}.state.xml")
+    in_state = {t.id: float(t.length) for t in sumolib.xml.parse(state, "vType") if t.id in vtypes}
+    assert [in_state[of[i]] for i in ids] == [s[0] for s in sizes]
+
+
+def test_a_scene_sumo_refuses_leaves_none_of_its_files_and_says_why(capsys, scenes_dir, tmp_path, monkeypatch):
+    """SUMO's first error is the one line, and the scene's routes and config are not left behind
+    half done (its state file never came)."""
+    from sumo_scenarios import sumo_tools
+
+    folder, scenes = scenes_dir
+    fake = tmp_path / "sumo"
+    fake.write_text("#!/bin/sh\necho 'Error: the cause' >&2\necho 'Quitting (on error).' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    monkeypatch.setattr(sumo_tools, "binary", lambda name: str(fake))
+    code, err = run(capsys, "export", str(folder), "--format", "sumo", "--out", str(tmp_path / "out"))
+    assert code == 2
+    assert_one_line_error(err, "SUMO could not load the exported routes (Error: the cause)")
+    assert not [p.name for p in (tmp_path / "out").iterdir() if p.suffix in (".xml", ".sumocfg")]
+
+
 def test_unsafe_or_bad_export_input_is_one_line(capsys, scenes_dir, tmp_path):
     folder, _ = scenes_dir
     bad = tmp_path / "bad"

@@ -54,13 +54,15 @@ BAD_VEHICLES = {
     '<vehicle id="../../evil" x="1.0" y="2.0"/>': "not a safe name",
     '<vehicle id="v1" x="1.0" y="2.0" speed="1e9"/>': "speed 1e+09 is out of range",
     '<vehicle id="v1" x="1.0" y="2.0" angle="-inf"/>': "angle -inf is not a finite number",
+    '<vehicle id="v1" x="1.0" y="2.0" type="a b&lt;c"/>': "its type 'a b<c' is not a type name",
 }
 
 
 @pytest.mark.parametrize("bad", sorted(BAD_VEHICLES))
 def test_a_vehicle_with_a_bad_attribute_is_refused_in_one_line_naming_it(bad, tmp_path):
     """A log is a file a user hands in: the reader refuses what a scene could not hold (an id that
-    is no safe file name, a number that is missing, not finite or out of range), naming the vehicle
+    is no safe file name, a type SUMO could not take back, a number that is missing, not finite or
+    out of range), naming the vehicle
     and the time, instead of a traceback or a scene that cannot be loaded again."""
     path = tmp_path / "fcd.xml"
     path.write_text(f'<fcd-export><timestep time="0.00">{VEHICLE}</timestep>'

@@ -88,6 +88,8 @@ HOSTILE = {
     "one-point lane": lambda d: d["lanes"]["lanes"][0].update(centerline=[[0.0, 0.0]]),
     "one-point building": lambda d: d.update(buildings=[{"id": "b", "height_m": 5.0, "footprint": [[1.0, 1.0]]}]),
     "string as number": lambda d: _agent(d, 3).update(x_m="12 m"),
+    "type SUMO refuses": lambda d: _agent(d, 3).update(type='a "b"'),
+    "null id": lambda d: _agent(d, 3).update(id=None),
     "list-shaped scene": lambda d: d.clear(),
 }
 

@@ -62,7 +62,8 @@ class Agent:
     @staticmethod
     def from_dict(d: dict) -> "Agent":
         """An agent from its yaml mapping; every number is checked (finite, sizes positive and within
-        checks.SIZE_LIMITS_M, coordinates within checks.MAX_COORD_M), the id must be a safe file name."""
+        checks.SIZE_LIMITS_M, coordinates within checks.MAX_COORD_M), the id must be a safe file name and the
+        type a name SUMO takes (checks.label)."""
         where = f"agent {str(d['id'])[:40]!r}"
         kind = d["kind"]
         if kind not in ("vehicle", "rsu"):
@@ -71,7 +72,7 @@ class Agent:
                 for k in ("length_m", "width_m", "height_m")}
         lane = d.get("lane")
         return Agent(
-            agent_id=checks.safe_id(d["id"], where), kind=kind, type_id=str(d["type"]),
+            agent_id=checks.safe_id(d["id"], where), kind=kind, type_id=checks.label(d["type"], where),
             x_m=checks.coordinate(d["x_m"], f"{where} x_m"), y_m=checks.coordinate(d["y_m"], f"{where} y_m"),
             z_m=checks.number(d["z_m"], f"{where} z_m", -checks.MAX_ABS_Z_M, checks.MAX_ABS_Z_M),
             yaw_rad=checks.number(d["yaw_rad"], f"{where} yaw_rad", -MAX_ABS_YAW_RAD, MAX_ABS_YAW_RAD),

@@ -7,12 +7,14 @@ inside a junction or off its recorded lane after a move), at its position along 
 ``departPos`` is the vehicle's front), with its speed and without SUMO's insertion checks (the scene
 is plausible already: the vehicles stand where the scene has them), on a route that starts with that edge and
 follows the first permitted connection onward for up to ``ROUTE_EDGES`` edges; its vType carries
-its length, width and height. Roadside units are not traffic and are left out. Read the files with
+its length, width and height (a type whose vehicles differ in size, as a recording's cars do, is
+one vType a size: ``TYPE@LxWxH``). Roadside units are not traffic and are left out. Read the files with
 sumolib or run them: ``sumo -c DIR/SCENE.sumocfg``.
 """
 from __future__ import annotations
 
 import math
+from collections import Counter
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -43,27 +45,31 @@ class RoutesWriter:
     def write(self, scene: Scene) -> None:
         net_path = net_of(scene, self.net)
         net = self._net(net_path)
-        types, vehicles = {}, []
+        types, vehicles = _vtypes(scene.vehicles), []
         for agent in sorted(scene.vehicles, key=lambda a: a.agent_id):
             lane, pos = _place(net, agent)
-            types.setdefault(agent.type_id, agent)
             edges = _route(lane.getEdge())
             vehicles.append(
-                f'    <vehicle id={quoteattr(agent.agent_id)} type={quoteattr(agent.type_id)} depart="0.00" '
+                f'    <vehicle id={quoteattr(agent.agent_id)} type={quoteattr(types[_size(agent)])} depart="0.00" '
                 f'departLane="{lane.getIndex()}" departPos="{pos:.2f}" departSpeed="{max(agent.speed_mps, 0.0):.2f}" '
                 f'insertionChecks="none">\n'
                 f'        <route edges={quoteattr(" ".join(e.getID() for e in edges))}/>\n    </vehicle>')
-        vtypes = [f'    <vType id={quoteattr(t)} length="{a.length_m:.2f}" width="{a.width_m:.2f}" '
-                  f'height="{a.height_m:.2f}"/>' for t, a in sorted(types.items())]
+        vtypes = [f'    <vType id={quoteattr(t)} length="{size[1]}" width="{size[2]}" height="{size[3]}"/>'
+                  for size, t in sorted(types.items(), key=lambda kv: kv[1])]
         routes = inside(self.out, self.out / f"{scene.scene_id}.rou.xml")
-        write_text_atomic(routes, "<routes>\n" + "\n".join(vtypes + vehicles) + "\n</routes>\n")
         config = inside(self.out, self.out / f"{scene.scene_id}.sumocfg")
-        write_text_atomic(config, (
-            "<configuration>\n    <input>\n"
-            f"        <net-file value={quoteattr(str(net_path.resolve()))}/>\n"
-            f"        <route-files value={quoteattr(routes.name)}/>\n"
-            "    </input>\n    <time>\n        <begin value=\"0\"/>\n    </time>\n</configuration>\n"))
-        self._state(config, inside(self.out, self.out / f"{scene.scene_id}.state.xml"))
+        try:
+            write_text_atomic(routes, "<routes>\n" + "\n".join(vtypes + vehicles) + "\n</routes>\n")
+            write_text_atomic(config, (
+                "<configuration>\n    <input>\n"
+                f"        <net-file value={quoteattr(str(net_path.resolve()))}/>\n"
+                f"        <route-files value={quoteattr(routes.name)}/>\n"
+                "    </input>\n    <time>\n        <begin value=\"0\"/>\n    </time>\n</configuration>\n"))
+            self._state(config, inside(self.out, self.out / f"{scene.scene_id}.state.xml"))
+        except BaseException:  # a scene's files are all written or none is
+            routes.unlink(missing_ok=True)
+            config.unlink(missing_ok=True)
+            raise
 
     @staticmethod
     def _state(config: Path, state: Path) -> None:
@@ -78,8 +84,9 @@ class RoutesWriter:
                                    "--save-state.files", str(tmp), "--no-step-log", "--no-warnings"],
                                   capture_output=True, text=True, env=sumo_tools.sumo_env())
             if done.returncode != 0 or not tmp.stat().st_size:
-                last = (done.stderr.strip().splitlines() or ["no message"])[-1]
-                raise InputError(f"{config}: SUMO could not load the exported routes ({last})")
+                lines = done.stderr.strip().splitlines() or ["no message"]
+                cause = next((line for line in lines if line.startswith("Error:")), lines[-1])
+                raise InputError(f"{config}: SUMO could not load the exported routes ({cause})")
 
     def _net(self, path: Path):
         import sumolib
@@ -94,6 +101,28 @@ class RoutesWriter:
 
     def close(self) -> None:
         pass
+
+
+def _size(agent) -> tuple[str, str, str, str]:
+    """(type, length, width, height) of a vehicle as the routes file writes them (cm)."""
+    return agent.type_id, f"{agent.length_m:.2f}", f"{agent.width_m:.2f}", f"{agent.height_m:.2f}"
+
+
+def _vtypes(vehicles) -> dict[tuple[str, str, str, str], str]:
+    """{a vehicle's :func:`_size`: its vType id}: the type's own id where all its vehicles have one
+    size, else ``TYPE@LxWxH`` a size (``+`` appended while another type has that id)."""
+    sizes = sorted({_size(a) for a in vehicles})
+    count = Counter(size[0] for size in sizes)
+    ids = {size: size[0] for size in sizes if count[size[0]] == 1}
+    taken = set(ids.values())
+    for size in sizes:
+        if size not in ids:
+            name = f"{size[0]}@{size[1]}x{size[2]}x{size[3]}"
+            while name in taken:
+                name += "+"
+            ids[size] = name
+            taken.add(name)
+    return ids
 
 
 def _place(net, agent):
