@@ -171,8 +171,8 @@ MAX_INDEX_BYTES = 64 * 1024 * 1024
 
 def iter_frames(name_or_dir: str | Path, split: str | None = None) -> Iterator[Scene]:
     """Scenes of a built data set (a name under the data root, or a folder), optionally one split.
-    A damaged folder (a symbolic link, a garbage, truncated or oversized file, a malformed line)
-    is one InputError naming the file."""
+    A damaged folder (a symbolic link, a garbage, truncated or oversized file, a malformed line, a
+    scene id twice, a split naming scenes the frames lack) is one InputError naming the file."""
     p = Path(name_or_dir)
     folder = p if (p / "index.json").is_file() else dataset_path(str(name_or_dir))
     if not (folder / "index.json").is_file():
@@ -184,6 +184,7 @@ def iter_frames(name_or_dir: str | Path, split: str | None = None) -> Iterator[S
             raise InputError(f"data set '{name_or_dir}' has no split '{split}'; splits: {', '.join(index['splits'])}")
         wanted = set(index["splits"][split])
     frames = _regular_file(folder / "frames.jsonl.gz")
+    seen: set[str] = set()
     try:
         with gzip.open(frames, "rb") as fh:
             for number, line in enumerate(iter(lambda: fh.readline(MAX_FRAME_LINE_BYTES + 1), b""), start=1):
@@ -193,10 +194,17 @@ def iter_frames(name_or_dir: str | Path, split: str | None = None) -> Iterator[S
                 d = json.loads(line.decode("utf-8"))
                 if not isinstance(d, dict) or not isinstance(d.get("scene_id"), str):
                     raise InputError(f"{frames}: line {number} is not a scene; rebuild the data set")
+                if d["scene_id"] in seen:
+                    raise InputError(f"{frames}: line {number}: scene id {d['scene_id'][:60]!r} appears twice; "
+                                     "rebuild the data set")
+                seen.add(d["scene_id"])
                 if wanted is None or d["scene_id"] in wanted:
                     yield Scene.from_dict(d, str(folder))
     except (OSError, EOFError, zlib.error, UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise InputError(f"{frames}: damaged ({type(exc).__name__}); rebuild the data set with 'asg dataset build'") from None
+    if wanted is not None and not wanted <= seen:
+        raise InputError(f"{folder / 'index.json'}: split '{split}' names {len(wanted - seen)} scenes that "
+                         f"{frames.name} does not hold (e.g. {sorted(wanted - seen)[0][:60]!r}); rebuild the data set")
 
 
 def _regular_file(path: Path) -> Path:
@@ -218,7 +226,8 @@ def _read_index(folder: Path) -> dict:
         raise InputError(f"{path}: damaged ({type(exc).__name__}); rebuild the data set") from None
     schema_of(SchemaFile.INDEX, index, str(path))
     splits = index.get("splits") if isinstance(index, dict) else None
-    if not isinstance(splits, dict) or not all(isinstance(v, list) for v in splits.values()):
+    if not isinstance(splits, dict) or not all(isinstance(v, list) and all(isinstance(i, str) for i in v)
+                                               for v in splits.values()):
         raise InputError(f"{path}: no splits of scene ids; rebuild the data set")
     return index
 

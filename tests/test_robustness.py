@@ -951,6 +951,29 @@ def test_a_damaged_data_set_is_one_line(how, command, capsys, tmp_path):
     assert_one_line_error(err, "")
 
 
+@pytest.mark.parametrize("ids, splits, says", [
+    (["s0", "s1", "s0"], {"all": ["s0", "s1"]}, "line 3: scene id 's0' appears twice"),
+    (["s0", "s1"], {"all": ["s0", "s1", "s9"]}, "split 'all' names 1 scenes that frames.jsonl.gz does not hold (e.g. 's9')"),
+    (["s0", "s1"], {"all": ["s0", ["s1"]]}, "no splits of scene ids")])
+def test_a_data_set_whose_frames_and_index_disagree_is_refused(tmp_path, ids, splits, says):
+    """A scene twice (its AP counted twice), or a split naming scenes the frames lack (a set
+    silently smaller than its index says), is one line, not a quieter wrong number."""
+    import gzip
+    import json
+
+    from asg.datasets import iter_frames
+    from sumo_scenarios.errors import InputError
+
+    folder = tmp_path / "set"
+    folder.mkdir()
+    (folder / "index.json").write_text(json.dumps({"name": "set", "frames": len(ids), "splits": splits}))
+    with gzip.open(folder / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
+        fh.writelines(json.dumps(_scene_dict(i)) + "\n" for i in ids)
+    with pytest.raises(InputError) as error:
+        list(iter_frames(folder, "all"))
+    assert says in str(error.value)
+
+
 @pytest.mark.parametrize("factory, code, word", [("fakes:sigint_swallowed_factory", 130, "interrupted"),
                                                  ("fakes:sigterm_swallowed_factory", 143, "terminated")],
                          ids=["SIGINT", "SIGTERM"])
