@@ -165,6 +165,19 @@ def test_point_stage_fit_resumes_to_the_same_stage_and_records_it(sumo_log, tmp_
     assert not (tmp_path / "run-split" / CHECKPOINT).exists() and not (tmp_path / "run-split" / BOXES_CACHE).exists()
 
 
+@pytest.mark.parametrize("content", [b"PK\x03\x04garbage", b"", b"\x93NUMPY garbage"], ids=["zip", "empty", "npy"])
+def test_a_damaged_box_cache_is_one_line(tmp_path, content):
+    """The point-stage fit's cache of boxes, damaged (a crash of the disk, an edit), is one line
+    saying to delete it, not a traceback."""
+    from sumo_scenarios.errors import InputError
+
+    from asg.training.point_stage_fit import BOXES_CACHE, collect
+
+    (tmp_path / BOXES_CACHE).write_bytes(content)
+    with pytest.raises(InputError, match="cached boxes are damaged"):
+        collect("none", lambda: [], "frames", tmp_path, lambda *_: None)
+
+
 def test_point_stage_settings_are_checked():
     from sumo_scenarios.errors import InputError
 

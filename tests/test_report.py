@@ -106,6 +106,7 @@ def test_tampered_run_folders_are_one_line(capsys, tmp_path):
         "AP null": lambda o: _tamper(o / "summary.json", lambda d: d["scenes"][0].update(ap_final=None)),
         "no detections": lambda o: (o / "scenes" / "s0" / "detections.npz").unlink(),
         "object array": lambda o: np.savez(o / "scenes" / "s0" / "detections.npz", x=np.array([{}], dtype=object)),
+        "detections not a zip": lambda o: (o / "scenes" / "s0" / "detections.npz").write_bytes(b"PK\x03\x04garbage"),
         "history text": lambda o: (o / "scenes" / "s0" / "history.csv").write_text("step,loss\n1,abc\n"),
         "history without loss": lambda o: (o / "scenes" / "s0" / "history.csv").write_text("step\n1\n"),
         # never blocks on, follows or exhausts memory on a file where a json belongs

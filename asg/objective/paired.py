@@ -8,6 +8,7 @@ the drawn frames). The interval is the 2.5-97.5 % range of the gaps over the res
 """
 from __future__ import annotations
 
+import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Sequence
@@ -103,7 +104,7 @@ def load_matches(path: Path) -> list[FrameMatches]:
                 cuts = np.cumsum(counts)[:-1]
                 per_threshold[t] = list(zip(np.split(scores, cuts), np.split(tp, cuts), (int(g) for g in gt))) \
                     if len(counts) else []
-    except (OSError, KeyError, ValueError) as exc:
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise InputError(f"{path}: damaged matches ({type(exc).__name__}); delete it to score again") from None
     n = len(per_threshold[REPORTED_THRESHOLDS[0]])
     if any(len(v) != n for v in per_threshold.values()):

@@ -23,6 +23,7 @@ import io
 import itertools
 import json
 import os
+import zipfile
 from pathlib import Path
 from typing import Iterator
 
@@ -128,7 +129,7 @@ def _guarded(section, path: Path, what: str, *args) -> str:
         return section(path, *args)
     except InputError:
         raise
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OSError, EOFError) as exc:
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise InputError(f"{path}: {what} (or a file it names) is not what asg wrote ({type(exc).__name__}: "
                          f"{str(exc)[:80]}); regenerate it") from None
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable
@@ -84,6 +85,27 @@ def _check_same_run(found: str, settings: str, path: Path) -> None:
                          f"{path.parent} to start this one over")
 
 
+def _cached_frames(cache: Path, settings: str) -> list[Frame]:
+    """The frames :func:`collect` cached in ``cache``; a cache of other settings, or damaged, is one
+    InputError."""
+    def damaged(exc: Exception) -> InputError:
+        return InputError(f"{cache}: the cached boxes are damaged ({type(exc).__name__}); delete the file to "
+                          "collect them again")
+
+    try:
+        with np.load(cache, allow_pickle=False) as archive:
+            arrays = {k: archive[k] for k in archive.files}  # read once: each read decompresses again
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise damaged(exc) from None
+    _check_same_run(str(arrays["settings"]) if "settings" in arrays else "", settings, cache)
+    try:
+        cut = lambda key, i: arrays[key][arrays["n" + key][i]:arrays["n" + key][i + 1]]  # noqa: E731
+        return [(cut("boxes", i), cut("scores", i), cut("gt", i), cut("cloud", i))
+                for i in range(len(arrays["nboxes"]) - 1)]
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        raise damaged(exc) from None
+
+
 def collect(fusion: str, scenes: Callable[[], Iterable[Scene]], what: str, run_dir: Path, log: Callable[[str], None],
             weights_file: Path | None = None, settings: str = "") -> list[Frame]:
     """The detector's final boxes (its point stage off), the vehicles in range and the cloud it saw,
@@ -91,10 +113,7 @@ def collect(fusion: str, scenes: Callable[[], Iterable[Scene]], what: str, run_d
     with ``settings`` (a rerun with other settings is refused)."""
     cache = run_dir / BOXES_CACHE
     if cache.is_file():
-        z = np.load(cache)
-        _check_same_run(str(z["settings"]) if "settings" in z.files else "", settings, cache)
-        cut = lambda key, i: z[key][z["n" + key][i]:z["n" + key][i + 1]]  # noqa: E731
-        return [(cut("boxes", i), cut("scores", i), cut("gt", i), cut("cloud", i)) for i in range(len(z["nboxes"]) - 1)]
+        return _cached_frames(cache, settings)
     det = build_detector(fusion, weights_file=None if weights_file is None else str(weights_file))
     det.point_stage = None
     spec = load_lidar_spec()
