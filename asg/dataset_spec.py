@@ -41,6 +41,24 @@ def data_root() -> Path:
     return Path(os.environ.get("ASG_DATA", runs_dir() / "datasets"))
 
 
+def check_train_source(name: str, where: str) -> str:
+    """``name`` if training can draw on its train split: a set ``configs/datasets.yaml`` builds with
+    one, or one built under :func:`data_root` (a challenging set); else one InputError naming
+    ``where``. Checked when a config is loaded, so that no run attacks for hours first."""
+    from sumo_scenarios import checks
+
+    checks.safe_id(name, f"{where}: data set")
+    specs = read_yaml(configs_dir() / "datasets.yaml")
+    if name in specs:
+        spec = from_mapping(DatasetSpec, specs[name], f"datasets.yaml:{name}")
+        if spec.total is None and spec.split != "train":
+            raise InputError(f"{where}: data set '{name}' has no train split (its one split is '{spec.split}': "
+                             "never trained on); name a set with one, e.g. normal or detector-train")
+    elif not (data_root() / name / "index.json").is_file():
+        raise InputError(f"{where}: unknown data set '{name}'; known: {', '.join(sorted(specs))} or a built challenging set")
+    return name
+
+
 def load_spec(name: str) -> DatasetSpec:
     data = read_yaml(configs_dir() / "datasets.yaml")
     if name not in data:

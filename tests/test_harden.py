@@ -349,7 +349,13 @@ def test_yaml_12_floats_are_numbers_in_a_training_config(tmp_path):
 
 @pytest.mark.parametrize("extra, config_text, needle", [
     (["--space", "evil,../x"], None, "unknown perturbation space"),
-    ([], "harden: {pool: [normal], scenes_per_round: 1, eval_sets: [nosuchset]}\n", "unknown set 'nosuchset'")])
+    ([], "harden: {pool: [normal], scenes_per_round: 1, eval_sets: [nosuchset]}\n", "unknown set 'nosuchset'"),
+    # a set to train on that does not exist, or has no train split, used to surface only at the
+    # round's training, after its attack (hours at the paper's size)
+    ([], "harden: {pool: [normal], scenes_per_round: 1, mix_with: [nosuchset]}\n", "mix_with: unknown data set 'nosuchset'"),
+    ([], "harden: {pool: [normal], scenes_per_round: 1, mix_with: [heuristic]}\n", "'heuristic' has no train split"),
+    ([], "harden: {pool: [nosuchset], scenes_per_round: 1}\n", "pool: unknown data set 'nosuchset'"),
+    ([], "harden: {pool: [holdout], scenes_per_round: 1}\n", "'holdout' has no train split")])
 def test_a_bad_space_or_set_is_refused_before_the_run_starts(capsys, tmp_path, data_root, extra, config_text, needle):
     """Refused up front: no round-0 evaluation, no run.json or card.json left behind (which made the
     corrected rerun a 'rerun with other settings')."""

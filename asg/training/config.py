@@ -93,10 +93,11 @@ def check_train_config(cfg: TrainConfig, where: str):
     [0, 1]; schedule fractions in (0, 1); a seed of 0 or more; a rotation of
     at most 180 deg and a scale of at most 0.5 in the augmentation; a corner-loss weight in [0, 100]; a
     LiDAR preset that exists (fine-tuning: only the shipped one, the sensor its scenes are attacked and
-    evaluated with); for fine-tuning, a share in [0, 1] and data set names (safe names) to mix with.
+    evaluated with); for fine-tuning, a share in [0, 1] and data sets with a train split to mix with.
     Checked when loaded, before any work."""
     from sumo_scenarios import checks
 
+    from ..dataset_spec import check_train_source
     from ..sensors.lidar_spec import load_lidar_spec
 
     checks.number(cfg.steps, f"{where}.steps", 1, 10_000_000)
@@ -121,9 +122,10 @@ def check_train_config(cfg: TrainConfig, where: str):
             raise InputError(f"{where}.lidar: fine-tuning renders with the LiDAR its scenes are attacked and evaluated "
                              f"with ({DEFAULT_LIDAR}); '{cfg.lidar}' applies to asg train's blocks only")
         checks.number(cfg.challenging_share, f"{where}.challenging_share", 0.0, 1.0)
-        for key in ("mix_with", "eval_sets"):
-            for name in getattr(cfg, key):
-                checks.safe_id(name, f"{where}.{key}: data set")
+        for name in cfg.mix_with:
+            check_train_source(name, f"{where}.mix_with")
+        for name in cfg.eval_sets:
+            checks.safe_id(name, f"{where}.eval_sets: data set")
         if cfg.challenging_share < 1.0 and not cfg.mix_with:
             raise InputError(f"{where}: challenging_share below 1 needs sets in mix_with")
     return cfg

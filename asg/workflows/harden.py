@@ -94,6 +94,8 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
     """train.yaml's ``harden`` block (or ``path``'s), then non-None ``overrides``; checked."""
     from sumo_scenarios import checks
 
+    from ..dataset_spec import check_train_source
+
     data = dict(train_block(HARDEN_BLOCK, path))
     data.update({k: v for k, v in overrides.items() if v is not None})
     where = f"train.yaml:{HARDEN_BLOCK}"
@@ -103,7 +105,7 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
         raise InputError(f"{where}.guard_average must be a share between 0 and 1 (0.5: half the round's weights) "
                          f"or null, got {cfg.guard_average!r}")
     for name in cfg.pool:
-        checks.safe_id(name, f"{where}.pool")
+        check_train_source(name, f"{where}.pool")
     if cfg.data not in DATA_KINDS:
         raise InputError(f"--data must be one of {', '.join(DATA_KINDS)}, got {cfg.data!r}")
     if not cfg.pool:
