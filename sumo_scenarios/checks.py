@@ -20,6 +20,10 @@ MAX_COORD_M = 1.0e6
 SIZE_LIMITS_M = {"length_m": 30.0, "width_m": 5.0, "height_m": 20.0}
 #: ground heights beyond this (m) are refused (SUMO nets with elevation stay far inside it)
 MAX_ABS_Z_M = 10_000.0
+#: a LiDAR's settings a file may give (a preset, a recording's protocol), (lowest, highest): the
+#: largest any sensor sold has, with room; beyond them a sweep's rays would not fit in memory
+LIDAR_LIMITS = {"channels": (1, 512), "points_per_s": (1_000.0, 1.0e8), "rotation_hz": (1.0, 100.0),
+                "returns_per_ring": (16, 16_384), "range_m": (1.0, 1000.0), "elevation_deg": (-90.0, 90.0)}
 #: 540 km/h either way: faster is not traffic (a negative speed is a vehicle backing up, as
 #: highway-env's do when stopped close behind another)
 MAX_SPEED_MPS = 150.0

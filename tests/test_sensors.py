@@ -268,6 +268,12 @@ def test_bad_lidar_specs():
         LidarSpec(range_m=-1.0).validate()
     with pytest.raises(InputError, match="embree_robust"):
         LidarSpec(embree_robust="no").validate()
+    # a preset whose sweep would not fit in memory (points_per_s 1e12 took 24 GB and was killed), or
+    # that no sensor has, is refused when loaded
+    for key, value in (("points_per_s", 1e12), ("rotation_hz", 1e-9), ("channels", 10**7), ("range_m", 1e12),
+                       ("fov_down_deg", -200.0), ("noise_std_m", 1e9), ("vehicle_mount_above_roof_m", -100.0)):
+        with pytest.raises(InputError, match=key):
+            LidarSpec(**{key: value}).validate()
     with pytest.raises(InputError, match="unknown lidar preset"):
         load_lidar_spec("nope")
     assert load_lidar_spec("v2xp").rays_per_sweep == 32 * 390

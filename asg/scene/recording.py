@@ -91,15 +91,18 @@ class RecordedLidar:
     def from_dict(d: Mapping, where: str = "lidar") -> "RecordedLidar":
         if not isinstance(d, Mapping):
             raise InputError(f"{where}: expected a mapping of the LiDAR's settings")
-        upper = checks.number(d["upper_deg"], f"{where} upper_deg", -90.0, 90.0)
-        channels = int(checks.number(d["channels"], f"{where} channels", 1, 512))
-        rate = checks.number(d["points_per_s"], f"{where} points_per_s", 1_000.0, 1.0e8)
-        hz = checks.number(d["rotation_hz"], f"{where} rotation_hz", 1.0, 100.0)
-        if not 16 <= rate / hz / channels <= 16_384:
+        limits = checks.LIDAR_LIMITS
+        upper = checks.number(d["upper_deg"], f"{where} upper_deg", *limits["elevation_deg"])
+        channels = int(checks.number(d["channels"], f"{where} channels", *limits["channels"]))
+        rate = checks.number(d["points_per_s"], f"{where} points_per_s", *limits["points_per_s"])
+        hz = checks.number(d["rotation_hz"], f"{where} rotation_hz", *limits["rotation_hz"])
+        low, high = limits["returns_per_ring"]
+        if not low <= rate / hz / channels <= high:
             raise InputError(f"{where}: {rate / hz / channels:.0f} returns a ring; points_per_s / rotation_hz / "
-                             "channels must lie in 16..16384")
-        return RecordedLidar(channels, upper, checks.number(d["lower_deg"], f"{where} lower_deg", -90.0, upper),
-                             rate, hz, checks.number(d["range_m"], f"{where} range_m", 1.0, 1000.0))
+                             f"channels must lie in {low}..{high}")
+        return RecordedLidar(channels, upper,
+                             checks.number(d["lower_deg"], f"{where} lower_deg", limits["elevation_deg"][0], upper),
+                             rate, hz, checks.number(d["range_m"], f"{where} range_m", *limits["range_m"]))
 
 
 @dataclass(frozen=True)

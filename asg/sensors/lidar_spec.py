@@ -14,11 +14,15 @@ from typing import Literal
 
 import numpy as np
 
+from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.paths import configs_dir
 from sumo_scenarios.strict import load_dataclass
 
 Backend = Literal["embree", "trimesh"]
+#: the largest range noise a preset may give (std, m), and the highest mount above a roof (m)
+MAX_NOISE_STD_M = 10.0
+MAX_MOUNT_M = 5.0
 #: the preset of configs/lidar/ the shipped detectors were trained on: every stage renders with it
 #: unless told otherwise (``asg render --lidar``, the generate config's ``lidar``)
 DEFAULT_LIDAR = "v2xp"
@@ -45,18 +49,23 @@ class LidarSpec:
     embree_robust: bool = False
 
     def validate(self) -> "LidarSpec":
-        if self.channels < 1:
-            raise InputError(f"lidar '{self.name}': channels must be at least 1, got {self.channels}")
-        if self.range_m <= 0:
-            raise InputError(f"lidar '{self.name}': range_m must be positive, got {self.range_m:g}")
+        """``self`` if every setting is one a sensor can have (sumo_scenarios.checks.LIDAR_LIMITS: a
+        sweep's rays fit in memory); else one InputError naming the first that is not."""
+        limits, where = checks.LIDAR_LIMITS, f"lidar '{str(self.name)[:40]}'"
+        for key in ("channels", "points_per_s", "rotation_hz", "range_m"):
+            checks.number(getattr(self, key), f"{where}: {key}", *limits[key])
+        for key in ("fov_up_deg", "fov_down_deg"):
+            checks.number(getattr(self, key), f"{where}: {key}", *limits["elevation_deg"])
         if self.fov_up_deg < self.fov_down_deg:
-            raise InputError(f"lidar '{self.name}': fov_up_deg must be >= fov_down_deg")
-        if self.points_per_s <= 0 or self.rotation_hz <= 0:
-            raise InputError(f"lidar '{self.name}': points_per_s and rotation_hz must be positive")
-        if self.azimuth_steps < 1:
-            raise InputError(f"lidar '{self.name}': fewer than one point per channel and sweep; raise points_per_s")
-        if self.noise_std_m < 0 or not 0 <= self.dropoff < 1:
-            raise InputError(f"lidar '{self.name}': noise_std_m must be >= 0 and dropoff in [0, 1)")
+            raise InputError(f"{where}: fov_up_deg must be >= fov_down_deg")
+        low, high = limits["returns_per_ring"]
+        if not low <= self.azimuth_steps <= high:
+            raise InputError(f"{where}: {self.azimuth_steps} returns a channel and sweep (points_per_s / rotation_hz "
+                             f"/ channels) must lie in {low}..{high}")
+        checks.number(self.noise_std_m, f"{where}: noise_std_m", 0.0, MAX_NOISE_STD_M)
+        checks.number(self.vehicle_mount_above_roof_m, f"{where}: vehicle_mount_above_roof_m", 0.0, MAX_MOUNT_M)
+        if not 0 <= self.dropoff < 1:
+            raise InputError(f"{where}: dropoff must lie in [0, 1), got {self.dropoff:g}")
         if self.backend not in ("embree", "trimesh"):
             raise InputError(f"lidar '{self.name}': backend must be embree or trimesh, got {self.backend!r}")
         if not isinstance(self.embree_robust, bool):
