@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from asg.collaborators import attention_combinations, combination_weakness, random_combinations
-from asg.search import build_optimizer, run_search
+from asg.search import SEARCHES, build_optimizer, check_settings, run_search
 from asg.search.loop import Evaluation, best_of
 from sumo_scenarios.errors import InputError
 
@@ -184,8 +184,49 @@ def test_batched_bo_proposes_its_batch_by_the_constant_liar():
 @pytest.mark.parametrize("name", ["bo", "ng"])
 @pytest.mark.parametrize("batch", [0, -1, 65, 2.5, True, "4"])
 def test_a_batch_out_of_range_is_refused(name, batch):
-    with pytest.raises(InputError, match=f"configs/search/{name}.yaml: batch must be a whole number in \\[1, 64\\]"):
+    with pytest.raises(InputError, match=f"configs/search/{name}.yaml: batch: (expected a whole number|.* out of range "
+                                         "\\(must be at least 1 and at most 64\\))"):
         build_optimizer(name, 9, 10, np.random.default_rng(0), batch=batch)
+
+
+@pytest.mark.parametrize("name, settings, says", [
+    ("ga", {"population": 10**9}, "population: 1e+09 is out of range"),  # filled the memory in a scene
+    ("ga", {"population": 1.5}, "population: expected a whole number"),  # a TypeError traceback
+    ("ga", {"population": 0}, "population: 0 is out of range"), ("ga", {"temperature": math.nan}, "not a finite number"),
+    ("ga", {"crossover": 5}, "crossover: 5 is out of range"), ("ga", {"elites": 15}, "elites (15) must be fewer"),
+    ("ga", {"mutation_p": 0.05}, "mutation_p_min (0.1) is above mutation_p (0.05)"),
+    ("bo", {"refit_every": "x"}, "refit_every: expected a whole number"),  # a TypeError traceback
+    ("bo", {"kappa": -1.0}, "kappa: -1 is out of range"), ("bo", {"n_initial": 0}, "n_initial: 0 is out of range"),
+    ("ls", {"grow": 0.0}, "grow: 0 is out of range"),  # a ZeroDivisionError traceback
+    ("ls", {"step": 3.0}, "step: 3 is out of range"), ("ls", {"step_min": 1.0}, "step (0.5) must lie within"),
+    ("ng", {"optimizer": "nope"}, "unknown nevergrad optimizer 'nope'"), ("ng", {"optimizer": 5}, "expected text")])
+def test_a_search_setting_out_of_range_is_refused_naming_it(name, settings, says):
+    """Every setting of configs/search/NAME.yaml is checked for its kind and range, and with the
+    others, before a search is built: nonsense used to run silently (a crossover of 5, a NaN
+    temperature), crash in a scene or fill the memory (a population of 10^9)."""
+    with pytest.raises(InputError) as error:
+        check_settings(name, settings)
+    assert str(error.value).startswith(f"configs/search/{name}.yaml: ") and says in str(error.value)
+
+
+def test_every_setting_of_every_search_has_a_range():
+    """What a constructor takes is what its table checks, and the shipped settings pass."""
+    import dataclasses
+    import inspect
+
+    from asg.generator.config import search_params
+    from asg.search.genetic import GAParams
+
+    for name in SEARCHES.names():
+        optimizer = SEARCHES.entry(name)
+        takes = ({f.name for f in dataclasses.fields(GAParams)} if name == "ga" else
+                 set(inspect.signature(optimizer.__init__).parameters) - {"self", "dim", "budget", "rng"})
+        assert set(optimizer.SETTINGS) == takes, name
+        assert set(optimizer.defaults()) == takes, name
+        check_settings(name, optimizer.defaults())
+        check_settings(name, search_params(name))
+    with pytest.raises(InputError, match="expected a mapping of settings"):
+        check_settings("ga", [1, 2])
 
 
 def test_nevergrad_takes_a_batch():

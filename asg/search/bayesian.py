@@ -5,7 +5,7 @@ import warnings
 
 import numpy as np
 
-from .optimizer import SEARCHES, Optimizer, checked_batch
+from .optimizer import BATCH, SEARCHES, Optimizer, Setting
 
 
 @SEARCHES.register("bo")
@@ -32,15 +32,18 @@ class BayesianOptimization(Optimizer):
     and the next is that copy's lowest LCB; the real losses replace the lies when they are told. The
     random start is proposed at once whatever ``batch`` is (a tell does not change it)."""
 
+    SETTINGS = {"n_initial": Setting(int, 1, 10_000), "kappa": Setting(float, 0.0, 100.0),
+                "refit_every": Setting(int, 1, 10_000), "batch": BATCH}
+
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, n_initial: int = 20, kappa: float = 2.5,
                  refit_every: int = 5, batch: int = 1):
         super().__init__(dim, budget, rng)
-        self.batch = checked_batch("bo", batch)
+        self.batch = batch
         self._pending: list[np.ndarray] = []  # asked in this batch, not told yet
         n_initial = min(int(n_initial), max(1, budget - 1))  # a small budget still gets a guided step
         self.n_initial = n_initial
         self.kappa = kappa
-        self.refit_every = max(1, refit_every)
+        self.refit_every = refit_every
         self.told = 0
         from skopt.learning import GaussianProcessRegressor
         from skopt.learning.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel

@@ -6,7 +6,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .optimizer import SEARCHES, Optimizer
+from sumo_scenarios.errors import InputError
+
+from .optimizer import SEARCHES, Optimizer, Setting
 
 
 @dataclass
@@ -31,9 +33,25 @@ class GeneticAlgorithm(Optimizer):
     children, bred from the best ``population`` of the last generation plus the elites carried over
     with their known loss (an elite is not evaluated again)."""
 
+    SETTINGS = {"population": Setting(int, 1, 1000), "elites": Setting(int, 0, 999),
+                "temperature": Setting(float, 0.0, 100.0, lo_open=True), "crossover": Setting(float, 0.0, 1.0),
+                "mutation_p": Setting(float, 0.0, 1.0), "mutation_p_min": Setting(float, 0.0, 1.0),
+                "mutation_range": Setting(float, 0.0, 2.0, lo_open=True),
+                "mutation_range_min": Setting(float, 0.0, 2.0, lo_open=True), "decay": Setting(float, 0.0, 1.0, lo_open=True)}
+
     @classmethod
-    def settings(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(GAParams))
+    def defaults(cls) -> dict:
+        return {f.name: f.default for f in fields(GAParams)}
+
+    @classmethod
+    def check_together(cls, settings: dict, where: str) -> None:
+        if settings["elites"] >= settings["population"]:
+            raise InputError(f"{where}: elites ({settings['elites']}) must be fewer than the population "
+                             f"({settings['population']})")
+        for low in ("mutation_p_min", "mutation_range_min"):
+            if settings[low] > settings[low.removesuffix("_min")]:
+                raise InputError(f"{where}: {low} ({settings[low]:g}) is above {low.removesuffix('_min')} "
+                                 f"({settings[low.removesuffix('_min')]:g})")
 
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, **params):
         super().__init__(dim, budget, rng)

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .optimizer import SEARCHES, Optimizer
+from sumo_scenarios.errors import InputError
+
+from .optimizer import SEARCHES, Optimizer, Setting
 
 
 @SEARCHES.register("ls")
@@ -13,6 +15,15 @@ class LocalSearch(Optimizer):
     member of Q nearest to it). The width follows the one-fifth success rule: times ``grow`` after a
     step that beat the incumbent, times ``grow ** -0.25`` after one that did not, kept within
     [``step_min``, ``step_max``]. Before anything is told, a uniform pick among the candidates."""
+
+    SETTINGS = {"step": Setting(float, 0.0, 2.0, lo_open=True), "grow": Setting(float, 1.0, 10.0, lo_open=True),
+                "step_min": Setting(float, 0.0, 2.0, lo_open=True), "step_max": Setting(float, 0.0, 2.0, lo_open=True)}
+
+    @classmethod
+    def check_together(cls, settings: dict, where: str) -> None:
+        if not settings["step_min"] <= settings["step"] <= settings["step_max"]:
+            raise InputError(f"{where}: step ({settings['step']:g}) must lie within [step_min, step_max] "
+                             f"([{settings['step_min']:g}, {settings['step_max']:g}])")
 
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, step: float = 0.5, grow: float = 1.5,
                  step_min: float = 0.02, step_max: float = 2.0):

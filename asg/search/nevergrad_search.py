@@ -5,7 +5,7 @@ import numpy as np
 
 from sumo_scenarios.errors import InputError
 
-from .optimizer import SEARCHES, Optimizer, checked_batch
+from .optimizer import BATCH, SEARCHES, Optimizer, Setting
 
 
 @SEARCHES.register("ng")
@@ -17,16 +17,24 @@ class NevergradSearch(Optimizer):
     is not told to it. ``batch``: how many points it proposes before their losses are told (its
     ``num_workers``; 1 asks one at a time)."""
 
+    SETTINGS = {"optimizer": Setting(str), "batch": BATCH}
+
+    @classmethod
+    def check_together(cls, settings: dict, where: str) -> None:
+        import nevergrad as ng
+
+        if settings["optimizer"] not in ng.optimizers.registry:
+            raise InputError(f"{where}: unknown nevergrad optimizer {settings['optimizer']!r}; one of nevergrad's "
+                             "registry, e.g. NGOpt, CMA, TwoPointsDE")
+
     def __init__(self, dim: int, budget: int, rng: np.random.Generator, optimizer: str = "NGOpt", batch: int = 1):
         super().__init__(dim, budget, rng)
-        self.batch = checked_batch("ng", batch)
+        self.batch = batch
         import warnings
 
         import nevergrad as ng
 
         warnings.filterwarnings("ignore", module="nevergrad")  # advice on bound widths, not errors
-        if optimizer not in ng.optimizers.registry:
-            raise InputError(f"search ng: unknown nevergrad optimizer {optimizer!r} (configs/search/ng.yaml)")
         param = ng.p.Array(shape=(dim,), lower=-1.0, upper=1.0)
         param.random_state = np.random.RandomState(int(rng.integers(2**31 - 1)))
         self._opt = ng.optimizers.registry[optimizer](parametrization=param, budget=budget, num_workers=batch)

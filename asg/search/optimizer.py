@@ -11,10 +11,14 @@ batch, then tells each (an optimiser that proposes one point at a time says 1).
 from __future__ import annotations
 
 import inspect
+import math
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
+from sumo_scenarios import checks
 from sumo_scenarios.errors import InputError
 
 from ..registry import Registry
@@ -24,15 +28,34 @@ from ..registry import Registry
 MAX_BATCH = 64
 
 
-def checked_batch(name: str, batch) -> int:
-    """``batch`` of configs/search/NAME.yaml, a whole number in [1, MAX_BATCH]; InputError otherwise."""
-    if not isinstance(batch, int) or isinstance(batch, bool) or not 1 <= batch <= MAX_BATCH:
-        raise InputError(f"configs/search/{name}.yaml: batch must be a whole number in [1, {MAX_BATCH}], got {batch!r}")
-    return batch
+@dataclass(frozen=True)
+class Setting:
+    """One setting of configs/search/NAME.yaml: a whole number (``int``) or a number (``float``)
+    within [lo, hi] (lo excluded when ``lo_open``), or text (``str``)."""
+    kind: type
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_open: bool = False
+
+    def check(self, value: Any, where: str) -> None:
+        """InputError naming ``where`` unless ``value`` is of this kind and within range."""
+        if self.kind is str:
+            if not isinstance(value, str):
+                raise InputError(f"{where}: expected text, got {value!r}")
+            return
+        if self.kind is int and (isinstance(value, bool) or not isinstance(value, int)):
+            raise InputError(f"{where}: expected a whole number, got {value!r}")
+        checks.number(value, where, self.lo, self.hi, lo_open=self.lo_open)
+
+
+#: the ``batch`` setting of an optimiser that proposes several points before their losses are told
+BATCH = Setting(int, 1, MAX_BATCH)
 
 
 class Optimizer(ABC):
     registry_name: str = ""
+    #: its settings (configs/search/NAME.yaml: the constructor's keywords) and their ranges
+    SETTINGS: ClassVar[dict[str, Setting]] = {}
 
     def __init__(self, dim: int, budget: int, rng: np.random.Generator):
         self.dim = dim
@@ -42,9 +65,18 @@ class Optimizer(ABC):
     @classmethod
     def settings(cls) -> tuple[str, ...]:
         """The keyword settings the constructor takes (configs/search/NAME.yaml)."""
-        skip = {"self", "dim", "budget", "rng"}
-        return tuple(n for n, p in inspect.signature(cls.__init__).parameters.items()
-                     if n not in skip and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY))
+        return tuple(cls.SETTINGS)
+
+    @classmethod
+    def defaults(cls) -> dict:
+        """The constructor's default of each setting."""
+        params = inspect.signature(cls.__init__).parameters
+        return {k: params[k].default for k in cls.SETTINGS if k in params and params[k].default is not params[k].empty}
+
+    @classmethod
+    def check_together(cls, settings: dict, where: str) -> None:
+        """InputError if settings each in range do not go together (a minimum above its value);
+        ``settings``: the constructor's defaults with the file's values over them."""
 
     @abstractmethod
     def ask(self, candidates: np.ndarray) -> np.ndarray:
@@ -68,13 +100,22 @@ class Optimizer(ABC):
 SEARCHES: "Registry[type[Optimizer]]" = Registry("search algorithm", "--search")
 
 
-def check_settings(name: str, params: dict) -> None:
-    """InputError naming the first setting the optimiser ``name`` does not take."""
-    known = SEARCHES.entry(name).settings()
-    unknown = sorted(set(params) - set(known))
+def check_settings(name: str, params: Any) -> None:
+    """InputError naming the first setting of configs/search/NAME.yaml the optimiser ``name`` does
+    not take, or whose value is out of its range (``SETTINGS``) or does not go with the others:
+    checked before a run starts, so that none fails (or fills the memory) in its first scene."""
+    where = f"configs/search/{name}.yaml"
+    if not isinstance(params, dict):
+        raise InputError(f"{where}: expected a mapping of settings, got {str(params)[:40]}")
+    optimizer = SEARCHES.entry(name)
+    known = optimizer.settings()
+    unknown = sorted(set(params) - set(known), key=str)
     if unknown:
-        raise InputError(f"configs/search/{name}.yaml: unknown setting '{unknown[0]}' for {name}; "
+        raise InputError(f"{where}: unknown setting '{unknown[0]}' for {name}; "
                          f"known: {', '.join(sorted(known)) or 'none'}")
+    for key, value in params.items():
+        optimizer.SETTINGS[key].check(value, f"{where}: {key}")
+    optimizer.check_together(optimizer.defaults() | params, where)
 
 
 def build_optimizer(name: str, dim: int, budget: int, rng: np.random.Generator, **params) -> Optimizer:
