@@ -58,6 +58,17 @@ class BuildingParams:
     height_m: tuple[float, float] = (4.0, 30.0)
     fill_probability: float = 0.85
 
+    def check(self, where: str) -> None:
+        """InputError naming ``where`` unless every gap and size is within reach of a town's
+        buildings (sizes 0.5-1,000 m, each range from low to high, a share in [0, 1])."""
+        checks.number(self.setback_m, f"{where}.setback_m", 0.0, 100.0)
+        checks.number(self.spacing_m, f"{where}.spacing_m", 0.5, 1000.0)
+        for key in ("length_m", "depth_m", "height_m"):
+            low, high = (checks.number(v, f"{where}.{key}", 0.5, 1000.0) for v in getattr(self, key))
+            if low > high:
+                raise InputError(f"{where}.{key}: [{low:g}, {high:g}] runs from high to low")
+        checks.number(self.fill_probability, f"{where}.fill_probability", 0.0, 1.0)
+
 
 def _rectangle(cx: float, cy: float, heading: float, length: float, depth: float) -> np.ndarray:
     c, s = math.cos(heading), math.sin(heading)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from . import checks
 from .atomic import atomic_path
 from .buildings import Building, BuildingParams, generate_buildings, read_buildings, write_buildings
 from .errors import InputError
@@ -43,8 +44,45 @@ class TownsConfig:
     buildings: BuildingParams = field(default_factory=BuildingParams)
 
 
+#: the netgenerate / netconvert options a town may add: its kind's own families and the defaults of
+#: lanes, junctions and signals. None names a file: an option such as ``--log``,
+#: ``--save-configuration`` or ``--plain-output-prefix`` would write wherever the file said.
+TOWN_OPTION_PREFIXES = ("--grid.", "--spider.", "--rand.", "--default.", "--tls.", "--junctions.",
+                        "--geometry.", "--roundabouts.", "--ramps.", "--no-turnarounds")
+#: a town's numbers, (lowest, highest)
+TOWN_LIMITS = {"seed": (0, 2**31 - 1), "lanes": (1, 8), "speed_mps": (1.0, 70.0), "demand_scale": (0.01, 10.0)}
+
+
 def load_towns_config(path: str | Path | None = None) -> TownsConfig:
-    return load_dataclass(TownsConfig, path or configs_dir() / "towns.yaml")
+    """The towns of ``path`` (default configs/towns.yaml), each checked (:func:`check_town`)."""
+    where = str(path or configs_dir() / "towns.yaml")
+    cfg = load_dataclass(TownsConfig, path or configs_dir() / "towns.yaml")
+    names = [spec.name for spec in cfg.towns]
+    for spec in cfg.towns:
+        check_town(spec, where)
+        if names.count(spec.name) > 1:
+            raise InputError(f"{where}: town '{spec.name}' is named twice; give each town its own name")
+    cfg.buildings.check(f"{where}: buildings")
+    return cfg
+
+
+def check_town(spec: TownSpec, where: str) -> None:
+    """InputError naming ``where`` and the town unless its name (and plain files' name) is a safe
+    file name, its numbers are within TOWN_LIMITS and every option is one of TOWN_OPTION_PREFIXES'
+    (``--grid.number 4`` or ``--grid.number=4``; a value never starts with ``-``)."""
+    name = checks.safe_id(spec.name, f"{where}: a town's name")
+    at = f"{where}: town '{name}'"
+    if spec.plain is not None:
+        checks.safe_id(spec.plain, f"{at} plain")
+    checks.safe_id(spec.junction_type, f"{at} junction_type")
+    for key, (lo, hi) in TOWN_LIMITS.items():
+        checks.number(getattr(spec, key), f"{at} {key}", lo, hi)
+    for option in spec.options:
+        if not isinstance(option, str):
+            raise InputError(f"{at}: option {option!r} is not text; write every option and value as a string")
+        if option.startswith("-") and not option.startswith(TOWN_OPTION_PREFIXES):
+            raise InputError(f"{at}: option {option[:60]!r} is not one a town may set (those starting "
+                             f"{', '.join(TOWN_OPTION_PREFIXES)}); asg names every file itself")
 
 
 def _netgenerate_args(spec: TownSpec, out: Path) -> list[str]:

@@ -267,3 +267,45 @@ def test_netconverts_own_error_reaches_the_user(capsys, tmp_path, user_home):
     bad.write_text('<net version="1.9"><edge id="e" from="a" to="b"><lane id="e_0" index="0" length="-5" shape="0,0 1,1"/></edge></net>')
     code, out = _cli(capsys, "towns", "import", str(bad), "--name", "bad")
     assert code == 2 and "Quitting" not in out.err
+
+
+_GRID = {"name": "g", "kind": "grid", "seed": 1, "options": ["--grid.number", "3"]}
+
+
+@pytest.mark.parametrize("town, buildings, says", [
+    ({"name": "../escaped"}, {}, "not a safe name"),  # wrote escaped.net.xml beside --out
+    ({"options": ["--grid.number", "3", "--log", "LOG"]}, {}, "option '--log' is not one a town may set"),
+    ({"options": ["--save-configuration=LOG"]}, {}, "is not one a town may set"),
+    ({"options": ["-o", "LOG"]}, {}, "option '-o'"),
+    ({"options": ["--grid.number", "--plain-output-prefix=LOG"]}, {}, "is not one a town may set"),
+    ({"kind": "plain", "plain": "../../x"}, {}, "plain: id '../../x' is not a safe name"),
+    ({"lanes": 0}, {}, "lanes: 0 is out of range"), ({"demand_scale": 0}, {}, "demand_scale: 0 is out of range"),
+    ({}, {"spacing_m": 0}, "buildings.spacing_m: 0 is out of range"),
+    ({}, {"height_m": [30, 4]}, "buildings.height_m: [30, 4] runs from high to low")])
+def test_a_hostile_towns_config_is_one_line_and_writes_nothing(capsys, tmp_path, town, buildings, says):
+    """A towns yaml is a file a user hands to `asg towns build`: its town names become file names
+    and its options go to netgenerate, whose file options (--log, --save-configuration, -o) wrote
+    wherever the yaml said. Only the options of a town's shape are taken."""
+    import yaml
+
+    from test_cli import assert_one_line_error, run
+
+    log = tmp_path / "written.log"
+    spec = {k: ([o.replace("LOG", str(log)) for o in v] if k == "options" else v) for k, v in {**_GRID, **town}.items()}
+    config = tmp_path / "towns.yaml"
+    config.write_text(yaml.safe_dump({"towns": [spec], "buildings": buildings}))
+    out = tmp_path / "out" / "nets"
+    out.mkdir(parents=True)
+    code, err = run(capsys, "towns", "build", "--config", str(config), "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, says)
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == ["towns.yaml"]
+
+
+def test_a_town_named_twice_is_refused(tmp_path):
+    import yaml
+
+    config = tmp_path / "towns.yaml"
+    config.write_text(yaml.safe_dump({"towns": [_GRID, {**_GRID, "options": list(_GRID["options"])}]}))
+    with pytest.raises(InputError, match="town 'g' is named twice"):
+        towns.load_towns_config(config)
