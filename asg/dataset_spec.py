@@ -36,6 +36,41 @@ class DatasetSpec:
     #: the fewest fused LiDAR points on average: the most occluded ones
     fewest_points_share: float | None = None
 
+    def check(self, where: str) -> "DatasetSpec":
+        """``self`` if every setting is in range (one InputError naming ``where`` and the first that
+        is not): towns and a split that are names, known densities, seeds, a log of at most a day,
+        a frame every 1 or more recorded periods, shares in [0, 1], counts of 1 or more."""
+        from sumo_scenarios import checks
+        from sumo_scenarios.routes import DENSITIES
+
+        for name, values in (("towns", self.towns), ("densities", self.densities), ("seeds", self.seeds)):
+            if not values:
+                raise InputError(f"{where}.{name}: give at least one")
+        for town in self.towns:
+            checks.safe_id(town, f"{where}.towns")
+        for density in self.densities:
+            if density not in DENSITIES:
+                raise InputError(f"{where}.densities: {density!r} is not one of {', '.join(DENSITIES)}")
+        for seed in self.seeds:
+            checks.number(seed, f"{where}.seeds", 0, 2**31 - 1)
+        checks.number(self.duration_s, f"{where}.duration_s", 0.0, 86_400.0, lo_open=True)
+        checks.number(self.every, f"{where}.every", 1, 100_000)
+        checks.number(self.ego_rsu_share, f"{where}.ego_rsu_share", 0.0, 1.0)
+        checks.number(self.collaborators, f"{where}.collaborators", 0, 16)
+        for key in ("frames_per_log", "total", "max_logs"):
+            if getattr(self, key) is not None:
+                checks.number(getattr(self, key), f"{where}.{key}", 1, 10_000_000)
+        if self.val is not None:
+            checks.number(self.val, f"{where}.val", 0, (self.total or 1) - 1)
+        checks.safe_id(self.split, f"{where}.split")
+        if self.vehicles_in_range is not None:
+            low, high = (checks.number(v, f"{where}.vehicles_in_range", 0, 10_000) for v in self.vehicles_in_range)
+            if low > high:
+                raise InputError(f"{where}.vehicles_in_range: [{low:g}, {high:g}] runs from high to low")
+        if self.fewest_points_share is not None:
+            checks.number(self.fewest_points_share, f"{where}.fewest_points_share", 0.0, 1.0, lo_open=True)
+        return self
+
 
 def data_root() -> Path:
     return Path(os.environ.get("ASG_DATA", runs_dir() / "datasets"))
@@ -50,7 +85,7 @@ def check_train_source(name: str, where: str) -> str:
     checks.safe_id(name, f"{where}: data set")
     specs = read_yaml(configs_dir() / "datasets.yaml")
     if name in specs:
-        spec = from_mapping(DatasetSpec, specs[name], f"datasets.yaml:{name}")
+        spec = from_mapping(DatasetSpec, specs[name], f"datasets.yaml:{name}").check(f"datasets.yaml:{name}")
         if spec.total is None and spec.split != "train":
             raise InputError(f"{where}: data set '{name}' has no train split (its one split is '{spec.split}': "
                              "never trained on); name a set with one, e.g. normal or detector-train")
@@ -63,4 +98,4 @@ def load_spec(name: str) -> DatasetSpec:
     data = read_yaml(configs_dir() / "datasets.yaml")
     if name not in data:
         raise InputError(f"unknown data set '{name}'; known: {', '.join(sorted(data))}")
-    return from_mapping(DatasetSpec, data[name], f"datasets.yaml:{name}")
+    return from_mapping(DatasetSpec, data[name], f"datasets.yaml:{name}").check(f"datasets.yaml:{name}")

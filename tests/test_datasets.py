@@ -1,6 +1,8 @@
 """Data set selection: the Heuristic set's filters (vehicles in range, the most occluded share)."""
 from dataclasses import replace
 
+import pytest
+
 from asg.datasets import DatasetSpec, _fewest_points, _kept, load_spec
 from asg.scene import Scene
 
@@ -37,3 +39,19 @@ def test_holdout_town_is_in_no_other_set():
     holdout = load_spec("holdout")
     others = {t for name in names if name != "holdout" for t in load_spec(name).towns}
     assert holdout.towns and not set(holdout.towns) & others and holdout.split == "test"
+
+
+@pytest.mark.parametrize("change, says", [
+    ({"every": 0}, "every: 0 is out of range"), ({"towns": ()}, "towns: give at least one"),
+    ({"towns": ("../x",)}, "not a safe name"), ({"densities": ("rush",)}, "'rush' is not one of"),
+    ({"duration_s": 1e9}, "duration_s: 1e+09 is out of range"), ({"ego_rsu_share": 2.0}, "ego_rsu_share: 2"),
+    ({"total": 10, "val": 10}, "val: 10 is out of range"), ({"vehicles_in_range": (30, 20)}, "runs from high to low"),
+    ({"fewest_points_share": 0.0}, "fewest_points_share: 0 is out of range")])
+def test_a_data_set_spec_out_of_range_is_refused(change, says):
+    """configs/datasets.yaml's sets are checked when loaded: a frame every 0 periods or a day-long
+    log would loop or run for hours before failing."""
+    from sumo_scenarios.errors import InputError
+
+    with pytest.raises(InputError, match="datasets.yaml:normal") as error:
+        replace(load_spec("normal"), **change).check("datasets.yaml:normal")
+    assert says in str(error.value)
