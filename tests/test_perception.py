@@ -128,6 +128,20 @@ def test_out_of_range_detector_config_is_one_clear_error(tmp_path, line):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("settings, key", [
+    ({"range_m": 1e6}, "range_m"), ({"pillar_m": 1e-4}, "pillar_m"), ({"range_m": 200.0, "pillar_m": 0.1}, "pillar_m"),
+    ({"filters": (32, 64, 10**6)}, "filters"), ({"pfn_channels": 10**6}, "pfn_channels"), ({"layers": (1, 2, 1000)}, "layers"),
+    ({"max_detections": 10**6}, "max_detections"), ({"neg_iou": 0.9}, "neg_iou"), ({"z_range_m": (1.0, -1.0)}, "z_range_m"),
+    ({"anchors": ()}, "anchors"), ({"anchors": ((4.6, 1.9, 1e9),)}, "anchors"), ({"iou_patch": 99}, "iou_patch")])
+def test_a_network_beyond_memory_or_sense_is_refused(settings, key):
+    """A settings file is checked for the sizes a network can have (a grid of 10^6 pillars a side or
+    a layer of 10^6 channels would not fit in memory), not only for signs."""
+    from asg.perception.config import DetectorConfig
+
+    with pytest.raises(InputError, match=f"{key} = .* is out of range"):
+        DetectorConfig(**settings)
+
+
 def test_a_settings_file_extends_another_beside_it(tmp_path):
     """extends: NAME takes NAME's keys and replaces those the file gives (the wide variant keeps the
     shipped post-processing); a base that is not a plain name beside it, the file itself, a base

@@ -13,6 +13,12 @@ from sumo_scenarios.strict import from_mapping, read_yaml
 ATTFUSE_FUSIONS = ("output", "stages", "stage1", "pillars")
 
 
+#: the largest BEV grid (pillars a side) and the widest layer (channels) a settings file may ask
+#: for: a network beyond them would not fit in memory (the shipped: 192 pillars, 128 channels)
+MAX_GRID = 1024
+MAX_CHANNELS = 1024
+
+
 @dataclass(frozen=True)
 class DetectorConfig:
     """PointPillars settings. Frames: the detecting agent's sensor frame (x forward, metres).
@@ -67,12 +73,20 @@ class DetectorConfig:
     comm_threshold: float = 0.01
 
     def __post_init__(self) -> None:
-        checks = [("range_m", self.range_m > 0), ("pillar_m", self.pillar_m > 0),
+        checks = [("range_m", 0 < self.range_m <= 200), ("pillar_m", 0.05 <= self.pillar_m <= 10),
+                  ("pillar_m", self.grid_size <= MAX_GRID), ("z_range_m", self.z_range_m[0] < self.z_range_m[1]),
+                  ("pfn_channels", 1 <= self.pfn_channels <= MAX_CHANNELS),
+                  ("upsample_channels", 1 <= self.upsample_channels <= MAX_CHANNELS),
+                  ("layers", all(0 <= n <= 32 for n in self.layers)),
+                  ("filters", all(1 <= n <= MAX_CHANNELS for n in self.filters)),
+                  ("anchors", bool(self.anchors) and all(0 < s <= 30 for a in self.anchors for s in a)),
+                  ("anchor_rotations_deg", 1 <= len(self.anchor_rotations_deg) <= 8),
+                  ("neg_iou", 0 < self.neg_iou <= self.pos_iou <= 1),
                   ("score_threshold", 0 <= self.score_threshold < 1), ("nms_iou", 0 < self.nms_iou <= 1),
-                  ("vote_iou", 0 <= self.vote_iou <= 1), ("vote_power", self.vote_power >= 0),
-                  ("iou_rescore", 0 <= self.iou_rescore <= 1), ("iou_hidden", self.iou_hidden >= 1),
-                  ("iou_patch", self.iou_patch >= 1 and self.iou_patch % 2 == 1),
-                  ("max_detections", self.max_detections >= 1),
+                  ("vote_iou", 0 <= self.vote_iou <= 1), ("vote_power", 0 <= self.vote_power <= 100),
+                  ("iou_rescore", 0 <= self.iou_rescore <= 1), ("iou_hidden", 1 <= self.iou_hidden <= 4096),
+                  ("iou_patch", 1 <= self.iou_patch <= 15 and self.iou_patch % 2 == 1),
+                  ("max_detections", 1 <= self.max_detections <= 1000),
                   ("attfuse_fusion", self.attfuse_fusion in ATTFUSE_FUSIONS),
                   ("point_stage_rescore", 0 <= self.point_stage_rescore <= 1),
                   ("comm_threshold", 0 <= self.comm_threshold < 1)]
