@@ -226,7 +226,7 @@ def test_render_bad_inputs(capsys, tmp_path):
     assert code == 2
     assert_one_line_error(err, "empty scene")
     # a sensor with zero channels, one with a negative range
-    for bad, needle in (("channels: 0", "channels must be at least 1"), ("range_m: -5.0", "range_m must be positive")):
+    for bad, needle in (("channels: 0", "channels: 0 is out of range"), ("range_m: -5.0", "range_m: -5 is out of range")):
         spec = tmp_path / "bad_lidar.yaml"
         spec.write_text(f"name: bad\n{bad}\n")
         code, err = run(capsys, "render", str(scene), "--lidar", str(spec), "--out", str(tmp_path / "x.png"))
