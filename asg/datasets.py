@@ -16,7 +16,7 @@ import json
 import shutil
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -250,19 +250,30 @@ def check_set_name(set_name: str) -> str:
     raise InputError(f"unknown set {set_name!r}; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
 
 
+def unique_ids(scenes: Iterable[Scene]) -> Iterator[Scene]:
+    """The scenes, a repeated id made unique by its repeat number (``ID-2``, ``ID-3``): a data set may
+    hold two scenes of one id (the same town, seed and time at two traffic densities), which would
+    otherwise be one folder or file of a run or an export."""
+    seen: dict[str, int] = {}
+    for scene in scenes:
+        k = seen[scene.scene_id] = seen.get(scene.scene_id, 0) + 1
+        yield scene if k == 1 else replace(scene, scene_id=f"{scene.scene_id}-{k}")
+
+
 def scenes_of(set_name: str) -> Iterator[Scene]:
-    """Scenes of a named set (building the normal set if needed) or of a folder of scene yaml."""
+    """Scenes of a named set (building the normal set if needed; a repeated id made unique,
+    :func:`unique_ids`) or of a folder of scene yaml."""
     check_set_name(set_name)
     if set_name in SETS:
         name, split = SETS[set_name]
         if not (dataset_path(name) / "index.json").is_file():
             build_dataset(name)
-        return iter_frames(name, split)
+        return unique_ids(iter_frames(name, split))
     if set_name.startswith("challenging-"):
         return challenging_scenes(set_name)
     p = Path(set_name)
     if (p / "index.json").is_file():
-        return iter_frames(p)
+        return unique_ids(iter_frames(p))
     if p.is_dir():
         files = sorted(p.glob("*.yaml"))
         if not files:

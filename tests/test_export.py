@@ -422,7 +422,7 @@ def test_export_of_an_rsu_ego_run_exits_zero(capsys, scenes_dir, tmp_path, fmt, 
 def test_scenes_of_one_id_are_exported_apart(tmp_path, cross_map):
     """A data set may hold two scenes of one id (detector-train: the same town, seed and time at two
     densities); the export gives the second its own folder instead of merging their agents."""
-    from asg.io.export import unique_ids
+    from asg.datasets import unique_ids
     from conftest import car, make_scene, rsu
 
     scene = make_scene(cross_map, [rsu("r", 8.0, 8.0), car("a", -10.0, -1.6)], collaborators=["a"])

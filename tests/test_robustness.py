@@ -975,11 +975,12 @@ def test_a_data_set_whose_frames_and_index_disagree_is_refused(tmp_path, ids, sp
 
 def test_a_data_set_may_repeat_an_id(tmp_path):
     """detector-train holds the same town, seed and time at two densities: two scenes of one id,
-    both read (asg harden's pool gives the second a suffix)."""
+    both read; as a set of scenes (asg generate --scenes, evaluate, export) the second is ID-2,
+    where a run would otherwise refuse the set or write both into one folder."""
     import gzip
     import json
 
-    from asg.datasets import iter_frames
+    from asg.datasets import iter_frames, scenes_of
 
     folder = tmp_path / "set"
     folder.mkdir()
@@ -987,6 +988,7 @@ def test_a_data_set_may_repeat_an_id(tmp_path):
     with gzip.open(folder / "frames.jsonl.gz", "wt", encoding="utf-8") as fh:
         fh.writelines(json.dumps(_scene_dict(i)) + "\n" for i in ("s0", "s1", "s0"))
     assert [s.scene_id for s in iter_frames(folder, "all")] == ["s0", "s1", "s0"]
+    assert [s.scene_id for s in scenes_of(str(folder))] == ["s0", "s1", "s0-2"]
 
 
 @pytest.mark.parametrize("factory, code, word", [("fakes:sigint_swallowed_factory", 130, "interrupted"),

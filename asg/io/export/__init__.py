@@ -27,6 +27,7 @@ from sumo_scenarios.errors import InputError
 
 from ...registry import import_modules
 from ...scene import Scene, load_scene
+from ...datasets import unique_ids
 from ...scene.views import Views, every_view
 from .base import EXPORT_FORMATS, net_of  # noqa: F401  (this package's API)
 
@@ -48,18 +49,6 @@ def source_scenes(source: Path | str) -> Iterator[Scene]:
     from ...datasets import scenes_of
 
     return scenes_of(str(source))
-
-
-def unique_ids(scenes: Iterator[Scene]) -> Iterator[Scene]:
-    """The scenes, a repeated id made unique by its repeat number (``ID-2``, ``ID-3``): a data set may
-    hold two scenes of one id (the same town, seed and time at two traffic densities), which would
-    otherwise be written into one folder or file."""
-    from dataclasses import replace
-
-    seen: dict[str, int] = {}
-    for scene in scenes:
-        k = seen[scene.scene_id] = seen.get(scene.scene_id, 0) + 1
-        yield scene if k == 1 else replace(scene, scene_id=f"{scene.scene_id}-{k}")
 
 
 #: the record of what an export folder holds (written once its format could start, before any scene)
@@ -93,7 +82,7 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
 
     out = output_dir(Path(out))
     _refuse_links_inside(out)
-    scenes = unique_ids(source_scenes(source))
+    scenes = unique_ids(source_scenes(source))  # a run folder's too
     if views is Views.ALL:
         scenes = every_view(scenes)
     first = next(scenes, None)  # the source read and its first scene checked before the folder is claimed
