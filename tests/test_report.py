@@ -107,6 +107,10 @@ def test_tampered_run_folders_are_one_line(capsys, tmp_path):
         "no detections": lambda o: (o / "scenes" / "s0" / "detections.npz").unlink(),
         "object array": lambda o: np.savez(o / "scenes" / "s0" / "detections.npz", x=np.array([{}], dtype=object)),
         "detections not a zip": lambda o: (o / "scenes" / "s0" / "detections.npz").write_bytes(b"PK\x03\x04garbage"),
+        # 12 MB of zeros packed into a few kB: a larger one would fill the memory when read
+        "detections a zip bomb": lambda o: np.savez_compressed(o / "scenes" / "s0" / "detections.npz",
+                                                               final_boxes=np.zeros((220_000, 7)),
+                                                               final_scores=np.zeros(1), final_gt=np.zeros((0, 7))),
         "history text": lambda o: (o / "scenes" / "s0" / "history.csv").write_text("step,loss\n1,abc\n"),
         "history without loss": lambda o: (o / "scenes" / "s0" / "history.csv").write_text("step\n1\n"),
         # never blocks on, follows or exhausts memory on a file where a json belongs
@@ -215,3 +219,22 @@ def test_report_never_writes_over_a_special_file_or_an_input_of_the_run(capsys, 
         assert_one_line_error(err, words)
     assert fifo.is_fifo() and summary.read_bytes() == before and not (tmp_path / "elsewhere.html").exists()
     assert Path("/dev/null").is_char_device()
+
+
+def test_a_detections_archive_that_unpacks_beyond_a_scene_is_not_unpacked(tmp_path):
+    """A run folder is handed in: a detections.npz whose arrays unpack past what a scene holds (a
+    few kB of zeros that would unpack to gigabytes) is refused from the archive's index, before
+    any array is read."""
+    import numpy as np
+
+    from asg.generator.run_folder import MAX_DETECTION_ARRAY_BYTES, load_detections
+    from sumo_scenarios.errors import InputError
+
+    folder = tmp_path / "scenes" / "s0"
+    folder.mkdir(parents=True)
+    rows = MAX_DETECTION_ARRAY_BYTES // (7 * 8) + 1
+    np.savez_compressed(folder / "detections.npz", final_boxes=np.zeros((rows, 7)), final_scores=np.zeros(1),
+                        final_gt=np.zeros((0, 7)))
+    assert (folder / "detections.npz").stat().st_size < 100_000
+    with pytest.raises(InputError, match="final_boxes.npy unpacks to more than 8 MB"):
+        load_detections(tmp_path, "s0")

@@ -105,8 +105,19 @@ def _write_artifacts(work: Path, r: SceneResult) -> None:
                    changes=cloud_changes(r.frames[Stage.AFTER_ACS], r.frames[stage]) if final and r.moved else None)
 
 
+#: the largest array a scene's detections.npz holds, unpacked (bytes): a frame's boxes and ground
+#: truth are at most a thousand rows of 7 numbers; a larger one is not asg's (a small archive can
+#: unpack to gigabytes)
+MAX_DETECTION_ARRAY_BYTES = 8 << 20
+
+
 def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:
-    with np.load(out_dir / "scenes" / scene_id / "detections.npz") as z:
+    """Each stage's (boxes (K, 7), scores (K,), ground truth (M, 7)) of a scene, ego frame."""
+    path = out_dir / "scenes" / scene_id / "detections.npz"
+    with np.load(path, allow_pickle=False) as z:
+        if big := next((i.filename for i in z.zip.infolist() if i.file_size > MAX_DETECTION_ARRAY_BYTES), None):
+            raise InputError(f"{path}: {big} unpacks to more than {MAX_DETECTION_ARRAY_BYTES >> 20} MB, which asg "
+                             "never writes for a scene; regenerate the scene")
         return {k: (z[f"{k}_boxes"], z[f"{k}_scores"], z[f"{k}_gt"]) for k in Stage if f"{k}_boxes" in z}
 
 
