@@ -62,11 +62,25 @@ def load_strict_yaml(text: str, loader: type = StrictLoader) -> Any:
     return yaml.load(text, Loader=loader)
 
 
+#: the largest YAML file asg reads (bytes): a scene with its town's lanes is well under a megabyte
+MAX_YAML_BYTES = 64 * 1024 * 1024
+
+
+def check_yaml_size(path: Path) -> Path:
+    """``path``, refused (InputError naming it) if the file is larger than MAX_YAML_BYTES: a file
+    that size is none asg or a user wrote, and reading and parsing it would take the memory."""
+    if path.stat().st_size > MAX_YAML_BYTES:
+        raise InputError(f"{path}: larger than {MAX_YAML_BYTES >> 20} MB, which no settings or scene file is; "
+                         "check the path")
+    return path
+
+
 def read_yaml(path: str | Path) -> Any:
-    """Parse a YAML file; a missing or malformed file is an InputError naming it."""
+    """Parse a YAML file; a missing, oversized or malformed file is an InputError naming it."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: file not found; check the path")
+    check_yaml_size(p)
     try:
         return load_strict_yaml(p.read_text(encoding="utf-8"), ConfigLoader)
     except InputError as exc:

@@ -69,3 +69,17 @@ def test_scene_unknown_ego(sumo_log):
     data["ego"] = "nobody"
     with pytest.raises(InputError, match="'nobody'"):
         Scene.from_dict(data)
+
+
+def test_a_yaml_file_larger_than_any_asg_reads_is_not_read(tmp_path):
+    """A scene or settings file of 64 MB or more is none asg or a user wrote: refused by its size,
+    before it is read into memory and parsed (a sparse file here: no disk is filled)."""
+    from sumo_scenarios.strict import MAX_YAML_BYTES, read_yaml
+
+    big = tmp_path / "big.yaml"
+    with open(big, "w") as fh:
+        fh.write("scene_id: x\n")
+        fh.truncate(MAX_YAML_BYTES + 1)
+    for read in (load_scene, read_yaml):
+        with pytest.raises(InputError, match=f"{big}: larger than 64 MB"):
+            read(big)

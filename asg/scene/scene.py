@@ -30,7 +30,7 @@ from sumo_scenarios.buildings import Building
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.log import SOURCES  # where scenes come from (their one home)
 from sumo_scenarios.lanes import LaneMap
-from sumo_scenarios.strict import load_strict_yaml
+from sumo_scenarios.strict import check_yaml_size, load_strict_yaml
 
 from .agent import Agent
 from .link import LinkState
@@ -213,6 +213,7 @@ def load_scene(path: str | Path) -> Scene:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: scene file not found; check the path")
+    check_yaml_size(p)
     try:
         data = load_strict_yaml(p.read_text(encoding="utf-8"))
     except InputError as exc:
