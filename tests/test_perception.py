@@ -129,7 +129,7 @@ def test_out_of_range_detector_config_is_one_clear_error(tmp_path, line):
 
 
 @pytest.mark.parametrize("settings, key", [
-    ({"range_m": 1e6}, "range_m"), ({"pillar_m": 1e-4}, "pillar_m"), ({"range_m": 200.0, "pillar_m": 0.1}, "pillar_m"),
+    ({"range_m": 1e6}, "range_m"), ({"pillar_m": 1e-4}, "pillar_m"), ({"pillar_m": 0.0}, "pillar_m"), ({"range_m": 200.0, "pillar_m": 0.1}, "pillar_m"),
     ({"filters": (32, 64, 10**6)}, "filters"), ({"pfn_channels": 10**6}, "pfn_channels"), ({"layers": (1, 2, 1000)}, "layers"),
     ({"max_detections": 10**6}, "max_detections"), ({"neg_iou": 0.9}, "neg_iou"), ({"z_range_m": (1.0, -1.0)}, "z_range_m"),
     ({"anchors": ()}, "anchors"), ({"anchors": ((4.6, 1.9, 1e9),)}, "anchors"), ({"iou_patch": 99}, "iou_patch")])

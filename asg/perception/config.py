@@ -73,8 +73,9 @@ class DetectorConfig:
     comm_threshold: float = 0.01
 
     def __post_init__(self) -> None:
-        checks = [("range_m", 0 < self.range_m <= 200), ("pillar_m", 0.05 <= self.pillar_m <= 10),
-                  ("pillar_m", self.grid_size <= MAX_GRID), ("z_range_m", self.z_range_m[0] < self.z_range_m[1]),
+        checks = [("range_m", 0 < self.range_m <= 200),
+                  ("pillar_m", 0.05 <= self.pillar_m <= 10 and self.grid_size <= MAX_GRID),  # no grid of 0 m pillars
+                  ("z_range_m", self.z_range_m[0] < self.z_range_m[1]),
                   ("pfn_channels", 1 <= self.pfn_channels <= MAX_CHANNELS),
                   ("upsample_channels", 1 <= self.upsample_channels <= MAX_CHANNELS),
                   ("layers", all(0 <= n <= 32 for n in self.layers)),
