@@ -68,8 +68,8 @@ def load_towns_config(path: str | Path | None = None) -> TownsConfig:
 
 def check_town(spec: TownSpec, where: str) -> None:
     """InputError naming ``where`` and the town unless its name (and plain files' name) is a safe
-    file name, its numbers are within TOWN_LIMITS and every option is one of TOWN_OPTION_PREFIXES'
-    (``--grid.number 4`` or ``--grid.number=4``; a value never starts with ``-``)."""
+    file name, its numbers are within TOWN_LIMITS and every element of its options that starts with
+    ``-`` is an option of TOWN_OPTION_PREFIXES' families (``--grid.number 4`` or ``--grid.number=4``)."""
     name = checks.safe_id(spec.name, f"{where}: a town's name")
     at = f"{where}: town '{name}'"
     if spec.plain is not None:

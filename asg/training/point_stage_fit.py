@@ -94,7 +94,7 @@ def _cached_frames(cache: Path, settings: str) -> list[Frame]:
 
     try:
         with np.load(cache, allow_pickle=False) as archive:
-            arrays = {k: archive[k] for k in archive.files}  # read once: each read decompresses again
+            arrays = {k: archive[k] for k in archive.files}  # once: each read of an array reads it whole
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise damaged(exc) from None
     _check_same_run(str(arrays["settings"]) if "settings" in arrays else "", settings, cache)
