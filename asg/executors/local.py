@@ -189,6 +189,7 @@ class LocalExecutor(Executor):
 def _stop(pool: ProcessPoolExecutor) -> None:
     """Cancel what has not started and stop the workers (SIGTERM: they clean up, then exit)."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
@@ -198,3 +199,8 @@ def _stop(pool: ProcessPoolExecutor) -> None:
         if p.is_alive():  # stuck in native code: cleanup is no longer worth a scheduler's kill of us all
             p.kill()
             p.join(timeout=STOP_GRACE_S)
+    if manager is not None:
+        # the pool's manager thread closes its wake-up pipe as it ends; Python 3.11's exit hook
+        # wakes it without a lock, and one that is closing the pipe that moment made the exit
+        # print "Exception ignored ... Bad file descriptor" after the command's one line
+        manager.join(timeout=STOP_GRACE_S)
