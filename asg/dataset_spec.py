@@ -85,7 +85,7 @@ def check_train_source(name: str, where: str) -> str:
     checks.safe_id(name, f"{where}: data set")
     specs = read_yaml(configs_dir() / "datasets.yaml")
     if name in specs:
-        spec = from_mapping(DatasetSpec, specs[name], f"datasets.yaml:{name}").check(f"datasets.yaml:{name}")
+        spec = _spec(specs, name)
         if spec.total is None and spec.split != "train":
             raise InputError(f"{where}: data set '{name}' has no train split (its one split is '{spec.split}': "
                              "never trained on); name a set with one, e.g. normal or detector-train")
@@ -98,4 +98,9 @@ def load_spec(name: str) -> DatasetSpec:
     data = read_yaml(configs_dir() / "datasets.yaml")
     if name not in data:
         raise InputError(f"unknown data set '{name}'; known: {', '.join(sorted(data))}")
+    return _spec(data, name)
+
+
+def _spec(data: dict, name: str) -> DatasetSpec:
+    """Set ``name`` of datasets.yaml's mapping ``data``, checked."""
     return from_mapping(DatasetSpec, data[name], f"datasets.yaml:{name}").check(f"datasets.yaml:{name}")

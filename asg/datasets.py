@@ -185,7 +185,7 @@ def iter_frames(name_or_dir: str | Path, split: str | None = None) -> Iterator[S
             raise InputError(f"data set '{name_or_dir}' has no split '{split}'; splits: {', '.join(index['splits'])}")
         wanted = set(index["splits"][split])
     frames = _regular_file(folder / "frames.jsonl.gz")
-    seen: set[str] = set()
+    missing = set(wanted or ())  # the split's scenes not met yet
     try:
         with gzip.open(frames, "rb") as fh:
             for number, line in enumerate(iter(lambda: fh.readline(MAX_FRAME_LINE_BYTES + 1), b""), start=1):
@@ -195,14 +195,14 @@ def iter_frames(name_or_dir: str | Path, split: str | None = None) -> Iterator[S
                 d = json.loads(line.decode("utf-8"))
                 if not isinstance(d, dict) or not isinstance(d.get("scene_id"), str):
                     raise InputError(f"{frames}: line {number} is not a scene; rebuild the data set")
-                seen.add(d["scene_id"])
+                missing.discard(d["scene_id"])
                 if wanted is None or d["scene_id"] in wanted:
                     yield Scene.from_dict(d, str(folder))
     except (OSError, EOFError, zlib.error, UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise InputError(f"{frames}: damaged ({type(exc).__name__}); rebuild the data set with 'asg dataset build'") from None
-    if wanted is not None and not wanted <= seen:
-        raise InputError(f"{folder / 'index.json'}: split '{split}' names {len(wanted - seen)} scenes that "
-                         f"{frames.name} does not hold (e.g. {sorted(wanted - seen)[0][:60]!r}); rebuild the data set")
+    if missing:
+        raise InputError(f"{folder / 'index.json'}: split '{split}' names {len(missing)} scenes that "
+                         f"{frames.name} does not hold (e.g. {sorted(missing)[0][:60]!r}); rebuild the data set")
 
 
 def _regular_file(path: Path) -> Path:

@@ -60,9 +60,16 @@ def run(args: list[str], what: str, timeout_s: float | None = None) -> str:
         if any(w in l for l in lines for w in ("bad_alloc", "MemoryError", "out of memory")):
             raise InputError(f"{what} ran out of its {MAX_TOOL_MEMORY_BYTES / 1024**3:g} GiB of memory; "
                              "check the input's numbers or give a smaller map")
-        errors = [l for l in lines if "rror" in l and not l.startswith("Quitting")] or lines
-        raise InputError(f"{what} failed: {errors[0][:300] if errors else 'exit code ' + str(proc.returncode)}")
+        raise InputError(f"{what} failed: {first_error(lines) or 'exit code ' + str(proc.returncode)}")
     return proc.stdout
+
+
+def first_error(lines: list[str]) -> str:
+    """The line of a SUMO program's output that says what went wrong (at most 300 characters): its
+    first error line, else its first line; empty for no output (SUMO's last line is only
+    'Quitting (on error).')."""
+    errors = [l for l in lines if "rror" in l and not l.startswith("Quitting")] or lines
+    return errors[0][:300] if errors else ""
 
 
 def run_python_tool(relpath: str, args: list[str], what: str) -> str:

@@ -27,7 +27,6 @@ from sumo_scenarios.errors import InputError
 
 from ...registry import import_modules
 from ...scene import Scene, load_scene
-from ...datasets import unique_ids
 from ...scene.views import Views, every_view
 from .base import EXPORT_FORMATS, net_of  # noqa: F401  (this package's API)
 
@@ -79,6 +78,8 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     scene as each of its sensing agents sees it: :func:`every_view`); returns the scene count."""
     writer_class = EXPORT_FORMATS.entry(fmt)
     from sumo_scenarios.checks import output_dir
+
+    from ...datasets import unique_ids
 
     out = output_dir(Path(out))
     _refuse_links_inside(out)

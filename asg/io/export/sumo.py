@@ -84,9 +84,8 @@ class RoutesWriter:
                                    "--save-state.files", str(tmp), "--no-step-log", "--no-warnings"],
                                   capture_output=True, text=True, env=sumo_tools.sumo_env())
             if done.returncode != 0 or not tmp.stat().st_size:
-                lines = done.stderr.strip().splitlines() or ["no message"]
-                cause = next((line for line in lines if line.startswith("Error:")), lines[-1])
-                raise InputError(f"{config}: SUMO could not load the exported routes ({cause})")
+                cause = sumo_tools.first_error([line.strip() for line in done.stderr.splitlines() if line.strip()])
+                raise InputError(f"{config}: SUMO could not load the exported routes ({cause or 'no message'})")
 
     def _net(self, path: Path):
         import sumolib
