@@ -21,7 +21,7 @@ from .buildings import generate_buildings, write_buildings
 from .errors import InputError
 from .fcd import FcdFrame, FcdVehicle, front_from_center, sumo_angle_from_yaw_rad, write_fcd
 from .lanes import Junction, Lane, LaneMap
-from .log import BUILDINGS_NAME, LANES_NAME, LogMeta, density_stats, write_lanes, write_meta
+from .log import BUILDINGS_NAME, FCD_NAME, LANES_NAME, LogMeta, density_stats, write_lanes, write_meta
 from .rsu import place_rsus
 from .simulate import MAX_SECONDS, validate_times
 
@@ -140,7 +140,7 @@ def simulate_highway(req: HighwayRequest, progress=None) -> dict:
     stats["wall_s"] = round(wall, 3)
     remove_stale_partials_of(req.out_dir)
     with atomic_dir(req.out_dir) as work:
-        write_fcd(work / "fcd.xml.gz", frames)
+        write_fcd(work / FCD_NAME, frames)
         write_lanes(work / LANES_NAME, lane_map)
         write_buildings(work / BUILDINGS_NAME, buildings)
         write_meta(work, LogMeta(

@@ -33,6 +33,10 @@ META_NAME = "meta.yaml"
 NET_NAME = "map.net.xml"
 LANES_NAME = "lanes.json.gz"
 BUILDINGS_NAME = "buildings.poly.xml"
+ROUTES_NAME = "routes.rou.xml"
+VTYPES_NAME = "vtypes.add.xml"
+#: every file a log folder of either source may hold
+LOG_FILES = (FCD_NAME, META_NAME, NET_NAME, LANES_NAME, BUILDINGS_NAME, ROUTES_NAME, VTYPES_NAME)
 
 #: radius (m) within which vehicles count as "near" an RSU in the density statistics:
 #: the evaluation range of the paper (x, y in [-48, 48] m)

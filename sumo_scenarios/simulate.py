@@ -13,7 +13,7 @@ from .atomic import atomic_dir, remove_stale_partials_of, write_text_atomic
 from .buildings import write_buildings
 from .errors import InputError
 from .fcd import FCD_ATTRIBUTES, FCD_ELEVATION_ATTRIBUTES, FcdFrame, FcdVehicle
-from .log import BUILDINGS_NAME, FCD_NAME, NET_NAME, LogMeta, density_stats, write_meta
+from .log import BUILDINGS_NAME, FCD_NAME, NET_NAME, ROUTES_NAME, VTYPES_NAME, LogMeta, density_stats, write_meta
 from .routes import DENSITIES, Density, TrafficParams, make_routes
 from .rsu import place_rsus
 from .towns import demand_scale, load_town
@@ -74,10 +74,10 @@ def simulate_sumo(req: SimulationRequest, progress: Progress | None = None) -> d
     with atomic_dir(req.out_dir) as work:
         shutil.copyfile(town.net_path, work / NET_NAME)
         write_buildings(work / BUILDINGS_NAME, town.buildings)
-        vtypes = work / "vtypes.add.xml"
+        vtypes = work / VTYPES_NAME
         write_text_atomic(vtypes, vtypes_additional_xml())
         traffic = req.traffic or TrafficParams(scale=demand_scale(req.town))
-        routes = make_routes(work / NET_NAME, vtypes, work / "routes.rou.xml", req.seed, end_s, req.density, traffic,
+        routes = make_routes(work / NET_NAME, vtypes, work / ROUTES_NAME, req.seed, end_s, req.density, traffic,
                              label=req.town or str(req.net))
         for leftover in work.glob("*.trips.xml"):
             leftover.unlink()

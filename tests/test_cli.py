@@ -191,6 +191,32 @@ def test_simulate_and_extract_end_to_end(capsys, tmp_path):
     assert len(list((tmp_path / "scenes").glob("*.yaml"))) == 5
 
 
+def test_a_log_folder_of_other_settings_is_refused_and_force_replaces_only_the_log(capsys, tmp_path):
+    log = tmp_path / "log"
+    short = ["--town", "fiveleg", "--duration", "2", "--warmup", "30", "--out", str(log)]
+    assert main(["simulate", *short]) == 0
+    (log / "notes.txt").write_text("mine")
+    names = sorted(p.name for p in log.iterdir())
+    assert main(["simulate", *short]) == 0  # the same settings: the log again (SUMO dates its header)
+    assert sorted(p.name for p in log.iterdir()) == names
+    before = {p.name: p.read_bytes() for p in log.iterdir()}
+    capsys.readouterr()
+    code, err = run(capsys, "simulate", *short, "--seed", "2")
+    assert code == 2
+    assert_one_line_error(err, "other settings", "seed", "--force")
+    assert {p.name: p.read_bytes() for p in log.iterdir()} == before  # nothing touched
+    code, err = run(capsys, "simulate", "--source", "highway-env", "--env", "merge-v0", "--duration", "2",
+                    "--out", str(log), "--force")
+    assert code == 0, err
+    assert not (log / "map.net.xml").exists() and (log / "lanes.json.gz").is_file()  # no file of the old log
+    assert (log / "notes.txt").read_text() == "mine"  # nor of anyone else's
+    (log / "run.json").unlink()  # a log that recorded no settings (written before they were recorded)
+    code, err = run(capsys, "simulate", "--source", "highway-env", "--env", "merge-v0", "--duration", "2",
+                    "--out", str(log))
+    assert code == 2
+    assert_one_line_error(err, "recorded no settings")
+
+
 def _one_scene(tmp_path, capsys) -> Path:
     log = tmp_path / "log"
     assert main(["simulate", "--town", "fiveleg", "--duration", "2", "--warmup", "30", "--out", str(log)]) == 0

@@ -3,15 +3,19 @@ fcd-output log."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import asdict
 from pathlib import Path
 
+from sumo_scenarios.digest import file_digest
 from sumo_scenarios.errors import InputError
 from sumo_scenarios.highway import HighwayRequest, simulate_highway
 from sumo_scenarios.log import NEAR_RADIUS_M, SOURCES
 from sumo_scenarios.routes import DENSITIES
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
+from sumo_scenarios.towns import resolve_net
 
 from ..cli_args import SEED
+from ..io.run_record import check_log_folder, claim_log_folder
 from ..progress import console, progress_bar
 
 
@@ -28,30 +32,56 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step", type=float, default=0.1, help="simulation step, s (default 0.1)")
     p.add_argument("--record-period", type=float, default=0.5, help="seconds between recorded frames (default 0.5)")
     p.add_argument("--out", type=Path, required=True, help="log folder to write")
+    p.add_argument("--force", action="store_true",
+                   help="replace the log of an --out simulated with other settings (its files alone are removed)")
+
+
+def _request(args: argparse.Namespace) -> SimulationRequest | HighwayRequest:
+    """The checked request of the command line (InputError, its one line, for a bad one)."""
+    if args.source == "highway-env":
+        if args.town or args.net:
+            raise InputError("--town/--net do not apply to --source highway-env; use --env instead")
+        req = HighwayRequest(out_dir=args.out, env_id=args.env, seed=args.seed, duration_s=args.duration,
+                             density=args.density, record_period_s=args.record_period,
+                             warmup_s=0.0 if args.warmup is None else args.warmup)
+    else:
+        if not args.town and not args.net:
+            raise InputError("give --town NAME (see 'asg towns list') or --net PATH")
+        req = SimulationRequest(out_dir=args.out, town=args.town, net=args.net, seed=args.seed,
+                                duration_s=args.duration, density=args.density, step_s=args.step,
+                                record_period_s=args.record_period,
+                                warmup_s=90.0 if args.warmup is None else args.warmup)
+    req.validate()
+    return req
+
+
+def _settings(req: SimulationRequest | HighwayRequest) -> dict:
+    """What the log folder's run.json records of ``req``: its fields, a user's net by its path and
+    content (the sha256 of the file)."""
+    settings = {"command": "simulate", "source": "highway-env" if isinstance(req, HighwayRequest) else "sumo",
+                **{k: v for k, v in asdict(req).items() if k not in ("out_dir", "net")}}
+    if getattr(req, "net", None) is not None:
+        _, net = resolve_net(net=req.net)  # one line for a missing or unreadable net
+        settings["net"] = str(net.resolve())
+        settings["net_sha256"] = file_digest(net)
+    return settings
 
 
 def run(args: argparse.Namespace) -> int:
+    req = _request(args)
+    settings = _settings(req)
+    check_log_folder(args.out, settings, args.force)
+    if args.force:  # the old log goes before the new one is simulated
+        claim_log_folder(args.out, settings, force=True)
     with progress_bar() as bar:
         task = bar.add_task(f"simulating ({args.source})", total=100)
 
         def report(done_s: float, total_s: float) -> None:
             bar.update(task, completed=100.0 * done_s / total_s)
 
-        if args.source == "highway-env":
-            if args.town or args.net:
-                raise InputError("--town/--net do not apply to --source highway-env; use --env instead")
-            req = HighwayRequest(out_dir=args.out, env_id=args.env, seed=args.seed, duration_s=args.duration,
-                                 density=args.density, record_period_s=args.record_period,
-                                 warmup_s=0.0 if args.warmup is None else args.warmup)
-            stats = simulate_highway(req, report)
-        else:
-            if not args.town and not args.net:
-                raise InputError("give --town NAME (see 'asg towns list') or --net PATH")
-            req = SimulationRequest(out_dir=args.out, town=args.town, net=args.net, seed=args.seed,
-                                    duration_s=args.duration, density=args.density, step_s=args.step,
-                                    record_period_s=args.record_period,
-                                    warmup_s=90.0 if args.warmup is None else args.warmup)
-            stats = simulate_sumo(req, report)
+        simulate = simulate_highway if isinstance(req, HighwayRequest) else simulate_sumo
+        stats = simulate(req, report)
+    claim_log_folder(args.out, settings)  # once the log is there: a failed run leaves no folder
     console.print(
         f"wrote {args.out}: {stats.get('frames', 0)} frames; vehicles within {NEAR_RADIUS_M:g} m of an RSU: "
         f"median {stats.get('near_rsu_median', 0):g} (p10 {stats.get('near_rsu_p10', 0):g}, p90 {stats.get('near_rsu_p90', 0):g})"

@@ -5,7 +5,8 @@ generator, ``asg finetune``, ``asg harden``) claims it here: a folder whose reco
 settings is refused in one line (``force`` empties it first); a rerun with the same settings resumes.
 So do the commands that write a folder of scene files (``asg scenes extract``, ``asg scenes import``):
 :func:`check_scene_folder` before they read their source, :func:`claim_scene_folder` before the
-first scene is written.
+first scene is written; and ``asg simulate``'s traffic log: :func:`check_log_folder` before it
+simulates, :func:`claim_log_folder` once the log is written.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from typing import Callable, Iterable
 from sumo_scenarios.atomic import write_text_atomic
 from sumo_scenarios.checks import output_dir
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.log import FCD_NAME, LOG_FILES, META_NAME
 
 from ..schemas import SchemaFile, schema_of, stamped, unversioned
 
@@ -87,6 +89,24 @@ def claim_scene_folder(out: Path, settings: dict, force: bool) -> None:
     out = Path(out)
     contents = [RUN_RECORD, *(p.name for p in out.glob("*.yaml"))] if out.is_dir() else []
     claim(out, settings, force, what="scene files", contents=contents, holds_results=_holds_scenes)
+
+
+def _holds_log(folder: Path) -> bool:
+    return (folder / RUN_RECORD).is_file() or (folder / FCD_NAME).is_file() or (folder / META_NAME).is_file()
+
+
+def check_log_folder(out: Path, settings: dict, force: bool) -> None:
+    """Refuse (InputError) a folder holding a traffic log simulated with other settings, or with
+    none recorded (``force``: nothing is refused); writes nothing."""
+    if not force:
+        check_claim(out, settings, what="a traffic log", holds_results=_holds_log)
+
+
+def claim_log_folder(out: Path, settings: dict, force: bool = False) -> None:
+    """Record ``settings`` as those of the traffic log in ``out`` (checked before it was simulated:
+    only a record of other settings is refused now); ``force`` first removes the files a log folder
+    holds (sumo_scenarios.log.LOG_FILES) and its record, nothing else."""
+    claim(out, settings, force, what="a traffic log", contents=[RUN_RECORD, *LOG_FILES])
 
 
 def with_defaults(record: dict, defaults: dict) -> dict:
