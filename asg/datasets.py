@@ -250,14 +250,15 @@ def check_set_name(set_name: str) -> str:
     raise InputError(f"unknown set {set_name!r}; use {', '.join(SETS)}, challenging-MODEL-SPLIT or a folder of scenes")
 
 
-def unique_ids(scenes: Iterable[Scene]) -> Iterator[Scene]:
+def unique_ids(scenes: Iterable[Scene], separator: str = "-") -> Iterator[Scene]:
     """The scenes, a repeated id made unique by its repeat number (``ID-2``, ``ID-3``): a data set may
     hold two scenes of one id (the same town, seed and time at two traffic densities), which would
-    otherwise be one folder or file of a run or an export."""
+    otherwise be one folder or file of a run or an export. ``separator``: what stands before the
+    number (a hardening pool's is ``_``: its rounds' scene folders and seeds are named so)."""
     seen: dict[str, int] = {}
     for scene in scenes:
         k = seen[scene.scene_id] = seen.get(scene.scene_id, 0) + 1
-        yield scene if k == 1 else replace(scene, scene_id=f"{scene.scene_id}-{k}")
+        yield scene if k == 1 else replace(scene, scene_id=f"{scene.scene_id}{separator}{k}")
 
 
 def scenes_of(set_name: str) -> Iterator[Scene]:

@@ -286,20 +286,14 @@ def guard(before_cache: Path, after_cache: Path, guard_set: str) -> dict:
 
 def _pool(cfg: HardenConfig) -> list[Scene]:
     """Every train-split scene of the pool sets, in a seeded order (the rounds' slices)."""
-    from ..datasets import build_dataset, dataset_path, iter_frames
+    from ..datasets import build_dataset, dataset_path, iter_frames, unique_ids
 
-    scenes: list[Scene] = []
-    seen: dict[str, int] = {}
     for name in cfg.pool:
         if not (dataset_path(name) / "index.json").is_file():
             build_dataset(name)
-        for scene in iter_frames(name, "train"):
-            # ids repeat across a set's logs (the same town, seed and time at two densities) and
-            # across sets: a repeat gets a suffix, so that each scene has its own folder
-            seen[scene.scene_id] = seen.get(scene.scene_id, 0) + 1
-            if seen[scene.scene_id] > 1:
-                scene = Scene.from_dict(scene.to_dict() | {"scene_id": f"{scene.scene_id}_{seen[scene.scene_id]}"})
-            scenes.append(scene)
+    # ids repeat across a set's logs (the same town, seed and time at two densities) and across
+    # sets: a repeat gets a suffix, so that each scene has its own folder
+    scenes = list(unique_ids((s for name in cfg.pool for s in iter_frames(name, "train")), separator="_"))
     order = np.random.default_rng([cfg.seed, 7]).permutation(len(scenes))
     return [scenes[int(i)] for i in order]
 
