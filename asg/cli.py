@@ -27,6 +27,15 @@ class _Parser(argparse.ArgumentParser):
         sys.stderr.write(f"asg: error: {message} (see '{self.prog} --help')\n")
         raise SystemExit(2)
 
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]):
+        """argparse's, with an empty value refused: ``--out ""`` would be the current folder, and
+        ``--fusion ""`` the default model (what a shell variable that was never set gives)."""
+        if action.nargs not in (argparse.PARSER, argparse.REMAINDER) and \
+                any(not text.strip() for text in arg_strings if isinstance(text, str)):
+            name = "/".join(action.option_strings) or action.metavar or action.dest
+            self.error(f"argument {name}: an empty value (a shell variable never set?); give one")
+        return super()._get_values(action, arg_strings)
+
 
 #: Command groups (``asg GROUP ACTION``): name -> (help, description, what the action is called)
 COMMAND_GROUPS = {

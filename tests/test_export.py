@@ -572,3 +572,12 @@ def test_a_name_longer_than_the_file_system_allows_is_one_line(argv, scenes_dir,
     code, err = run(capsys, *argv)
     assert code == 2
     assert_one_line_error(err)
+
+
+def test_every_export_format_says_whether_it_reads_the_net():
+    """``--net`` is refused for a format that does not read it: each writer says which it is."""
+    from asg.io.export import EXPORT_FORMATS
+
+    reads = {name: EXPORT_FORMATS.entry(name).reads_net for name in EXPORT_FORMATS.names()}
+    assert all(isinstance(v, bool) for v in reads.values())
+    assert {name for name, v in reads.items() if v} == {"openscenario", "sumo"}

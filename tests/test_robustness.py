@@ -253,6 +253,17 @@ def test_read_only_output_is_one_line(capsys, tmp_path):
     (["evaluate", "--fusion", "none", "--limit", "0"], "--limit"),
     (["simulate", "--town", "../nets/fiveleg", "--out", "OUT"], "unknown town"),
     (["render", "SCENE", "--out", "x.png", "--collaborators", "-1"], "--collaborators"),
+    # an empty value (a shell variable never set) would be the current folder or the default model
+    (["simulate", "--town", "fiveleg", "--out", ""], "--out: an empty value"),
+    (["generate", "--fusion", "", "--out", "OUT"], "--fusion: an empty value"),
+    (["generate", "--detector=", "--out", "OUT"], "--detector: an empty value"),
+    (["export", " ", "--format", "kitti", "--out", "OUT"], "source: an empty value"),
+    (["evaluate", "--set", ""], "--set: an empty value"),
+    # an option of another source or format is refused, not ignored
+    (["simulate", "--town", "fiveleg", "--env", "merge-v0", "--out", "OUT"], "--env applies to --source highway-env"),
+    (["simulate", "--source", "highway-env", "--step", "0.05", "--out", "OUT"], "--step applies to SUMO"),
+    (["export", "normal-val", "--format", "kitti", "--net", "x.net.xml", "--out", "OUT"],
+     "--net applies to the formats that read the scenes' SUMO net (openscenario, sumo)"),
 ])
 def test_bad_values_are_one_line(capsys, tmp_path, argv, needle):
     argv = [str(tmp_path / "out") if a == "OUT" else str(tmp_path / "s.yaml") if a == "SCENE" else a for a in argv]

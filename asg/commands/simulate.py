@@ -8,7 +8,7 @@ from pathlib import Path
 
 from sumo_scenarios.digest import file_digest
 from sumo_scenarios.errors import InputError
-from sumo_scenarios.highway import HighwayRequest, simulate_highway
+from sumo_scenarios.highway import ENVS, HighwayRequest, simulate_highway
 from sumo_scenarios.log import NEAR_RADIUS_M, SOURCES
 from sumo_scenarios.routes import DENSITIES
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
@@ -24,33 +24,40 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     where.add_argument("--town", help="a bundled town name (see 'asg towns list')")
     where.add_argument("--net", type=Path, help="any SUMO .net.xml")
     p.add_argument("--source", choices=SOURCES, default="sumo", help="traffic source (default sumo)")
-    p.add_argument("--env", default="highway-v0", help="highway-env scenario: highway-v0, merge-v0, roundabout-v0, intersection-v0")
-    p.add_argument("--seed", type=SEED, default=1)
-    p.add_argument("--duration", type=float, default=60.0, help="recorded seconds (default 60)")
-    p.add_argument("--warmup", type=float, default=None, help="seconds simulated before recording (default 90 for SUMO, 0 for highway-env)")
-    p.add_argument("--density", choices=DENSITIES, default="normal")
-    p.add_argument("--step", type=float, default=0.1, help="simulation step, s (default 0.1)")
-    p.add_argument("--record-period", type=float, default=0.5, help="seconds between recorded frames (default 0.5)")
+    sumo, highway = SimulationRequest, HighwayRequest  # their defaults are the command's
+    p.add_argument("--env", default=None, help=f"highway-env scenario: {', '.join(ENVS)} (default {highway.env_id})")
+    p.add_argument("--seed", type=SEED, default=None, help=f"(default {sumo.seed})")
+    p.add_argument("--duration", type=float, default=None, help=f"recorded seconds (default {sumo.duration_s:g})")
+    p.add_argument("--warmup", type=float, default=None, help=f"seconds simulated before recording (default "
+                                                              f"{sumo.warmup_s:g} for SUMO, {highway.warmup_s:g} for highway-env)")
+    p.add_argument("--density", choices=DENSITIES, default=None, help=f"(default {sumo.density})")
+    p.add_argument("--step", type=float, default=None, help=f"SUMO's simulation step, s (default {sumo.step_s:g})")
+    p.add_argument("--record-period", type=float, default=None,
+                   help=f"seconds between recorded frames (default {sumo.record_period_s:g})")
     p.add_argument("--out", type=Path, required=True, help="log folder to write")
     p.add_argument("--force", action="store_true",
                    help="replace the log of an --out simulated with other settings (its files alone are removed)")
 
 
 def _request(args: argparse.Namespace) -> SimulationRequest | HighwayRequest:
-    """The checked request of the command line (InputError, its one line, for a bad one)."""
+    """The checked request of the command line (InputError, its one line, for a bad one); what the
+    command line leaves out takes the request's own default."""
+    given = {field: value for field, value in (("seed", args.seed), ("duration_s", args.duration), ("density", args.density),
+                                               ("record_period_s", args.record_period), ("warmup_s", args.warmup))
+             if value is not None}
     if args.source == "highway-env":
         if args.town or args.net:
             raise InputError("--town/--net do not apply to --source highway-env; use --env instead")
-        req = HighwayRequest(out_dir=args.out, env_id=args.env, seed=args.seed, duration_s=args.duration,
-                             density=args.density, record_period_s=args.record_period,
-                             warmup_s=0.0 if args.warmup is None else args.warmup)
+        if args.step is not None:
+            raise InputError("--step applies to SUMO; highway-env steps at its own rate (drop --step)")
+        req = HighwayRequest(out_dir=args.out, **given, **({"env_id": args.env} if args.env else {}))
     else:
         if not args.town and not args.net:
             raise InputError("give --town NAME (see 'asg towns list') or --net PATH")
-        req = SimulationRequest(out_dir=args.out, town=args.town, net=args.net, seed=args.seed,
-                                duration_s=args.duration, density=args.density, step_s=args.step,
-                                record_period_s=args.record_period,
-                                warmup_s=90.0 if args.warmup is None else args.warmup)
+        if args.env is not None:
+            raise InputError("--env applies to --source highway-env; a SUMO run takes --town or --net")
+        req = SimulationRequest(out_dir=args.out, town=args.town, net=args.net, **given,
+                                **({"step_s": args.step} if args.step is not None else {}))
     req.validate()
     return req
 

@@ -77,6 +77,9 @@ def export(source: Path | str, fmt: str, out: Path, net: Path | None = None,
     """Write every scene of ``source`` in format ``fmt`` under ``out`` (with ``views`` ALL, each
     scene as each of its sensing agents sees it: :func:`every_view`); returns the scene count."""
     writer_class = EXPORT_FORMATS.entry(fmt)
+    if net is not None and not writer_class.reads_net:
+        readers = ", ".join(name for name in EXPORT_FORMATS.names() if EXPORT_FORMATS.entry(name).reads_net)
+        raise InputError(f"--net applies to the formats that read the scenes' SUMO net ({readers}); {fmt} reads none: drop it")
     from sumo_scenarios.checks import output_dir
 
     from ...datasets import unique_ids

@@ -8,7 +8,7 @@ when the package is imported without loading them.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 from sumo_scenarios.errors import InputError
 
@@ -17,7 +17,10 @@ from ...scene import Scene
 
 
 class Writer(Protocol):
-    """An export format's writer: ``Writer(out, net)``, ``write(scene)`` per scene, ``close()``."""
+    """An export format's writer: ``Writer(out, net)``, ``write(scene)`` per scene, ``close()``.
+    ``reads_net``: whether it reads the scenes' SUMO net (``--net``; a format that does not refuses it)."""
+
+    reads_net: ClassVar[bool]
 
     def __init__(self, out: Path, net: Path | None = None): ...
 

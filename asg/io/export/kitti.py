@@ -50,6 +50,8 @@ POINT_CLOUD_RANGE = [-51.2, -51.2, -3.0, 51.2, 51.2, 1.0]
 
 @EXPORT_FORMATS.register("kitti")
 class KittiWriter:
+    reads_net = False
+
     def __init__(self, out: Path, net: Path | None = None):
         from ...sensors import load_lidar_spec
 

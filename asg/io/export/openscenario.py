@@ -38,6 +38,8 @@ def entity_name(scene: Scene, agent_id: str) -> str:
 
 @EXPORT_FORMATS.register("openscenario")
 class XoscWriter:
+    reads_net = True
+
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out
         self.net = net

@@ -41,6 +41,8 @@ TIMESTAMP = "000000"
 
 @EXPORT_FORMATS.register("opv2v")
 class ScenarioWriter:
+    reads_net = False
+
     def __init__(self, out: Path, net: Path | None = None):
         from ...sensors import load_lidar_spec
 

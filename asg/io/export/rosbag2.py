@@ -76,6 +76,8 @@ def stamp_ns(time_s: float) -> int:
 
 @EXPORT_FORMATS.register("rosbag2")
 class Rosbag2Writer:
+    reads_net = False
+
     def __init__(self, out: Path, net: Path | None = None):
         from ...sensors import load_lidar_spec
 

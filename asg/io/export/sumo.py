@@ -37,6 +37,8 @@ STATE_TIME_S = 0.1
 
 @EXPORT_FORMATS.register("sumo")
 class RoutesWriter:
+    reads_net = True
+
     def __init__(self, out: Path, net: Path | None = None):
         self.out = out
         self.net = net
