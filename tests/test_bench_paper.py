@@ -22,7 +22,7 @@ def test_a_bad_table_list_is_refused_before_anything_is_written(table, capsys, t
 
     code, err = run(capsys, "bench", "paper", "--table", table, "--scenes", "1", "--out", str(tmp_path / "o"))
     assert code == 2
-    assert_one_line_error(err, "give distinct names of")
+    assert_one_line_error(err, "--table: an empty value" if not table.strip() else "give distinct names of")
     assert not (tmp_path / "o").exists()
 
 

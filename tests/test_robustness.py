@@ -905,10 +905,10 @@ def test_a_hostile_scene_file_is_one_line(capsys, tmp_path, edit, needle):
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["evaluate", "--fusion", "early", "--set", ""], "--set is empty"),
-    (["evaluate", "--fusion", "early", "--set", " "], "--set is empty"),
+    (["evaluate", "--fusion", "early", "--set", ""], "--set: an empty value"),
+    (["evaluate", "--fusion", "early", "--set", " "], "--set: an empty value"),
     (["evaluate", "--fusion", "early", "--set", "normal\nval"], "unknown set 'normal\\nval'"),
-    (["train", "--fusion", "early", "--init-from", ""], "--init-from is empty"),
+    (["train", "--fusion", "early", "--init-from", ""], "--init-from: an empty value"),
 ])
 def test_empty_and_multi_line_names_are_one_line(argv, words, capsys):
     """An empty --set or --init-from is not the flag left out (it read the current folder, or the
