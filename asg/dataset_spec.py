@@ -73,7 +73,16 @@ class DatasetSpec:
 
 
 def data_root() -> Path:
-    return Path(os.environ.get("ASG_DATA", runs_dir() / "datasets"))
+    """Where the data sets are built and read: ``ASG_DATA`` when set and not empty, else
+    runs/datasets; made if missing (InputError, one line, if it cannot be)."""
+    given = os.environ.get("ASG_DATA", "")
+    root = Path(given) if given.strip() else runs_dir() / "datasets"
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        where = f"ASG_DATA={given}" if given.strip() else str(root)
+        raise InputError(f"{where}: the data folder cannot be created ({exc.strerror}); set ASG_DATA to a writable folder") from None
+    return root
 
 
 def check_train_source(name: str, where: str) -> str:

@@ -1121,3 +1121,18 @@ def test_a_pipe_beside_a_users_weights_is_not_read(tmp_path):
     reader.start()
     reader.join(30)  # a blocked read would hold the suite: the thread is left behind instead
     assert not reader.is_alive() and found == [None]
+
+
+def test_an_empty_or_unmakeable_data_folder_is_the_default_or_one_line(capsys, monkeypatch):
+    """``ASG_DATA=""`` (a variable set to nothing) is the default folder, not the current one; one
+    that cannot be made is one line, not a traceback from the first data set built in it."""
+    from asg.dataset_spec import data_root
+    from sumo_scenarios.paths import runs_dir
+    from test_cli import assert_one_line_error, run
+
+    monkeypatch.setenv("ASG_DATA", "")
+    assert data_root() == runs_dir() / "datasets"
+    monkeypatch.setenv("ASG_DATA", "/proc/asg-data")
+    code, err = run(capsys, "evaluate", "--fusion", "none", "--set", "normal-val", "--limit", "1")
+    assert code == 2
+    assert_one_line_error(err, "ASG_DATA=/proc/asg-data", "cannot be created")
