@@ -1001,3 +1001,17 @@ def test_the_trainer_reads_opencoods_yaml_by_libyaml_to_the_same_dicts(monkeypat
     assert isinstance(original(str(hostile))["vehicles"], str)  # OpenCOOD's loader ran os.getcwd
     with pytest.raises(yaml.constructor.ConstructorError):
         utils.load_yaml(str(hostile))
+
+
+def test_a_cache_folder_that_cannot_be_made_is_one_line(tmp_path):
+    """OpenCOOD's box_overlaps is compiled into the user's cache (XDG_CACHE_HOME) at its first use:
+    a cache that cannot be made is one line, not a traceback (a fresh process: this one has it)."""
+    import os
+    import subprocess
+
+    env = dict(os.environ, XDG_CACHE_HOME="/proc/asg-cache")
+    target = f"opencood:{make_model_dir(tmp_path / 'm', 'early')}"
+    done = subprocess.run([sys.executable, "-m", "asg", "evaluate", "--fusion", target, "--set", "normal-val", "--limit", "1"],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [done.stderr.strip()] and "XDG_CACHE_HOME" in done.stderr

@@ -83,7 +83,11 @@ def _build_box_overlaps() -> None:
     except ImportError:
         raise InputError(f"OpenCOOD's box_overlaps.pyx needs Cython to build; {EXTRA_HINT}") from None
     build = cache_dir()
-    build.mkdir(parents=True, exist_ok=True)
+    try:
+        build.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{build}: OpenCOOD's compiled box_overlaps cannot be cached there ({exc.strerror}); "
+                         "set XDG_CACHE_HOME to a writable folder") from None
     importers = pyximport.install(setup_args={"include_dirs": numpy.get_include()}, build_dir=str(build),
                                   language_level=3, inplace=False)
     try:
