@@ -13,6 +13,8 @@ import shutil
 from pathlib import Path
 from typing import Iterator
 
+from .errors import InputError
+
 
 @contextlib.contextmanager
 def atomic_path(final_path: str | os.PathLike) -> Iterator[Path]:
@@ -52,18 +54,26 @@ def atomic_dir(final_dir: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary folder beside ``final_dir``; on success move its files into ``final_dir``.
 
     Files already in ``final_dir`` with other names are kept; files of the same name are replaced
-    one by one with ``os.replace``. On error the temporary folder is removed.
+    one by one with ``os.replace``. On error the temporary folder is removed. A ``final_dir`` that
+    is a file, or beside which no folder can be made, is an InputError before any work.
     """
     final = Path(final_dir)
-    final.parent.mkdir(parents=True, exist_ok=True)
+    if final.exists() and not final.is_dir():
+        raise InputError(f"{final} is a file where a folder is to be written; give a folder")
     tmp: Path | None = None
     try:
-        while tmp is None:  # named before it exists (see atomic_path)
-            tmp = final.parent / f".{final.name}.{secrets.token_hex(6)}.tmp"
-            try:
-                os.mkdir(tmp, 0o777)  # the umask applies
-            except FileExistsError:
-                tmp = None
+        try:
+            final.parent.mkdir(parents=True, exist_ok=True)
+            while tmp is None:  # named before it exists (see atomic_path)
+                tmp = final.parent / f".{final.name}.{secrets.token_hex(6)}.tmp"
+                try:
+                    os.mkdir(tmp, 0o777)  # the umask applies
+                except FileExistsError:
+                    tmp = None
+        except OSError as exc:
+            tmp = None
+            why = "a part of the path is a file" if isinstance(exc, (FileExistsError, NotADirectoryError)) else exc.strerror
+            raise InputError(f"{final}: no folder can be made there ({why}); give a writable folder") from None
         yield tmp
         final.mkdir(parents=True, exist_ok=True)
         for item in sorted(tmp.iterdir()):

@@ -217,6 +217,18 @@ def test_a_log_folder_of_other_settings_is_refused_and_force_replaces_only_the_l
     assert_one_line_error(err, "recorded no settings")
 
 
+@pytest.mark.parametrize("where, needle", [("afile", "is a file where a folder is to be written"),
+                                           ("afile/log", "a part of the path is a file"),
+                                           ("/proc/asg-log", "no folder can be made there")])
+def test_a_log_folder_where_none_can_be_made_is_one_line_before_simulating(capsys, tmp_path, where, needle):
+    (tmp_path / "afile").write_text("mine")
+    code, err = run(capsys, "simulate", "--town", "fiveleg", "--duration", "2", "--warmup", "1",
+                    "--out", where if where.startswith("/") else str(tmp_path / where))
+    assert code == 2
+    assert_one_line_error(err, needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"] and (tmp_path / "afile").read_text() == "mine"
+
+
 def _one_scene(tmp_path, capsys) -> Path:
     log = tmp_path / "log"
     assert main(["simulate", "--town", "fiveleg", "--duration", "2", "--warmup", "30", "--out", str(log)]) == 0
