@@ -24,16 +24,22 @@ def atomic_path(final_path: str | os.PathLike) -> Iterator[Path]:
     choosing a format by file name (SUMO, numpy) behave as for the final name.
     """
     final = Path(final_path)
-    final.parent.mkdir(parents=True, exist_ok=True)
+    if final.is_dir():
+        raise InputError(f"{final} is a folder where a file is to be written; give a file name")
     suffix = "".join(final.suffixes)
     tmp: Path | None = None
     try:
-        while tmp is None:  # named before it exists: whenever a signal's exception comes, the finally knows it
-            tmp = final.parent / f".{final.stem}.{secrets.token_hex(6)}.tmp{suffix}"
-            try:
-                os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))  # the umask applies
-            except FileExistsError:  # another writer's: not ours to remove
-                tmp = None
+        try:
+            final.parent.mkdir(parents=True, exist_ok=True)
+            while tmp is None:  # named before it exists: whenever a signal's exception comes, the finally knows it
+                tmp = final.parent / f".{final.stem}.{secrets.token_hex(6)}.tmp{suffix}"
+                try:
+                    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))  # the umask applies
+                except FileExistsError:  # another writer's: not ours to remove
+                    tmp = None
+        except _NO_PLACE as exc:
+            tmp = None
+            raise _no_place(final, "file", exc) from None
         yield tmp
         os.replace(tmp, final)
     except OSError as exc:
@@ -41,6 +47,16 @@ def atomic_path(final_path: str | os.PathLike) -> Iterator[Path]:
     finally:
         if tmp is not None and tmp.exists():
             tmp.unlink()
+
+
+#: what making a file or folder raises where the path itself is wrong (a file in its way, a place
+#: that holds none): bad input, one line; a full disk or a refusal stays an OSError (the CLI names it)
+_NO_PLACE = (FileExistsError, NotADirectoryError, IsADirectoryError, FileNotFoundError)
+
+
+def _no_place(final: Path, what: str, exc: OSError) -> InputError:
+    why = "a part of the path is a file" if isinstance(exc, (FileExistsError, NotADirectoryError)) else exc.strerror
+    return InputError(f"{final}: no {what} can be made there ({why}); give a writable folder")
 
 
 def write_text_atomic(final_path: str | os.PathLike, text: str) -> None:
@@ -70,10 +86,9 @@ def atomic_dir(final_dir: str | os.PathLike) -> Iterator[Path]:
                     os.mkdir(tmp, 0o777)  # the umask applies
                 except FileExistsError:
                     tmp = None
-        except OSError as exc:
+        except _NO_PLACE as exc:
             tmp = None
-            why = "a part of the path is a file" if isinstance(exc, (FileExistsError, NotADirectoryError)) else exc.strerror
-            raise InputError(f"{final}: no folder can be made there ({why}); give a writable folder") from None
+            raise _no_place(final, "folder", exc) from None
         yield tmp
         final.mkdir(parents=True, exist_ok=True)
         for item in sorted(tmp.iterdir()):

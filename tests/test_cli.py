@@ -237,6 +237,22 @@ def _one_scene(tmp_path, capsys) -> Path:
     return sorted((tmp_path / "scenes").glob("*.yaml"))[0]
 
 
+def test_a_render_where_no_file_can_be_made_is_one_line_and_writes_nothing(capsys, tmp_path):
+    scene = _one_scene(tmp_path, capsys)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "afile").write_text("mine")
+    (out / "adir").mkdir()
+    for argv, needle in ((["--out", str(out / "adir")], "is a folder where a file is to be written"),
+                         (["--out", str(out / "afile" / "x.png")], "a part of the path is a file"),
+                         (["--out", "/proc/asg-frame.png"], "no file can be made there"),
+                         (["--out", str(out / "x.png"), "--pcd-dir", str(out / "afile")], "--pcd-dir")):
+        code, err = run(capsys, "render", str(scene), *argv)
+        assert code == 2, argv
+        assert_one_line_error(err, needle)
+        assert sorted(p.name for p in out.iterdir()) == ["adir", "afile"] and not any((out / "adir").iterdir())
+
+
 def test_render_writes_picture_and_clouds(capsys, tmp_path):
     scene = _one_scene(tmp_path, capsys)
     out = tmp_path / "frame.png"

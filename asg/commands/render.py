@@ -26,6 +26,10 @@ def run(args: argparse.Namespace) -> int:
     from ..scene.neighbours import with_nearest_collaborators
     from ..sensors import load_lidar_spec, simulate_frame
 
+    if args.pcd_dir is not None:  # before anything is written: a file in its way is one line
+        from sumo_scenarios.checks import output_dir
+
+        output_dir(args.pcd_dir, "--pcd-dir")
     spec = load_lidar_spec(args.lidar) if args.lidar else load_lidar_spec()
     scene = with_nearest_collaborators(load_scene(args.scene), args.collaborators)
     frame = simulate_frame(scene, spec, seed=args.seed)
