@@ -1,7 +1,8 @@
 """The network on other CPU runtimes: the dense tail of AttFuse (its later backbone stages, the
 upsampling and the head, after the fusion: about half the network's time) under torch eager,
-torch.jit (traced, frozen, optimize_for_inference: oneDNN's fusions) and ONNX Runtime (CPU
-provider, all graph optimisations), one thread each, on FRAMES normal scenes; medians of REPEATS
+torch.jit (traced, frozen, optimize_for_inference: oneDNN's fusions), torch.compile (inductor,
+its weights frozen as constants; compiled once for the map's fixed shape, the compile's seconds
+reported) and ONNX Runtime (CPU provider, all graph optimisations), one thread each, on FRAMES normal scenes; medians of REPEATS
 rounds, the rounds alternating; the largest difference of each runtime's class logits and box
 residuals from eager's. Needs onnx and onnxruntime (not asg's dependencies: pip install onnxruntime onnx).
 usage: .venv/bin/python docs/experiments/network_runtimes.py [FRAMES] [REPEATS]
@@ -66,9 +67,18 @@ def main(count: int, repeats: int) -> None:
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     session = ort.InferenceSession(buf.getvalue(), options, providers=["CPUExecutionProvider"])
     arrays = [m.numpy() for m in maps]
+    import torch._inductor.config as inductor
+
+    inductor.freezing = True
+    compiled = torch.compile(tail, dynamic=False)
+    with torch.no_grad():
+        t = time.perf_counter()
+        compiled(maps[0])
+        compile_s = time.perf_counter() - t
     runs = {
         "torch eager": lambda: [tail(m) for m in maps],
         "torch.jit frozen": lambda: [frozen(m) for m in maps],
+        "torch.compile frozen": lambda: [compiled(m) for m in maps],
         "onnxruntime": lambda: [[torch.from_numpy(o) for o in session.run(None, {"x": a})] for a in arrays],
     }
     times = {name: [] for name in runs}
@@ -86,6 +96,7 @@ def main(count: int, repeats: int) -> None:
         whole_ms = (time.perf_counter() - t) / len(whole) * 1e3
     eager = outs["torch eager"]
     result = {"frames": len(maps), "repeats": repeats, "threads": 1, "whole_network_eager_ms": round(whole_ms, 2),
+              "torch_compile_s": round(compile_s, 1), "torch": torch.__version__,
               "tail_ms_median": {n: round(statistics.median(v), 2) for n, v in times.items()},
               "largest_difference_from_eager": {
                   n: {"cls_logit": max(float((e[0] - o[0]).abs().max()) for e, o in zip(eager, out)),
