@@ -138,14 +138,19 @@ def test_ray_not_installed_is_one_line(capsys, tmp_path, monkeypatch):
     assert_one_line_error(err, "pip install 'asg[ray]'")
 
 
-def test_unreachable_ray_address_is_one_line(capsys, tmp_path):
+@pytest.mark.parametrize("address, needle", [("127.0.0.1:1", "127.0.0.1:1"),
+                                             ("10.0.0.5:99999", "a port of 1-65535"),
+                                             ("10.0.0.5:0", "a port of 1-65535"),
+                                             ("x" * 5000 + ":1", "x" * 80 + "...' is not host:port")])
+def test_unreachable_or_malformed_ray_address_is_one_line(capsys, tmp_path, address, needle):
     pytest.importorskip("ray")
     scenes = tmp_path / "scenes"
     _write(scenes, _scene_dict())
     code, err = run(capsys, "generate", "--scenes", str(scenes), "--out", str(tmp_path / "out"),
-                    "--detector", "fakes:oracle_factory", "--executor", "ray", "--address", "127.0.0.1:1")
+                    "--detector", "fakes:oracle_factory", "--executor", "ray", "--address", address)
     assert code == 2
-    assert_one_line_error(err, "127.0.0.1:1")
+    assert_one_line_error(err, needle)
+    assert len(err) < 400
 
 
 @pytest.mark.slow

@@ -55,8 +55,9 @@ def _probe(address: str) -> None:
     if address == "auto":
         return
     host, _, port = address.split("://")[-1].rpartition(":")
-    if not host or not port.isdigit():
-        raise InputError(f"--address {address!r} is not host:port (e.g. 10.0.0.5:6379)")
+    if not host or len(host) > 253 or not (port.isascii() and port.isdigit() and 0 < int(port) < 65536):
+        shown = address if len(address) <= 80 else address[:80] + "..."
+        raise InputError(f"--address {shown!r} is not host:port with a port of 1-65535 (e.g. 10.0.0.5:6379)")
     try:
         socket.create_connection((host, int(port)), timeout=PROBE_TIMEOUT_S).close()
     except OSError as exc:
