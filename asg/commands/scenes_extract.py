@@ -17,10 +17,14 @@ from ..scene.scene import save_scene, scene_file
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", type=Path, help="log folder written by 'asg simulate'")
-    p.add_argument("--every", type=COUNT, default=10, help="take every N-th recorded frame (default 10)")
-    p.add_argument("--ego", choices=EGO_KINDS, default="rsu", help="ego agent kind (default rsu: V2I)")
-    p.add_argument("--radius", type=float, default=120.0, help="keep agents within this many metres of the ego")
-    p.add_argument("--min-vehicles", type=whole(0, 10_000, "--min-vehicles"), default=1, help=f"skip frames with fewer vehicles within {NEAR_RADIUS_M:g} m of the ego")
+    defaults = ExtractParams()
+    p.add_argument("--every", type=COUNT, default=defaults.every,
+                   help=f"take every N-th recorded frame (default {defaults.every})")
+    p.add_argument("--ego", choices=EGO_KINDS, default=defaults.ego, help=f"ego agent kind (default {defaults.ego})")
+    p.add_argument("--radius", type=float, default=defaults.radius_m,
+                   help=f"keep agents within this many metres of the ego (default {defaults.radius_m:g})")
+    p.add_argument("--min-vehicles", type=whole(0, 10_000, "--min-vehicles"), default=defaults.min_vehicles,
+                   help=f"skip frames with fewer vehicles within {NEAR_RADIUS_M:g} m of the ego (default {defaults.min_vehicles})")
     p.add_argument("--collaborators", type=whole(0, 16, "--collaborators"), default=None,
                    help="sensing vehicles drawn at random within communication range of the ego, as the "
                         "data sets draw them (default: the generator's sensing_agents - 1, i.e. 2)")

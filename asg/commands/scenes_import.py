@@ -19,7 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                              "split of them")
     p.add_argument("--format", choices=[f.value for f in RecordingFormat], default=RecordingFormat.OPV2V.value,
                    help="the recording's layout (opv2v: OPV2V, V2XSet and V2V4Real)")
-    p.add_argument("--every", type=COUNT, default=1, help="take every N-th timestamp of each scenario (default 1)")
+    p.add_argument("--every", type=COUNT, default=ImportParams.every,
+                   help=f"take every N-th timestamp of each scenario (default {ImportParams.every})")
     p.add_argument("--limit", type=COUNT, default=None, help="at most this many scenes in all")
     p.add_argument("--map", type=Path, default=None, metavar="FILE",
                    help="the recording's town (OpenDRIVE .xodr, e.g. the CARLA town's, or a SUMO .net.xml): moves "
