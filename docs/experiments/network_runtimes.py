@@ -3,9 +3,8 @@ upsampling and the head, after the fusion: about half the network's time) under 
 torch.jit (traced, frozen, optimize_for_inference: oneDNN's fusions), torch.compile (inductor,
 its weights frozen as constants; compiled once for the map's fixed shape, the compile's seconds
 reported) and ONNX Runtime (CPU provider, all graph optimisations), one thread each, on FRAMES
-normal scenes; medians of REPEATS
-rounds, the rounds alternating; the largest difference of each runtime's class logits and box
-residuals from eager's. Needs onnx and onnxruntime (not asg's dependencies: pip install onnxruntime onnx).
+normal scenes; medians of REPEATS rounds, the rounds alternating; the largest difference of each
+runtime's class logits and box residuals from eager's. Needs onnx and onnxruntime (not asg's dependencies: pip install onnxruntime onnx).
 usage: .venv/bin/python docs/experiments/network_runtimes.py [FRAMES] [REPEATS]
 """
 import io
