@@ -119,6 +119,8 @@ def write_report(root: Path, out: Path | None = None, scenes_shown: int = 6) -> 
         write_text_atomic(out, _PAGE.format(head=head, body=body))
     except OSError as exc:
         raise InputError(f"--out {out}: cannot be written ({exc.strerror}); give a writable place") from None
+    except InputError as exc:  # the place itself (sumo_scenarios.atomic): named as the flag that gave it
+        raise InputError(f"--out {exc}") from None
     return out
 
 
