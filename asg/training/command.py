@@ -44,8 +44,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..progress import console, loss_progress, progress_bar
 
-    if args.init_from is not None and not args.init_from.strip():
-        raise InputError("--init-from is empty; name the shipped weights to start from (e.g. single)")
     if args.validate_only and (args.init_from or args.iou_branch or args.point_stage):
         raise InputError("--validate-only measures the shipped weights; it cannot be combined with --init-from, "
                          "--iou-branch or --point-stage")
