@@ -176,7 +176,7 @@ def _spin_for_opencood(argv: Sequence[str]) -> None:
     import asg
 
     if registry.wants_spinning_omp(argv):
-        os.environ["OMP_WAIT_POLICY"] = asg.spinning_omp_policy()
+        asg.spin_waiting_threads(os.environ)
 
 
 def _run(args, held_signals: frozenset) -> int:

@@ -427,8 +427,9 @@ def test_every_fusion_option_lists_every_installed_detector(command, capsys, mon
 
 def test_an_opencood_target_runs_with_spinning_threads(capsys, monkeypatch, tmp_path):
     """OpenCOOD's forward under asg's PASSIVE wait policy took 7x as long: a command naming an
-    OpenCOOD model (`opencood:DIR`, also inside a list of models) sets ACTIVE before torch loads,
-    unless the user set the policy; other commands keep PASSIVE."""
+    OpenCOOD model (`opencood:DIR`, also inside a list of models) sets ACTIVE before torch loads
+    (without asg's short spin count, which would cut ACTIVE's spinning short), unless the user set
+    the policy; other commands keep PASSIVE and the short spin."""
     import os
 
     import asg
@@ -437,11 +438,13 @@ def test_an_opencood_target_runs_with_spinning_threads(capsys, monkeypatch, tmp_
 
     assert TARGET_PREFIXES["opencood"].spins_omp  # read by cli.py before torch may load
     monkeypatch.setattr(asg, "USER_OMP_WAIT_POLICY", None)
+    monkeypatch.setattr(asg, "USER_GOMP_SPINCOUNT", None)
     monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
+    monkeypatch.setenv("GOMP_SPINCOUNT", asg.SHORT_SPIN_COUNT)
     cli._spin_for_opencood(["evaluate", "--fusion", "attfuse", "--set", "normal-val"])
-    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE" and os.environ["GOMP_SPINCOUNT"] == asg.SHORT_SPIN_COUNT
     cli._spin_for_opencood(["bench", "paper", "--models", f"attfuse,opencood:{tmp_path}"])
-    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE" and "GOMP_SPINCOUNT" not in os.environ
     monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
     code, _ = run(capsys, "evaluate", "--fusion", f"opencood:{tmp_path / 'missing'}", "--set", "normal-val")
     assert code == 2 and os.environ["OMP_WAIT_POLICY"] == "ACTIVE"

@@ -76,7 +76,8 @@ def run_trainer(model_dir: Path) -> None:
     """OpenCOOD's ``tools/train.py --hypes_yaml model_dir/config.yaml --model_dir model_dir`` in a
     child process (module docstring), its output appended to ``model_dir/train.log``; InputError
     (one line, naming the log) if it fails."""
-    env = {**os.environ, "OMP_WAIT_POLICY": asg.spinning_omp_policy()}
+    env = dict(os.environ)
+    asg.spin_waiting_threads(env)
     command = [sys.executable, "-m", __name__, str(model_dir)]
     with open(model_dir / TRAIN_LOG, "a", buffering=1) as log:
         code = subprocess.run(command, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
