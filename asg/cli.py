@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None, held_signals: frozenset = frozenset(
 def _spin_for_opencood(argv: Sequence[str]) -> None:
     """A target whose runtime wants it (an OpenCOOD model, ``opencood:DIR``, anywhere in the command)
     runs with OpenMP's waiting threads spinning (``OMP_WAIT_POLICY=ACTIVE``) unless the user set the
-    policy: under asg's ``PASSIVE`` its forward took 7.8 s a frame against 1.1 s (``asg bench detect
+    policy: under ``PASSIVE`` its forward took 7.8 s a frame against 1.1 s (``asg bench detect
     --fusion opencood:DIR``, two threads, a 2-core AVX2 machine; docs/results/speed.md). Set before
     torch loads (OpenMP reads it then): the prefixes come from ``asg.registry``, which is torch-free."""
     import asg

@@ -5,8 +5,8 @@ asg's runtime preparation, runtime.py, which ``python -m opencood.tools.train`` 
 trainer). The trainer saves ``net_epochN.pth`` after each epoch and, run again on the folder,
 resumes from the highest N (its optimizer restarts, as OpenCOOD's own resume does).
 
-The child runs with ``OMP_WAIT_POLICY=ACTIVE`` (unless the user set the variable): asg's own
-``PASSIVE`` (asg/__init__.py: threads that wait sleep, for a shared machine) made OpenCOOD's
+The child runs with ``OMP_WAIT_POLICY=ACTIVE`` (unless the user set the variable): threads that
+sleep at once (``PASSIVE``; asg's own default, asg/__init__.py, spins only 10 us) made OpenCOOD's
 trainer 5.1x slower (35.2 s a step against 6.8 s for its AttFuse, depths 1, 2, 2, batch 2, two
 threads, 2-core AVX2 machine; docs/experiments/opencood_step_time.py): its many small parallel
 regions each wake sleeping threads. A
