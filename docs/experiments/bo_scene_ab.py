@@ -14,10 +14,9 @@ import sys
 import time
 from pathlib import Path
 
+import asg  # first: it sets how OpenMP's threads wait, read when torch loads
 import numpy as np
 import torch
-
-import asg
 from asg.datasets import scenes_of
 from asg.generator.config import load_generate_config
 from asg.generator.pipeline import Generator

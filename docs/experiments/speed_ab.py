@@ -13,9 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+import asg  # first: it sets how OpenMP's threads wait, read when torch loads
 import torch
-
-import asg
 from asg.benchmarks.detect import models
 from asg.datasets import scenes_of
 from asg.generator.config import load_generate_config
