@@ -271,30 +271,6 @@ def test_folding_batch_norms_keeps_the_function(where):
         assert torch.allclose(r, o, atol=1e-4)
 
 
-def test_the_merged_head_gives_the_three_convolutions_bits():
-    """Inference runs the head's cls, box and dir convolutions as one (AnchorHead.merge_outputs):
-    the same outputs to the bit as the three apart, on the channels-last maps detection uses."""
-    from asg.perception.inference import fold_batch_norms
-
-    torch.manual_seed(0)
-    model = AttFuse(TINY).eval()
-    fold_batch_norms(model).to(memory_format=torch.channels_last)
-    assert model.head.merged is not None
-    clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5]]
-    with torch.no_grad():
-        merged = model(clouds)
-        model.head.merged = None
-        apart = model(clouds)
-    for m, a in zip(merged[:3], apart[:3]):
-        assert m.shape == a.shape and torch.equal(m, a)
-    model.train()  # training's forward uses the three layers, whose weights it learns
-    model.head.merge_outputs()
-    with torch.no_grad():
-        before = model(clouds)[0]
-        model.head.merged.weight.zero_()  # a stale merged layer is not what training reads
-        assert torch.equal(model(clouds)[0], before)
-
-
 def test_registry_lists_all_fusions():
     from asg import perception
     from asg.perception.fusion import FUSIONS

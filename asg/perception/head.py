@@ -39,34 +39,13 @@ class AnchorHead(nn.Module):
         self.refine = nn.Sequential(nn.Linear(channels * self.patch ** 2, cfg.iou_hidden), nn.ReLU(),
                                     nn.Linear(cfg.iou_hidden, a * 7))
         nn.init.constant_(self.cls.bias, -math.log((1 - 0.01) / 0.01))
-        #: cls, box and dir as one convolution (:meth:`merge_outputs`, inference only), or None
-        self.merged: nn.Conv2d | None = None
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         b = x.shape[0]
-        if self.merged is not None and not self.training:
-            a = self.a
-            out = self.merged(x).permute(0, 2, 3, 1)  # (B, H, W, 10 A): cls, box, dir
-            cls = out[..., :a].reshape(b, -1)
-            box = out[..., a:8 * a].reshape(b, -1, 7)
-            d = out[..., 8 * a:].reshape(b, -1, 2)
-        else:
-            cls = self.cls(x).permute(0, 2, 3, 1).reshape(b, -1)
-            box = self.box(x).permute(0, 2, 3, 1).reshape(b, -1, 7)
-            d = self.dir(x).permute(0, 2, 3, 1).reshape(b, -1, 2)
+        cls = self.cls(x).permute(0, 2, 3, 1).reshape(b, -1)
+        box = self.box(x).permute(0, 2, 3, 1).reshape(b, -1, 7)
+        d = self.dir(x).permute(0, 2, 3, 1).reshape(b, -1, 2)
         return cls, box, d, x.detach()
-
-    @torch.no_grad()
-    def merge_outputs(self) -> None:
-        """For inference: the three 1x1 output convolutions (cls, box, dir) as one with their
-        filters stacked, one pass over the head's input instead of three. Each output is the same
-        dot product over the input's channels, so the same bits (tests/test_perception.py); the
-        three layers stay (their weights load and train, and training's forward uses them)."""
-        layers = (self.cls, self.box, self.dir)
-        merged = nn.Conv2d(self.cls.in_channels, sum(m.out_channels for m in layers), 1)
-        merged.weight.copy_(torch.cat([m.weight for m in layers]))
-        merged.bias.copy_(torch.cat([m.bias for m in layers]))
-        self.merged = merged
 
     def branches(self, features: torch.Tensor, anchor_idx: torch.Tensor,
                  refine: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:

@@ -4,15 +4,13 @@ from __future__ import annotations
 from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval, fuse_linear_bn_eval
 
-from .head import AnchorHead
 from .numerics import zero_subnormals_
 from .pillars import PillarEncoder
 
 
 def fold_batch_norms(model: nn.Module) -> nn.Module:
     """Fold every BatchNorm that follows a convolution (in a Sequential) or the pillar net's linear
-    layer into that layer's weights, in place; the model must be in eval mode (running statistics).
-    Then the rewrites that keep the bits: ReLUs in place, each anchor head's outputs merged."""
+    layer into that layer's weights, in place; the model must be in eval mode (running statistics)."""
     if model.training:
         raise ValueError("fold_batch_norms needs a model in eval mode")
     for module in model.modules():
@@ -26,15 +24,7 @@ def fold_batch_norms(model: nn.Module) -> nn.Module:
             module.linear = fuse_linear_bn_eval(module.linear, module.norm)
             module.norm = nn.Identity()
     zero_subnormals_(model)  # folding scales dead filters below float32's normal range (numerics.py)
-    return merge_head_outputs(relus_in_place(model))
-
-
-def merge_head_outputs(model: nn.Module) -> nn.Module:
-    """Every anchor head's three output convolutions as one (:meth:`AnchorHead.merge_outputs`)."""
-    for module in model.modules():
-        if isinstance(module, AnchorHead):
-            module.merge_outputs()
-    return model
+    return relus_in_place(model)
 
 
 def relus_in_place(model: nn.Module) -> nn.Module:
