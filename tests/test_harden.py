@@ -556,6 +556,16 @@ def test_paired_gap_and_matches_on_disk(tmp_path):
     (tmp_path / "m.npz").write_bytes(b"garbage")
     with pytest.raises(InputError, match="damaged matches"):
         load_matches(tmp_path / "m.npz")
+    # a member whose header declares 10^12 counts (np.load would allocate them before reading)
+    import io
+    import zipfile
+
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (10 ** 12,)})
+    with zipfile.ZipFile(tmp_path / "m.npz", "w") as archive:
+        archive.writestr("counts@0.3.npy", header.getvalue())
+    with pytest.raises(InputError, match="damaged matches"):
+        load_matches(tmp_path / "m.npz")
 
 
 def test_a_folder_claimed_before_a_setting_existed_resumes_and_other_settings_are_refused(tmp_path, data_root, monkeypatch):

@@ -165,10 +165,22 @@ def test_point_stage_fit_resumes_to_the_same_stage_and_records_it(sumo_log, tmp_
     assert not (tmp_path / "run-split" / CHECKPOINT).exists() and not (tmp_path / "run-split" / BOXES_CACHE).exists()
 
 
-@pytest.mark.parametrize("content", [b"PK\x03\x04garbage", b"", b"\x93NUMPY garbage"], ids=["zip", "empty", "npy"])
+def _zip_bomb() -> bytes:
+    """An .npz of one deflated member: 64 MB of zeros in about 64 kB."""
+    import io
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("boxes.npy", bytes(64 << 20))
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("content", [b"PK\x03\x04garbage", b"", b"\x93NUMPY garbage", _zip_bomb()],
+                         ids=["zip", "empty", "npy", "bomb"])
 def test_a_damaged_box_cache_is_one_line(tmp_path, content):
-    """The point-stage fit's cache of boxes, damaged (a crash of the disk, an edit), is one line
-    saying to delete it, not a traceback."""
+    """The point-stage fit's cache of boxes, damaged (a crash of the disk, an edit) or hostile (a
+    member that unpacks to far more than it holds), is one line saying to delete it, not a traceback."""
     from sumo_scenarios.errors import InputError
 
     from asg.training.point_stage_fit import BOXES_CACHE, collect

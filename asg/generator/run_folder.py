@@ -28,6 +28,7 @@ import numpy as np
 from sumo_scenarios.atomic import atomic_dir, atomic_path, write_text_atomic
 from sumo_scenarios.checks import inside
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.npz import load_npz
 
 from ..objective import AP_KEYS, ap_text
 from ..objective.pooled import PooledAP
@@ -114,11 +115,12 @@ MAX_DETECTION_ARRAY_BYTES = 8 << 20
 def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:
     """Each stage's (boxes (K, 7), scores (K,), ground truth (M, 7)) of a scene, ego frame."""
     path = out_dir / "scenes" / scene_id / "detections.npz"
-    with np.load(path, allow_pickle=False) as z:
-        if big := next((i.filename for i in z.zip.infolist() if i.file_size > MAX_DETECTION_ARRAY_BYTES), None):
-            raise InputError(f"{path}: {big} unpacks to more than {MAX_DETECTION_ARRAY_BYTES >> 20} MB, which asg "
-                             "never writes for a scene; regenerate the scene")
+    try:
+        z = load_npz(path, MAX_DETECTION_ARRAY_BYTES)
         return {k: (z[f"{k}_boxes"], z[f"{k}_scores"], z[f"{k}_gt"]) for k in Stage if f"{k}_boxes" in z}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+        raise InputError(f"{path}: not a scene's detections as asg writes them ({exc}); "
+                         "regenerate the scene") from None
 
 
 def load_done(out_dir: Path) -> dict[str, dict]:

@@ -17,6 +17,7 @@ import numpy as np
 
 from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.npz import load_npz
 
 from .ap import DEFAULT_AP_METHOD, REPORTED_THRESHOLDS, FrameMatches, ap_from_matches, check_ap_method
 
@@ -93,17 +94,17 @@ def save_matches(path: Path, matches: Sequence[FrameMatches]) -> None:
 def load_matches(path: Path) -> list[FrameMatches]:
     """The matches :func:`save_matches` wrote (no pickles); InputError naming the file if damaged."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            per_threshold = {}
-            for t in REPORTED_THRESHOLDS:
-                counts, gt = z[f"counts@{t:g}"], z[f"gt@{t:g}"]
-                scores, tp = z[f"scores@{t:g}"], z[f"tp@{t:g}"].astype(bool)
-                if counts.sum() != len(scores) or len(tp) != len(scores) or len(gt) != len(counts) or \
-                        (counts < 0).any() or (gt < 0).any() or not np.isfinite(scores).all():
-                    raise ValueError("inconsistent arrays")
-                cuts = np.cumsum(counts)[:-1]
-                per_threshold[t] = list(zip(np.split(scores, cuts), np.split(tp, cuts), (int(g) for g in gt))) \
-                    if len(counts) else []
+        z = load_npz(path)
+        per_threshold = {}
+        for t in REPORTED_THRESHOLDS:
+            counts, gt = z[f"counts@{t:g}"], z[f"gt@{t:g}"]
+            scores, tp = z[f"scores@{t:g}"], z[f"tp@{t:g}"].astype(bool)
+            if counts.sum() != len(scores) or len(tp) != len(scores) or len(gt) != len(counts) or \
+                    (counts < 0).any() or (gt < 0).any() or not np.isfinite(scores).all():
+                raise ValueError("inconsistent arrays")
+            cuts = np.cumsum(counts)[:-1]
+            per_threshold[t] = list(zip(np.split(scores, cuts), np.split(tp, cuts), (int(g) for g in gt))) \
+                if len(counts) else []
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise InputError(f"{path}: damaged matches ({type(exc).__name__}); delete it to score again") from None
     n = len(per_threshold[REPORTED_THRESHOLDS[0]])

@@ -34,6 +34,7 @@ from torch import nn
 
 from sumo_scenarios.atomic import atomic_path
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.npz import load_npz
 
 from ..perception.boxes import decode_with_direction, top_candidates
 from ..perception.branch_boxes import REFINE_MIN_IOU, best_match, refine_boxes, refinement_residuals
@@ -92,8 +93,8 @@ class Candidates:
     @classmethod
     def load(cls, path: Path) -> "Candidates":
         try:
-            with np.load(path) as data:
-                fields = {k: data[k] for k in cls.__dataclass_fields__ if k in data}
+            data = load_npz(path)
+            fields = {k: data[k] for k in cls.__dataclass_fields__ if k in data}
             return cls(**{**fields, "collect_s": float(fields.get("collect_s", 0.0))})
         except (OSError, ValueError, EOFError, TypeError, zipfile.BadZipFile) as exc:
             raise InputError(f"{path}: the cached candidates are damaged ({type(exc).__name__}); "

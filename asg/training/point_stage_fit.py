@@ -26,6 +26,7 @@ import torch
 
 from sumo_scenarios.atomic import atomic_path, write_text_atomic
 from sumo_scenarios.errors import InputError
+from sumo_scenarios.npz import load_npz
 from sumo_scenarios.geometry import wrap_rad
 from sumo_scenarios.paths import runs_dir
 from sumo_scenarios.strict import from_mapping
@@ -93,8 +94,7 @@ def _cached_frames(cache: Path, settings: str) -> list[Frame]:
                           "collect them again")
 
     try:
-        with np.load(cache, allow_pickle=False) as archive:
-            arrays = {k: archive[k] for k in archive.files}  # once: each read of an array reads it whole
+        arrays = load_npz(cache)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise damaged(exc) from None
     _check_same_run(str(arrays["settings"]) if "settings" in arrays else "", settings, cache)
