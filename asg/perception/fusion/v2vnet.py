@@ -43,9 +43,12 @@ class ConvGRUCell(nn.Module):
     def _step_in_place(self, x: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
         """:meth:`forward` at inference: the same operations on the same values (1 - u is -u + 1
         exactly; products and sums commute), written into the tensors the step makes instead of a
-        new tensor for each."""
-        reset, update = self.gates(torch.cat([x, h], dim=1)).sigmoid_().chunk(2, dim=1)
-        candidate = self.candidate(torch.cat([x, reset * h], dim=1)).tanh_()
+        new tensor for each: the candidate's input [x, reset * h] is the gates' input [x, h] with
+        its h half multiplied by the reset gate in place (one concatenation a step, not two)."""
+        xh = torch.cat([x, h], dim=1)
+        reset, update = self.gates(xh).sigmoid_().chunk(2, dim=1)
+        xh[:, x.shape[1]:].mul_(reset)
+        candidate = self.candidate(xh).tanh_()
         return update.neg().add_(1).mul_(h).add_(candidate.mul_(update))
 
 
