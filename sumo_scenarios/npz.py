@@ -23,17 +23,23 @@ def load_npz(path: Path, max_unpacked_bytes: int = 0) -> dict[str, np.ndarray]:
     unpack to at most ``max_unpacked_bytes`` (0: none may grow, as ``np.savez`` writes them); a
     stored member is bounded by the file itself. ValueError (naming the member) for a member that
     is not an array, holds Python objects, declares more or fewer bytes than it holds, or unpacks
-    past the bound; OSError, EOFError or zipfile.BadZipFile for a file that is not a whole archive."""
+    past the bound, or whose sizes in the archive's index are more than the file holds; OSError,
+    EOFError or zipfile.BadZipFile for a file that is not a whole archive."""
+    file_bytes = Path(path).stat().st_size
     with zipfile.ZipFile(path) as archive:
-        return {info.filename[:-len(".npy")]: _read_member(archive, info, max_unpacked_bytes)
+        return {info.filename[:-len(".npy")]: _read_member(archive, info, file_bytes, max_unpacked_bytes)
                 for info in archive.infolist()}
 
 
-def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, max_unpacked_bytes: int) -> np.ndarray:
+def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, file_bytes: int,
+                 max_unpacked_bytes: int) -> np.ndarray:
     name = info.filename
     if info.is_dir() or not name.endswith(".npy"):
         raise ValueError(f"{name}: not an array")
-    if info.file_size > info.compress_size and info.file_size > max_unpacked_bytes:
+    stored = info.compress_type == zipfile.ZIP_STORED
+    if info.compress_size > file_bytes or (stored and info.file_size != info.compress_size):
+        raise ValueError(f"{name}: the archive's index gives sizes the file does not hold")
+    if not stored and info.file_size > max(info.compress_size, max_unpacked_bytes):
         raise ValueError(f"{name}: unpacks to {info.file_size} bytes from {info.compress_size}")
     with archive.open(info) as member:
         version = np.lib.format.read_magic(member)

@@ -77,3 +77,23 @@ def test_a_truncated_npz_is_an_error_numpy_names(tmp_path):
     (tmp_path / "t.npz").write_bytes(data[: len(data) // 2])
     with pytest.raises((zipfile.BadZipFile, EOFError, OSError, ValueError)):
         load_npz(tmp_path / "t.npz")
+
+
+def test_an_npz_whose_index_claims_more_than_the_file_holds_is_refused(tmp_path):
+    """A stored member whose header declares 2 GiB of data and whose sizes in the zip index were
+    raised to match, in a file of a few hundred bytes: reading it would ask the file for 2 GiB at
+    once. It is refused from the index."""
+    import struct
+
+    from sumo_scenarios.npz import load_npz
+
+    header = _npy_header((2 ** 28,))
+    _npz_with_member(tmp_path / "a.npz", "x.npy", header)
+    data = bytearray((tmp_path / "a.npz").read_bytes())
+    claimed = struct.pack("<II", len(header) + 8 * 2 ** 28, len(header) + 8 * 2 ** 28)
+    data[18:26] = claimed  # the local header's compressed and uncompressed sizes
+    central = data.rindex(b"PK\x01\x02")
+    data[central + 20:central + 28] = claimed  # the central directory's
+    (tmp_path / "a.npz").write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="sizes the file does not hold"):
+        load_npz(tmp_path / "a.npz")
