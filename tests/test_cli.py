@@ -473,3 +473,26 @@ def test_evaluate_refuses_a_set_with_no_scenes(capsys, tmp_path):
     assert_one_line_error(err, "has no scenes to score")
     with pytest.raises(ValueError, match="no scenes"):
         evaluate_detector(OracleDetector(), iter([]))
+
+
+@pytest.mark.parametrize("command,function,options", [
+    ("bench simulate", "asg.benchmarks.simulate:bench_simulate", {"town": "town", "minutes": "minutes", "repeats": "repeats"}),
+    ("bench lidar", "asg.benchmarks.lidar:bench_lidar", {"repeats": "repeats"}),
+    ("bench detect", "asg.benchmarks.detect:bench_detect", {"frames": "frames", "fusion": "fusion"}),
+    ("bench generate", "asg.benchmarks.generate:bench_generate", {"scenes": "scenes", "budget": "budget", "search": "search"}),
+    ("bench train", "asg.benchmarks.train:bench_train", {"steps": "steps"}),
+    ("bench scale", "asg.benchmarks.scale:bench_scale", {"scenes": "scenes", "budget": "budget"}),
+])
+def test_a_benchmark_command_runs_its_function_with_the_functions_defaults(command, function, options):
+    """A benchmark's command left to its defaults runs what its function does by default (one
+    source, asg.benchmarks.defaults; ``asg bench lidar`` once ran 15 repeats where the function said 60)."""
+    import importlib
+    import inspect
+
+    from asg.cli import build_parser
+
+    args = build_parser(command.split()).parse_args(command.split())
+    module, name = function.split(":")
+    signature = inspect.signature(getattr(importlib.import_module(module), name))
+    for option, parameter in options.items():
+        assert getattr(args, option) == signature.parameters[parameter].default, (command, option)

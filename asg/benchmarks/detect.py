@@ -9,6 +9,7 @@ from ..perception import build_detector
 from ..datasets import scenes_of
 from ..scene.neighbours import with_nearest_collaborators
 from ..sensors import load_lidar_spec, simulate_frame
+from .defaults import DETECT_FRAMES, DETECT_REPEATS
 
 
 def models() -> list[str]:
@@ -19,7 +20,7 @@ def models() -> list[str]:
     return [n for n in FUSIONS.names() if not FUSIONS.entry(n).fine_tuned_from]
 
 
-def bench_detect(frames: int = 10, repeats: int = 3, fusion: str | None = None) -> dict:
+def bench_detect(frames: int = DETECT_FRAMES, repeats: int = DETECT_REPEATS, fusion: str | None = None) -> dict:
     """Median ms a frame of each shipped model (or of ``fusion`` alone) on ``frames`` normal scenes
     with 3 sensing agents, each frame timed ``repeats`` times. An OpenCOOD model (``opencood:DIR``)
     is timed beside OpenCOOD's own pipeline on the same frames (:func:`opencood_own_ms`)."""

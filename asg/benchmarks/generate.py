@@ -12,9 +12,10 @@ from ..perception import build_detector
 from ..datasets import scenes_of
 from ..generator.config import GenerateConfig, load_generate_config
 from ..generator.pipeline import Generator
+from .defaults import GENERATE_SCENES
 
 
-def bench_generate(scenes: int = 5, budget: int = GenerateConfig.budget, seed: int = 1,
+def bench_generate(scenes: int = GENERATE_SCENES, budget: int = GenerateConfig.budget, seed: int = 1,
                    search: str = GenerateConfig.search) -> dict:
     """One process on two threads: the scenes' normal and ACS frames detected on two torch
     threads, the search's batches of candidates on two threads of one (asg.generator.candidates)."""

@@ -17,6 +17,7 @@ from ..scene.from_log import ExtractParams, extract_scenes
 from ..scene.neighbours import vehicles_within, with_nearest_collaborators
 from ..sensors import load_lidar_spec
 from ..sensors.world import World
+from .defaults import LIDAR_REPEATS
 
 
 def dense_scene(town: str = "grid_small", seed: int = 7):
@@ -63,7 +64,7 @@ def _interleaved_medians_ms(fns: list, repeats: int) -> list[float]:
     return [statistics.median(ts) * 1e3 for ts in times]
 
 
-def bench_lidar(repeats: int = 60) -> dict:
+def bench_lidar(repeats: int = LIDAR_REPEATS) -> dict:
     spec = load_lidar_spec()
     scene = with_nearest_collaborators(dense_scene(), 2)
     ids = scene.sensing_ids

@@ -25,6 +25,7 @@ from ..executors import build_executor
 from ..generator.run import SceneSource, open_run
 from ..generator.config import GenerateConfig, load_generate_config
 from ..generator.stages import Stage
+from .defaults import SCALE_SCENES
 from .paper import pick_scenes
 
 #: (name, executor, workers, threads per worker)
@@ -38,7 +39,7 @@ def _numbers(out: Path) -> list:
     return [(e["scene_id"], e[Stage.FINAL.ap_key], e["loss_final"]) for e in summary["scenes"]]
 
 
-def bench_scale(out: Path, scenes: int = 8, budget: int = GenerateConfig.budget, seed: int = 1, ways: tuple = WAYS) -> dict:
+def bench_scale(out: Path, scenes: int = SCALE_SCENES, budget: int = GenerateConfig.budget, seed: int = 1, ways: tuple = WAYS) -> dict:
     cfg = load_generate_config(fusion="attfuse", search="bo", acs="attention", budget=budget)
     scene_dir = pick_scenes(out / f"scenes-{scenes}", scenes)
     source = SceneSource(scenes=scene_dir)

@@ -8,8 +8,11 @@ from pathlib import Path
 
 from sumo_scenarios.simulate import SimulationRequest, simulate_sumo
 
+from .defaults import SIMULATE_MINUTES, SIMULATE_REPEATS, SIMULATE_TOWN
 
-def bench_simulate(town: str = "grid_small", minutes: float = 10.0, repeats: int = 3, seed: int = 1) -> dict:
+
+def bench_simulate(town: str = SIMULATE_TOWN, minutes: float = SIMULATE_MINUTES, repeats: int = SIMULATE_REPEATS,
+                   seed: int = 1) -> dict:
     """Run ``repeats`` simulations (warm-up included in the simulated time) and report medians.
 
     ``wall_s_median`` covers everything ``asg simulate`` does: routes, libsumo run, fcd writing,

@@ -10,8 +10,10 @@ import time
 
 import numpy as np
 
+from .defaults import TRAIN_STEPS
+
 #: steps timed after the warm-up, and warm-up steps (allocator, oneDNN kernels), by default
-STEPS, WARMUP = 12, 3
+STEPS, WARMUP = TRAIN_STEPS, 3
 
 
 def bench_frames(frames: int, seed: int = 0) -> tuple[list, str]:

@@ -3,12 +3,13 @@ from __future__ import annotations
 
 import argparse
 
+from ..benchmarks.defaults import DETECT_FRAMES
 from ..cli_args import COUNT
 from ..progress import print_result
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--frames", type=COUNT, default=10)
+    p.add_argument("--frames", type=COUNT, default=DETECT_FRAMES)
     p.add_argument("--fusion", default=None, metavar="NAME",
                    help="time this detector only (an OpenCOOD model, opencood:DIR, beside OpenCOOD's own pipeline)")
     p.add_argument("--json", action="store_true", help="print JSON only")

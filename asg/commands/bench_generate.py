@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..benchmarks.defaults import GENERATE_SCENES
 from ..cli_args import COUNT
 from ..generator.config import GenerateConfig
 from ..progress import print_result
@@ -10,7 +11,7 @@ from ..search import SEARCHES
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenes", type=COUNT, default=5)
+    p.add_argument("--scenes", type=COUNT, default=GENERATE_SCENES)
     p.add_argument("--budget", type=COUNT, default=GenerateConfig.budget)
     p.add_argument("--search", choices=SEARCHES.names(), default=GenerateConfig.search,
                    help="the perturbation search (its settings: configs/search/NAME.yaml)")

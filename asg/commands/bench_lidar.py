@@ -3,12 +3,13 @@ from __future__ import annotations
 
 import argparse
 
+from ..benchmarks.defaults import LIDAR_REPEATS
 from ..cli_args import COUNT
 from ..progress import print_result
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--repeats", type=COUNT, default=15)
+    p.add_argument("--repeats", type=COUNT, default=LIDAR_REPEATS)
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 

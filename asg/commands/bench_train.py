@@ -3,12 +3,13 @@ from __future__ import annotations
 
 import argparse
 
+from ..benchmarks.defaults import TRAIN_STEPS
 from ..cli_args import COUNT
 from ..progress import print_result
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--steps", type=COUNT, default=12, help="steps timed after 3 warm-up steps (median)")
+    p.add_argument("--steps", type=COUNT, default=TRAIN_STEPS, help="steps timed after 3 warm-up steps (median)")
     p.add_argument("--json", action="store_true", help="print JSON only")
 
 
