@@ -271,6 +271,22 @@ def test_folding_batch_norms_keeps_the_function(where):
         assert torch.allclose(r, o, atol=1e-4)
 
 
+@pytest.mark.parametrize("where", ATTFUSE_FUSIONS)
+def test_the_attention_alone_is_the_forward_passes(where):
+    """ACS-A reads AttFuse's attention by running the network only as far as its fusion
+    (AttFuse.ego_attention): the same values to the bit as a whole forward pass leaves, at every
+    placement of the fusion."""
+    from asg.perception.inference import fold_batch_norms
+
+    torch.manual_seed(1)
+    model = fold_batch_norms(AttFuse(replace(TINY, attfuse_fusion=where)).eval())
+    clouds = [[torch.randn(500, 4) * 5, torch.randn(400, 4) * 5, torch.randn(300, 4) * 5]]
+    with torch.no_grad():
+        alone = model.ego_attention(clouds)
+        model(clouds)
+    assert alone.shape == model.last_attention.shape and torch.equal(alone, model.last_attention)
+
+
 def test_registry_lists_all_fusions():
     from asg import perception
     from asg.perception.fusion import FUSIONS

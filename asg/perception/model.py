@@ -149,29 +149,44 @@ class AttFuse(nn.Module):
 
     def forward(self, agent_clouds: list[list[torch.Tensor]]):
         """``agent_clouds[b]`` lists sample b's clouds, ego first (at most 5 agents)."""
+        fused, att = self._fused(agent_clouds)
+        self.last_attention = None if att is None else att.detach()
+        return self.head(fused)
+
+    def ego_attention(self, agent_clouds: list) -> torch.Tensor | None:
+        """What :meth:`forward` leaves in ``last_attention`` (B, N, h, w), the same values, computed
+        only as far as the fusion that makes it: the layers after it and the head do not run. A
+        subclass with a forward pass of its own (V2X-ViT, Where2comm) runs that pass whole."""
+        if type(self).forward is not AttFuse.forward:
+            self(agent_clouds)
+            return self.last_attention
+        return self._fused(agent_clouds, attention_only=True)[1]
+
+    def _fused(self, agent_clouds: list[list[torch.Tensor]],
+               attention_only: bool = False) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """The ego's fused features (B, C, n/2, n/2) for the head (None with ``attention_only``)
+        and the fusion's ego-row attention (B, N, h, w) (None for a fusion without one)."""
         flat, mask = self.agents_of(agent_clouds)
         pillars = self.encoder.encode(flat)
         per_sample = lambda f: f.view(*mask.shape, *f.shape[1:])
         backbone = self.backbone
         if self.placement == "pillars":
             canvas, att = self.fusion(per_sample(pillars.canvas()), mask)
-            fused = backbone(canvas)
-        else:
-            first = backbone.first_stage(pillars)
-            if self.placement == "stages":
-                fused_stages, atts = [], []
-                for att_module, f in zip(self.fusion, [first] + backbone.stage_outputs(first, start=1)):
-                    fused, att = att_module(per_sample(f), mask)
-                    fused_stages.append(fused)
-                    atts.append(att)
-                fused, att = backbone.upsample(fused_stages), atts[0]
-            elif self.placement == "stage1":
-                first, att = self.fusion(per_sample(first), mask)
-                fused = backbone.after_first_stage(first)
-            else:
-                fused, att = self.fusion(per_sample(backbone.after_first_stage(first)), mask)
-        self.last_attention = None if att is None else att.detach()
-        return self.head(fused)
+            return (None if attention_only else backbone(canvas)), att
+        first = backbone.first_stage(pillars)
+        if self.placement == "stages":
+            if attention_only:  # the first stage's attention is the one kept
+                return None, self.fusion[0](per_sample(first), mask)[1]
+            fused_stages, atts = [], []
+            for att_module, f in zip(self.fusion, [first] + backbone.stage_outputs(first, start=1)):
+                fused, att = att_module(per_sample(f), mask)
+                fused_stages.append(fused)
+                atts.append(att)
+            return backbone.upsample(fused_stages), atts[0]
+        if self.placement == "stage1":
+            first, att = self.fusion(per_sample(first), mask)
+            return (None if attention_only else backbone.after_first_stage(first)), att
+        return self.fusion(per_sample(backbone.after_first_stage(first)), mask)
 
 
 class MaxOverAgents(nn.Module):

@@ -27,8 +27,7 @@ class AttFuseDetector(AgentCloudsDetector):
     def attention_weights(self, frame: CooperativeFrame, cells: str = "all") -> dict[str, float]:
         """s_j: the ego row's attention toward agent j averaged over BEV cells (``all`` cells, or
         ``vehicles``: cells under ground-truth vehicles in range, as the paper's code does)."""
-        self.model([self._sample(frame, self._clouds(frame))])
-        att = self.model.last_attention[0].numpy()  # (N, H, W): row = y, column = x
+        att = self.model.ego_attention([self._sample(frame, self._clouds(frame))])[0].numpy()  # (N, H, W): row = y, column = x
         if cells == "vehicles":
             mask = self._vehicle_cells(frame, att.shape[1])
             if mask.any():
