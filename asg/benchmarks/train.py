@@ -12,8 +12,8 @@ import numpy as np
 
 from .defaults import TRAIN_STEPS
 
-#: steps timed after the warm-up, and warm-up steps (allocator, oneDNN kernels), by default
-STEPS, WARMUP = TRAIN_STEPS, 3
+#: warm-up steps before the timed ones (allocator, oneDNN kernels)
+WARMUP = 3
 
 
 def bench_frames(frames: int, seed: int = 0) -> tuple[list, str]:
@@ -48,7 +48,7 @@ def bench_frames(frames: int, seed: int = 0) -> tuple[list, str]:
     return scenes, f"town {town} (detector-train not built)"
 
 
-def bench_train(steps: int = STEPS, frames: int = 24, batch_size: int = 4, threads: int = 2, seed: int = 0) -> dict:
+def bench_train(steps: int = TRAIN_STEPS, frames: int = 24, batch_size: int = 4, threads: int = 2, seed: int = 0) -> dict:
     import torch
 
     from ..perception.config import load_detector_config
