@@ -178,9 +178,9 @@ def test_acs_that_ends_easier_than_the_start_says_so(busy_scene, monkeypatch):
 
     def easier(scene, rng, notes):
         scored = gen.evaluate_scene(scene)
-        return AcsOutcome(dataclasses.replace(scored, loss=scored.loss + 0.5), {}, 3)
+        return scored, AcsOutcome(dataclasses.replace(scored, loss=scored.loss + 0.5), {}, 3)
 
-    monkeypatch.setattr(gen, "collaborator_search", easier)
+    monkeypatch.setattr(gen, "normal_and_acs", easier)
     result = gen.attack(start, seed=4)
     assert any(n.startswith("ACS ended easier than the scene began") for n in result.notes)
     monkeypatch.undo()
@@ -255,6 +255,30 @@ def test_candidates_scored_side_by_side_give_the_scene_one_thread_gives(busy_sce
     for stage in one.detections:
         for a, b in zip(one.detections[stage], two.detections[stage]):
             assert np.array_equal(a, b)
+
+
+def test_the_scene_as_given_scored_in_the_collaborator_searchs_batch_is_the_scene_scored_alone(busy_scene):
+    """The scene as given is scored in one batch with ACS-A's combinations (on two candidate
+    threads): the same loss, AP and detections as scored alone on the caller's threads, and the
+    same collaborator search as without it."""
+    import copy
+
+    from asg.perception import build_detector
+
+    det = build_detector("attfuse")
+    cfg = GenerateConfig(fusion="attfuse", search="rs", acs="attention", budget=4, space=SpaceConfig(n_q=50))
+    gen = Generator(cfg, det, det, candidate_threads=2)
+    rng = np.random.default_rng(5)
+    initial = gen.normal_collaborators(busy_scene, rng, [])
+    rng_again = copy.deepcopy(rng)
+    normal, acs = gen.normal_and_acs(initial, rng, [])
+    alone, search = gen.evaluate_scene(initial), gen.collaborator_search(initial, rng_again, [])
+    assert normal.scene is initial and (normal.loss, normal.ap) == (alone.loss, alone.ap)
+    for a, b in zip(normal.detections, alone.detections, strict=True):
+        assert np.array_equal(a, b)
+    assert acs.combinations == search.combinations == cfg.acs_samples and acs.probabilities == search.probabilities
+    assert acs.best.scene.collaborators == search.best.scene.collaborators
+    assert (acs.best.loss, acs.best.ap) == (search.best.loss, search.best.ap)
 
 
 def test_the_final_scene_keeps_the_detections_its_search_scored(busy_scene):

@@ -100,8 +100,7 @@ class Generator:
 
     def evaluate_scene(self, scene: Scene) -> "Scored":
         frame = render_frame(world_for(scene, self.spec))
-        judged = self._judged(frame)
-        return Scored(scene, judged.loss, judged.ap, frame, judged.detections)
+        return Scored.of(scene, frame, self._judged(frame))
 
     # ---- the two stages ----------------------------------------------------------------------
     def normal_collaborators(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> Scene:
@@ -114,9 +113,27 @@ class Generator:
         pick = sorted(rng.choice(len(cands), size=min(need, len(cands)), replace=False).tolist()) if cands else []
         return scene.with_collaborators([cands[i] for i in pick])
 
+    def normal_and_acs(self, initial: Scene, rng: np.random.Generator, notes: list[str]) -> tuple["Scored", "AcsOutcome"]:
+        """``initial`` scored, and the collaborator search from it (``cfg.acs`` off: ``initial``
+        itself). ``initial``'s frame is scored in one batch with the search's combinations: on
+        several candidate threads it takes a core that the combinations leave idle."""
+        frame = render_frame(world_for(initial, self.spec))
+        if self.cfg.acs == ACS_OFF:
+            normal = Scored.of(initial, frame, self._judged(frame))
+            return normal, AcsOutcome(normal, {}, 0)
+        combos = self.collaborator_combinations(initial, rng, notes)
+        judged = self.candidates.map(self._judged, [frame, *combos.frames])  # one batch
+        return Scored.of(initial, frame, judged[0]), combos.outcome(judged[1:])
+
     def collaborator_search(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> "AcsOutcome":
         """The lowest-loss of the combinations ``cfg.acs``'s strategy proposes (asg.collaborators),
         with the strategy's probabilities."""
+        combos = self.collaborator_combinations(scene, rng, notes)
+        return combos.outcome(self.candidates.map(self._judged, combos.frames))
+
+    def collaborator_combinations(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> "AcsCombinations":
+        """The combinations ``cfg.acs``'s strategy proposes (asg.collaborators), rendered, with the
+        strategy's probabilities; not scored yet."""
         from ..collaborators import ACS_STRATEGIES
 
         strategy = ACS_STRATEGIES.entry(self.cfg.acs)(self.cfg.acs_samples, self.cfg.acs_tau)
@@ -135,12 +152,7 @@ class Generator:
         combos, probs = strategy.propose(scene, cands, size, rng, attention_of)
         combos = combos or [tuple()]
         scenes = [scene.with_collaborators(combo) for combo in combos]
-        frames = [render_frame(world, s.sensing_ids) for s in scenes]
-        best: Scored | None = None
-        for s, frame, judged in zip(scenes, frames, self.candidates.map(self._judged, frames)):  # one batch
-            if best is None or judged.loss < best.loss:
-                best = Scored(s, judged.loss, judged.ap, frame, judged.detections)
-        return AcsOutcome(best, probs, len(combos))
+        return AcsCombinations(scenes, [render_frame(world, s.sensing_ids) for s in scenes], probs)
 
     def _attention_of(self, frame: CooperativeFrame) -> dict[str, float]:
         """The ACS model's attention weight of each sensing agent of ``frame``; InputError if it gives none."""
@@ -175,8 +187,7 @@ class Generator:
         rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
         notes: list[str] = []
         initial = self.normal_collaborators(scene, rng, notes)
-        normal = self.evaluate_scene(initial)
-        acs = AcsOutcome(normal, {}, 0) if self.cfg.acs == ACS_OFF else self.collaborator_search(initial, rng, notes)
+        normal, acs = self.normal_and_acs(initial, rng, notes)
         after = acs.best
         if after.loss > normal.loss:  # the paper's ACS samples among the candidates, not the scene's own pair
             notes.append(f"ACS ended easier than the scene began (loss {normal.loss:.3f} -> {after.loss:.3f}): "
@@ -272,6 +283,10 @@ class Scored:
     #: the target model's (boxes, scores, ground truth) on ``frame``
     detections: Detections
 
+    @staticmethod
+    def of(scene: Scene, frame: CooperativeFrame, judged: "Judged") -> "Scored":
+        return Scored(scene, judged.loss, judged.ap, frame, judged.detections)
+
 
 @dataclass(frozen=True)
 class Judged:
@@ -280,6 +295,22 @@ class Judged:
     loss: float
     ap: dict[str, float]
     detections: Detections
+
+
+@dataclass(frozen=True)
+class AcsCombinations:
+    """The collaborator search's combinations (the scene with each), their frames and the
+    strategy's probability of each ("a+b" -> p; empty for ACS-R)."""
+
+    scenes: list[Scene]
+    frames: list[CooperativeFrame]
+    probabilities: dict[str, float]
+
+    def outcome(self, judged: list["Judged"]) -> "AcsOutcome":
+        """The search's outcome from each frame's judgement (in order): the first of the lowest loss."""
+        best = min(range(len(judged)), key=lambda i: judged[i].loss)  # min keeps the first of ties
+        return AcsOutcome(Scored.of(self.scenes[best], self.frames[best], judged[best]), self.probabilities,
+                          len(judged))
 
 
 @dataclass(frozen=True)
