@@ -8,10 +8,9 @@ frame's detections on one torch thread are the same bits on any thread, so a bat
 gives what one thread scoring it frame by frame gives: the result does not depend on how many
 threads score it.
 
-The generator's scoring function renders a candidate's frame under a lock (the LiDAR world moves
-its vehicles in place: one frame at a time) and then detects it, so that one thread renders while
-the others detect. torch's thread count is global to the process: each scoring thread sets one,
-and the caller's count is put back after each batch.
+The frames are rendered before (the LiDAR world moves its vehicles in place: one thread);
+detection, post-processing and AP run here. torch's thread count is global to the process:
+each scoring thread sets one, and the caller's count is put back after each batch.
 """
 from __future__ import annotations
 

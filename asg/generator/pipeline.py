@@ -5,7 +5,6 @@ What the CLI and the benchmarks call. Works with any detector behind the V2XDete
 """
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -242,15 +241,10 @@ class Generator:
             return apply_link(frame, p.link, view) if p.link else frame
 
         lowest: list = [start_at.loss, None, None]  # the lowest loss scored, its frame and detections
-        rendering = threading.Lock()  # the world moves its vehicles in place: one frame rendered at a time
-
-        def judged_frame(x: np.ndarray) -> tuple[CooperativeFrame, Judged]:
-            with rendering:  # while the other candidate threads detect the frames rendered before
-                frame = frame_of(x)
-            return frame, self._judged(frame)
 
         def objective(xs: list[np.ndarray]) -> list[tuple[float, dict[str, float]]]:
-            frames, judged = zip(*self.candidates.map(judged_frame, xs))
+            frames = [frame_of(x) for x in xs]  # rendered here: the world moves its vehicles in place
+            judged = self.candidates.map(self._judged, frames)
             for frame, j in zip(frames, judged):
                 if j.loss < lowest[0]:  # best_of's pick: the first of the lowest, the start if none beats it
                     lowest[:] = [j.loss, frame, j.detections]
