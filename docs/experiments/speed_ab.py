@@ -2,8 +2,9 @@
 same script measures the code before and after (docs/experiments/speed_ab.sh alternates them).
 Prints JSON: seconds a scene of AttFuse + ACS-A + BO-50 and + GA-50 in one process on two threads
 (``asg bench generate``'s setting: what that commit's generator does with them), and each shipped
-model's and the OpenCOOD folder's median ms a frame (``asg bench detect``'s frames and repeats).
-usage: PYTHONPATH=TREE .venv/bin/python docs/experiments/speed_ab.py [SCENES]
+model's and the OpenCOOD folder's median ms a frame (``asg bench detect``'s frames and repeats;
+not with ``--scenes-only``).
+usage: PYTHONPATH=TREE .venv/bin/python docs/experiments/speed_ab.py [SCENES] [--scenes-only]
 """
 import inspect
 import itertools
@@ -52,10 +53,13 @@ def generate_s(search: str, scenes: int) -> float:
     return round(statistics.median(seconds), 2)
 
 
-def main(scenes: int) -> None:
+def main(scenes: int, frames: bool = True) -> None:
     torch.set_num_threads(2)
     out = {"tree": str(Path(asg.__file__).parent.parent), "threads": torch.get_num_threads(),
            "generate_bo_s": generate_s("bo", scenes), "generate_ga_s": generate_s("ga", scenes)}
+    if not frames:
+        print(json.dumps(out))
+        return
     spec = load_lidar_spec()
     coop = [simulate_frame(with_nearest_collaborators(s, 2), spec) for s in itertools.islice(scenes_of("normal"), 10)]
     for name in models() + [f"opencood:{OPENCOOD}"]:
@@ -66,4 +70,5 @@ def main(scenes: int) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 5)
+    args = [a for a in sys.argv[1:] if a != "--scenes-only"]
+    main(int(args[0]) if args else 5, frames="--scenes-only" not in sys.argv[1:])
