@@ -11,7 +11,7 @@ import subprocess
 import sys
 import time
 
-import asg  # first: it sets how OpenMP's threads wait, read when torch loads
+import asg  # noqa: F401  (first: it sets how OpenMP's threads wait, read when torch loads)
 import numpy as np
 from asg.datasets import scenes_of
 from asg.executors import apply_threads
