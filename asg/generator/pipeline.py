@@ -117,10 +117,10 @@ class Generator:
         """``initial`` scored, and the collaborator search from it (``cfg.acs`` off: ``initial``
         itself). ``initial``'s frame is scored in one batch with the search's combinations: on
         several candidate threads it takes a core that the combinations leave idle."""
-        frame = render_frame(world_for(initial, self.spec))
         if self.cfg.acs == ACS_OFF:
-            normal = Scored.of(initial, frame, self._judged(frame))
+            normal = self.evaluate_scene(initial)
             return normal, AcsOutcome(normal, {}, 0)
+        frame = render_frame(world_for(initial, self.spec))
         combos = self.collaborator_combinations(initial, rng, notes)
         judged = self.candidates.map(self._judged, [frame, *combos.frames])  # one batch
         return Scored.of(initial, frame, judged[0]), combos.outcome(judged[1:])
