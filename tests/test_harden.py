@@ -279,7 +279,9 @@ def test_round_zeros_cache_is_not_reused_by_other_scoring_code(tmp_path, monkeyp
     after = _start_cache(weights)
     assert after.parent == before.parent and after != before
     trainer = _trainer()
-    assert harden_mod._eval_cache(trainer, tmp_path, 1, trainer.model_at(weights)) == tmp_path / "round-1" / "eval"
+    start = trainer.model_at(weights)
+    assert harden_mod._eval_cache(tmp_path, 1, start, trainer.start_cache(start)) == tmp_path / "round-1" / "eval"
+    assert harden_mod._eval_cache(tmp_path, 0, start, trainer.start_cache(start)) == after
 
 
 def test_round_zeros_reattack_is_scored_by_todays_code(data_root):

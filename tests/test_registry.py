@@ -39,8 +39,8 @@ def test_every_target_kind_that_is_trained_here_has_a_round_trainer():
     class Brought:
         training, name = Training.NONE, "x"
 
-        def check_trainable(self):
-            raise InputError("brings its own weights")
+        def not_trained_here(self):
+            return "brings its own weights"
 
     with pytest.raises(InputError, match="brings its own weights"):
         round_trainer(Brought(), None)

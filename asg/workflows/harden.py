@@ -154,6 +154,7 @@ def harden(target: Target, rounds: int, out: Path | None = None, *, weights: Pat
         "rounds": []}
     card["rounds"] = upgraded_rounds(card["rounds"])
     trainer.log_start(start, log)
+    start_cache = trainer.start_cache(start)  # round 0's evaluations, shared by every run from the same start
     current, current_round = start, 0  # the model the next round starts from, and its round
     own_val = None  # the target's own challenging val set (asg.workflows.challenging.own_val_set)
     for k in range(rounds + 1):
@@ -174,16 +175,16 @@ def harden(target: Target, rounds: int, out: Path | None = None, *, weights: Pat
             _after_training(trainer, model, round_dir, row, log)
             row["weights"] = str(model.path.relative_to(out))
         log(f"round {k}: evaluating {model.path} ...")
-        cache = _eval_cache(trainer, out, k, model)
+        cache = _eval_cache(out, k, model, start_cache)
         own_val = own_val or own_val_set(target, executor, log)  # built once, before the first evaluation
         row["evaluation"] = evaluate_round(model, own_val, cfg, cache, executor, log)
         if k and cfg.guard_set is not None:
-            before = _eval_cache(trainer, out, current_round, current)  # evaluated again if gone (another data root)
+            before = _eval_cache(out, current_round, current, start_cache)  # evaluated again if gone (another data root)
             evaluated_set(current, cfg.guard_set, cfg.guard_set, before, True, executor, log)
             row["guard"] = guard(before, cache, cfg.guard_set)
             if not row["guard"]["kept"] and cfg.guard_average:
                 _log_guard(log, k, row["guard"], "its weights are averaged with the ones it started from")
-                model = _averaged_round(trainer, own_val, row, (current, current_round), model, out, k, executor, log)
+                model = _averaged_round(trainer, own_val, row, (current, before), model, out, k, executor, log)
             if not row["guard"]["kept"]:
                 _log_guard(log, k, row["guard"], "its weights are not kept; the next round starts from "
                            f"{f'round {current_round}' if current_round else 'the start weights'}")
@@ -245,32 +246,32 @@ def _log_guard(log: Callable[[str], None], k: int, gap: dict, outcome: str) -> N
 def _averaged_round(trainer, own_val: str, row: dict, start: tuple, trained, out: Path, k: int, executor,
                     log: Callable[[str], None]):
     """The guard's cure for a round it would not keep: the round's model averaged with the one it
-    started from (``start``: that model and its round; ``cfg.guard_average`` of the round's, the
+    started from (``start``: that model and its evaluations' cache; ``cfg.guard_average`` of the round's, the
     trainer's ``average``), given what the trainer gives a trained model (a point stage),
     evaluated and guarded in its turn. ``row`` is updated to the averaged model; what the round
     trained stays under its "unaveraged" key. Returns the averaged model."""
-    cfg, (current, current_round) = trainer.cfg, start
+    cfg, (current, before_cache) = trainer.cfg, start
     averaged = trainer.average(current, trained, cfg.guard_average, out / f"round-{k}")
     row["unaveraged"] = {"weights": row["weights"], "evaluation": row["evaluation"], "guard": row["guard"],
                          **({"stage": row["stage"]} if "stage" in row else {})}
     _after_training(trainer, averaged, out / f"round-{k}", row, log)
     log(f"round {k}: evaluating {averaged.path} ({cfg.guard_average:g} of the round's weights) ...")
     row["weights"] = str(averaged.path.relative_to(out))
-    cache = _eval_cache(trainer, out, k, averaged)
+    cache = _eval_cache(out, k, averaged)
     row["evaluation"] = evaluate_round(averaged, own_val, cfg, cache, executor, log)
-    row["guard"] = guard(_eval_cache(trainer, out, current_round, current), cache, cfg.guard_set) | {
+    row["guard"] = guard(before_cache, cache, cfg.guard_set) | {
         "averaged": cfg.guard_average}
     return averaged
 
 
-def _eval_cache(trainer, out: Path, k: int, model) -> Path:
+def _eval_cache(out: Path, k: int, model, start_cache: Path | None = None) -> Path:
     """Where round ``k``'s evaluations are cached: the round's folder (``eval``, or ``eval-averaged``
-    for its averaged model), but for round 0 (the start) the trainer's cache of the start
-    (asg.evaluation.start_evaluations_dir), shared by every run (and control) that starts from the
-    same model with the same code."""
+    for its averaged model), but for round 0 (the start) ``start_cache``, the trainer's cache of the
+    start (asg.evaluation.start_evaluations_dir), shared by every run (and control) that starts from
+    the same model with the same code."""
     if k:
         return out / f"round-{k}" / ("eval" if model.path.stem != AVERAGED else f"eval-{AVERAGED}")
-    return trainer.start_cache(model)
+    return start_cache
 
 
 def guard(before_cache: Path, after_cache: Path, guard_set: str) -> dict:

@@ -115,12 +115,6 @@ class Target:
         """One line a user scoring it should read ('' for none)."""
         return ""
 
-    def check_trainable(self) -> "Target":
-        """Refuse (one InputError) a target its trainer cannot train, before any work starts."""
-        if self.training is Training.NONE:
-            raise InputError(self.not_trained_here())
-        return self
-
     def shipped_entry(self):
         """The registry entry of a shipped model (its class: weights, network, feed); InputError
         for any other kind (nothing of asg trains it)."""

@@ -73,15 +73,6 @@ class OpenCOODTarget(Target):
     def own_attention(self) -> bool:
         return has_own_attention(self.detector())
 
-    def check_trainable(self) -> "OpenCOODTarget":
-        """The settings OpenCOOD's trainer reads from the folder's config.yaml (train_params, loss,
-        optimizer, lr_scheduler), checked before hours of work start."""
-        from ..opencood.folder import read_hypes
-        from ..opencood.training_settings import check_trainable
-
-        check_trainable(read_hypes(self.model_dir), self.model_dir / "config.yaml")
-        return self
-
     def run_record(self) -> dict:
         return {"opencood_sha256": {k: file_digest(p) for k, p in self.model_files().items()}}
 

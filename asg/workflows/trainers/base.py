@@ -49,14 +49,14 @@ class RoundTrainer:
     """Trains ``target`` round by round with the harden settings ``cfg``
     (asg.workflows.harden.HardenConfig) on ``threads`` threads; ``config_path``: the ``--config``
     file the settings came from (None: train.yaml), where a trainer reads a block of its own.
-    Subclasses answer every method."""
+    Subclasses answer every method but :meth:`log_start`."""
 
     def __init__(self, target: Target, cfg, threads: int = 2, config_path: Path | None = None):
         self.target, self.cfg, self.threads, self.config_path = target, cfg, threads, config_path
 
     def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
-        """Refuse (one InputError) before any work: a start ``weights`` it cannot take, or a harden
-        block ``given`` (a ``--config`` file's; None: train.yaml's) that changes, from train.yaml's
+        """Refuse (one InputError) before any work: a target whose own training settings it cannot
+        train with, a start ``weights`` it cannot take, or a harden block ``given`` (a ``--config`` file's; None: train.yaml's) that changes, from train.yaml's
         ``shipped``, a setting this trainer does not read (it would be ignored)."""
         raise NotImplementedError
 
@@ -81,7 +81,8 @@ class RoundTrainer:
         raise NotImplementedError
 
     def prepare(self) -> None:
-        """What the run needs built once its folder is claimed, before round 0 (nothing by default)."""
+        """Build what the run needs once its folder is claimed, before round 0."""
+        raise NotImplementedError
 
     def train(self, start: Model, scenes: dict[str, list], folder: Path, log: Callable[[str], None],
               progress, name: str = "weights", shared: Path | None = None) -> tuple[Model, dict]:
@@ -94,7 +95,7 @@ class RoundTrainer:
 
     def after_training(self, model: Model, round_dir: Path, log: Callable[[str], None]) -> dict | None:
         """What a trained (or averaged) model gets before it is evaluated: its record (None: nothing)."""
-        return None
+        raise NotImplementedError
 
     def average(self, start: Model, trained: Model, share: float, round_dir: Path) -> Model:
         """``(1 - share) * start + share * trained`` written in ``round_dir`` (the guard's cure)."""
@@ -116,8 +117,7 @@ def is_kept(row: dict) -> bool:
 
 def round_trainer(target: Target, cfg, threads: int = 2, config_path: Path | None = None) -> RoundTrainer:
     """The round trainer of ``target``'s training kind; InputError (its one line) for a target
-    nothing here trains."""
-    target.check_trainable()
+    nothing here trains. The trainer's :meth:`RoundTrainer.check` refuses what it cannot train."""
     if target.training.value not in ROUND_TRAINERS:  # (the package imports every trainer module)
         raise InputError(target.not_trained_here())
     return ROUND_TRAINERS.entry(target.training.value)(target, cfg, threads, config_path)

@@ -63,6 +63,13 @@ class OpenCOODRoundTrainer(RoundTrainer):
         self.train_cfg = load_opencood_train_config(config_path)
 
     def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
+        """The settings OpenCOOD's trainer reads from the folder's config.yaml (train_params, loss,
+        optimizer, lr_scheduler) first, then the start and the block."""
+        from ...perception.opencood.folder import read_hypes
+        from ...perception.opencood.training_settings import check_trainable
+
+        folder = self.target.model_dir
+        check_trainable(read_hypes(folder), folder / "config.yaml")
         if weights is not None:
             raise InputError("--weights applies to asg's own models; an OpenCOOD model starts from its folder's "
                              "checkpoint (a further round of a run: --fusion opencood:OUT/round-K/model)")
@@ -91,6 +98,9 @@ class OpenCOODRoundTrainer(RoundTrainer):
     def settings(self, start: Model) -> dict:
         return {"start": self.digest(start), "opencood": asdict(self.train_cfg)}
 
+    def prepare(self) -> None:
+        """Nothing: the exports a round trains on are made by the round (:meth:`train`)."""
+
     def train(self, start: Model, scenes: dict[str, list], folder: Path, log: Callable[[str], None],
               progress, name: str = "weights", shared: Path | None = None) -> tuple[Model, dict]:
         """``folder/model`` (whatever ``name``), trained on the export ``folder/train``; normal-val
@@ -117,6 +127,10 @@ class OpenCOODRoundTrainer(RoundTrainer):
                    "examples": {label: len(s) for label, s in groups.items()}, "mix_with": list(self.cfg.mix_with)}
         write_text_atomic(record, json.dumps(trained, indent=1))
         return self.model_at(model), trained
+
+    def after_training(self, model: Model, round_dir: Path, log: Callable[[str], None]) -> dict | None:
+        """Nothing: an OpenCOOD model has no point stage to fit."""
+        return None
 
     def average(self, start: Model, trained: Model, share: float, round_dir: Path) -> Model:
         """``round_dir/averaged``: the trained folder's config and its checkpoint's tensors averaged
