@@ -22,8 +22,8 @@ from test_tables import write_set
 ATTFUSE = resolve_target("attfuse")
 
 #: two steps of one example, mixed with the normal set only, evaluated on normal-val only
-TINY = replace(load_finetune_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
-               eval_sets=("normal-val",))
+TINY = replace(load_finetune_config(), mix_with=("normal",), eval_sets=("normal-val",)).with_trainer(
+    "asg", steps=2, batch_size=1, checkpoint_every=1)
 
 
 @pytest.fixture
@@ -66,7 +66,7 @@ def test_finetune_trains_evaluates_and_keeps_the_shipped_weights(tmp_path, data_
     assert finetune(ATTFUSE, "challenging-attfuse-train", out, config=TINY, stages=("train", "evaluate"),
                     log=lambda m: None) == card
     with pytest.raises(InputError, match="other settings"):
-        finetune(ATTFUSE, "challenging-attfuse-train", out, config=replace(TINY, lr=0.001), log=lambda m: None)
+        finetune(ATTFUSE, "challenging-attfuse-train", out, config=TINY.with_trainer("asg", lr=0.001), log=lambda m: None)
 
 
 @pytest.mark.slow
@@ -118,15 +118,17 @@ def test_bad_weights_are_one_line(capsys, tmp_path, data_root):
     assert not (tmp_path / "g").exists()
 
 
-@pytest.mark.parametrize("bad", ["steps: 0", "batch_size: -1", "lr: -0.1", "lr: 1.0e+30", "weight_decay: -1",
-                                 "pct_start: 5", "checkpoint_every: 0", "div_factor: 0", "seed: -3",
-                                 "mix_with: ['../..']", "augment: {rotate_deg: 200}", "augment: {scale: 0.9}",
-                                 "augment: {spin: 1}", "corner_loss: -1", "corner_loss: .nan"])
+@pytest.mark.parametrize("bad", ["asg: {steps: 0}", "asg: {batch_size: -1}", "asg: {lr: -0.1}", "asg: {lr: 1.0e+30}",
+                                 "asg: {weight_decay: -1}", "asg: {pct_start: 5}", "asg: {checkpoint_every: 0}",
+                                 "asg: {div_factor: 0}", "asg: {seed: -3}", "mix_with: ['../..']",
+                                 "asg: {augment: {rotate_deg: 200}}", "asg: {augment: {scale: 0.9}}",
+                                 "asg: {augment: {spin: 1}}", "asg: {corner_loss: -1}", "asg: {corner_loss: .nan}",
+                                 "asg: {challenging_share: 2}", "opencood: {epochs: 0}", "opencood: {rate: 1}"])
 def test_bad_finetune_settings_are_refused_when_loaded(tmp_path, bad):
     from asg.training.config import load_finetune_config
     from asg.workflows.harden import load_harden_config
 
-    key = bad.split(":")[0]
+    key = bad.replace("{", "").split(":")[-2].strip()
     for block, load in (("finetune", load_finetune_config), ("harden", load_harden_config)):
         config = tmp_path / f"{block}.yaml"
         config.write_text(f"{block}:\n  {bad}\n")

@@ -20,9 +20,9 @@ from test_tables import write_set
 ATTFUSE = resolve_target("attfuse")
 
 #: two steps a round, one scene a round from the normal train split, mixed with normal
-TINY = replace(load_harden_config(), steps=2, batch_size=1, checkpoint_every=1, mix_with=("normal",),
-               eval_sets=("normal-val",), scenes_per_round=1, pool=("normal",), noisy=False, reattack=False,
-               guard_set=None, fit_stage=False)
+TINY = replace(load_harden_config(), mix_with=("normal",), eval_sets=("normal-val",), scenes_per_round=1,
+               pool=("normal",), noisy=False, reattack=False, guard_set=None).with_trainer(
+    "asg", steps=2, batch_size=1, checkpoint_every=1, fit_stage=False)
 ORACLE = "fakes:oracle_factory"
 
 
@@ -41,7 +41,7 @@ def _trainer(fusion: str = "attfuse"):
     from asg.perception.targets import resolve_target
     from asg.workflows.trainers import round_trainer
 
-    return round_trainer(resolve_target(fusion), replace(TINY, fit_stage=False))
+    return round_trainer(resolve_target(fusion), TINY.with_trainer("asg", fit_stage=False))
 
 
 def _start_cache(weights):
@@ -86,7 +86,7 @@ def test_two_rounds_write_weights_and_a_card_and_resume(tmp_path, data_root):
     ids = [sorted(p.stem for p in (out / f"round-{k}" / "scenes").glob("*.yaml")) for k in (1, 2)]
     assert len(ids[0]) == len(ids[1]) == 1 and ids[0] != ids[1]
     with pytest.raises(InputError, match="other settings"):
-        harden(ATTFUSE, 2, out, config=replace(TINY, lr=TINY.lr * 2), detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 2, out, config=TINY.with_trainer("asg", lr=TINY.asg.lr * 2), detector_factory=ORACLE, log=_quiet)
     # a card starts a new run from its last round's weights
     follow = harden(ATTFUSE, 1, tmp_path / "next", weights=out / "card.json", config=replace(TINY, seed=9),
                     detector_factory=ORACLE, log=_quiet)
@@ -123,7 +123,7 @@ def test_the_controls_draw_the_scenes_they_claim(tmp_path, data_root, data):
     from asg.datasets import iter_frames
     from asg.scene import load_scene
 
-    cfg = replace(TINY, data=data, scenes_per_round=2, steps=1)
+    cfg = replace(TINY, data=data, scenes_per_round=2).with_trainer("asg", steps=1)
     card = harden(ATTFUSE, 1, tmp_path / data, config=cfg, log=_quiet)
     made = {p.stem: load_scene(p) for p in (tmp_path / data / "round-1" / "scenes").glob("*.yaml")}
     pool = {s.scene_id: s for s in iter_frames("normal", "train")}
@@ -252,7 +252,7 @@ def test_harden_rounds_need_the_finetune_table(capsys):
 
 @pytest.mark.slow
 def test_challenging_views_ego_trains_the_rounds_scenes_from_the_attacked_view_only(tmp_path, data_root):
-    card = harden(ATTFUSE, 1, tmp_path / "ego", config=replace(TINY, challenging_views="ego"),
+    card = harden(ATTFUSE, 1, tmp_path / "ego", config=TINY.with_trainer("asg", challenging_views="ego"),
                   detector_factory=ORACLE, log=_quiet)
     trained = card["rounds"][1]["trained"]
     assert trained["examples"] == {"round-1": 1, "normal": 6}  # one view of the round's scene, all of normal's
@@ -265,7 +265,6 @@ def test_round_zeros_cache_is_not_reused_by_other_scoring_code(tmp_path, monkeyp
     import shutil
 
     import asg.workflows.harden as harden_mod
-    import asg.workflows.harden_stage as harden_stage
     from sumo_scenarios import paths
 
     weights = WEIGHTS_DIR / "attfuse.pt"
@@ -331,7 +330,9 @@ def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_roo
     ("harden: null\n", "must be a mapping"), ("harden: [1, 2]\n", "must be a mapping"),
     ("harden: just text\n", "must be a mapping"), ("", "an empty file"), ("- a\n- b\n", "list"),
     ("a: &a [1, 1]\nb: &b [*a, *a]\nharden: [*b, *b]\n", "aliases"),
-    ("harden: {lr: 1.0e-3}\nharden: {lr: 2.0e-3}\n", "written twice")])
+    ("harden: {seed: 1}\nharden: {seed: 2}\n", "written twice"),
+    # the form before each trainer's settings had a part of their own
+    ("harden: {pool: [normal], steps: 10, lr: 1.0e-3}\n", "lr, steps set asg's own trainer; they sit under the block's asg part")])
 def test_a_hostile_training_config_is_one_line_and_writes_nothing(capsys, tmp_path, data_root, text, needle):
     config = tmp_path / "train.yaml"
     config.write_text(text)
@@ -345,8 +346,8 @@ def test_a_hostile_training_config_is_one_line_and_writes_nothing(capsys, tmp_pa
 def test_yaml_12_floats_are_numbers_in_a_training_config(tmp_path):
     """lr: 1e-3 (no dot) is a number, as YAML 1.2 and every user read it, not the string YAML 1.1 made of it."""
     config = tmp_path / "train.yaml"
-    config.write_text("harden: {pool: [normal], scenes_per_round: 4, lr: 1e-3}\n")
-    assert load_harden_config(config).lr == pytest.approx(1e-3)
+    config.write_text("harden: {pool: [normal], scenes_per_round: 4, asg: {lr: 1e-3}}\n")
+    assert load_harden_config(config).asg.lr == pytest.approx(1e-3)
 
 
 @pytest.mark.parametrize("extra, config_text, needle", [
@@ -378,7 +379,6 @@ def test_a_round_worse_on_the_guard_set_is_not_kept(tmp_path, data_root, monkeyp
     whose interval lies below zero is not kept: the next round starts from the weights before it,
     and the card (as --weights) gives them."""
     import asg.workflows.harden as harden_mod
-    import asg.workflows.harden_stage as harden_stage
     from asg.perception.weights_io import weights_path
     from test_tables import write_set
 
@@ -439,7 +439,6 @@ def test_a_round_the_guard_drops_is_averaged_with_its_start_and_kept_if_that_pas
     import torch
 
     import asg.workflows.harden as harden_mod
-    import asg.workflows.harden_stage as harden_stage
     from asg.perception.weights_io import weights_path
 
     write_set(data_root, "holdout", {"test": ["g0", "g1"]})
@@ -487,7 +486,7 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
     monkeypatch.setattr(harden_mod, "evaluate_round", lambda model, *a: (
         staged_when_scored.append((model.path.name, stage_path_of(model.path).is_file())), real_evaluate(model, *a))[1])
     out = tmp_path / "h"
-    cfg = replace(TINY, guard_set="holdout", fit_stage=True)
+    cfg = replace(TINY, guard_set="holdout").with_trainer("asg", fit_stage=True)
     card = harden(ATTFUSE, 1, out, config=cfg, detector_factory=ORACLE, log=_quiet)
     assert staged_when_scored == [("attfuse.pt", False), ("weights.pt", True), ("averaged.pt", True)]
     r1 = card["rounds"][1]
@@ -510,13 +509,12 @@ def test_a_round_fits_a_point_stage_to_its_weights_and_to_their_average(tmp_path
 def test_a_point_stage_data_set_that_cannot_be_had_is_refused_before_the_run_starts(tmp_path, data_root, monkeypatch):
     """The stage's data set is checked (and a known set built) before the folder is claimed, not
     found missing after a round's training."""
-    import asg.workflows.harden as harden_mod
     import asg.workflows.harden_stage as harden_stage
     from asg.training.point_stage_fit import PointStageFitConfig
 
     monkeypatch.setattr(harden_stage, "load_point_stage_config", lambda: PointStageFitConfig(dataset="nosuchset"))
     with pytest.raises(InputError, match="nosuchset"):
-        harden(ATTFUSE, 1, tmp_path / "h", config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
+        harden(ATTFUSE, 1, tmp_path / "h", config=TINY.with_trainer("asg", fit_stage=True), detector_factory=ORACLE, log=_quiet)
     assert not (tmp_path / "h").exists()
 
 
@@ -587,21 +585,21 @@ def test_a_folder_claimed_before_a_setting_existed_resumes_and_other_settings_ar
     with pytest.raises(Claimed):
         harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     record = json.loads((out / "run.json").read_text())
-    assert record["config"]["lidar"] == "v2xp"
-    del record["config"]["lidar"]
+    assert record["config"]["asg"]["lidar"] == "v2xp"
+    del record["config"]["asg"]["lidar"]
     (out / "run.json").write_text(json.dumps(record))
     with pytest.raises(Claimed):
         harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     # a folder from before rounds fitted their own point stage did not: it resumes without, not with
-    del record["config"]["fit_stage"], record["point_stage"]
+    del record["config"]["asg"]["fit_stage"], record["point_stage"]
     (out / "run.json").write_text(json.dumps(record))
     with pytest.raises(Claimed):
         harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
     with pytest.raises(InputError, match="fit_stage"):
-        harden(ATTFUSE, 1, out, config=replace(TINY, fit_stage=True), detector_factory=ORACLE, log=_quiet)
-    record["config"]["lr"] *= 2
+        harden(ATTFUSE, 1, out, config=TINY.with_trainer("asg", fit_stage=True), detector_factory=ORACLE, log=_quiet)
+    record["config"]["asg"]["lr"] *= 2
     (out / "run.json").write_text(json.dumps(record))
-    with pytest.raises(InputError, match="config.lr"):
+    with pytest.raises(InputError, match="config.asg.lr"):
         harden(ATTFUSE, 1, out, config=TINY, detector_factory=ORACLE, log=_quiet)
 
 
@@ -639,7 +637,7 @@ def test_a_refused_run_builds_no_point_stage_set(tmp_path, data_root, monkeypatc
     import asg.datasets
 
     monkeypatch.setattr(asg.datasets, "build_dataset", lambda *a, **k: pytest.fail("the stage's set was built"))
-    staged = replace(TINY, fit_stage=True)
+    staged = TINY.with_trainer("asg", fit_stage=True)
     with pytest.raises(InputError, match="fresh scenes"):
         harden(ATTFUSE, 50, tmp_path / "a", config=staged, detector_factory=ORACLE, log=_quiet)
     out = tmp_path / "b"
@@ -650,9 +648,11 @@ def test_a_refused_run_builds_no_point_stage_set(tmp_path, data_root, monkeypatc
         harden(ATTFUSE, 1, out, config=staged, detector_factory=ORACLE, log=_quiet)
 
 
-def test_a_run_folder_recording_opencood_epochs_resumes(tmp_path):
-    """A run.json written while the harden block held ``opencood_epochs`` (read only by an OpenCOOD
-    round) is today's settings for an asg model: the folder resumes; any other change is refused."""
+def test_a_run_folder_recording_the_flat_harden_block_resumes(tmp_path):
+    """A run.json written while the harden block held asg's trainer's settings beside the loop's
+    (and ``opencood_epochs``, read only by an OpenCOOD round) is today's settings for an asg model:
+    the folder resumes; any other change is refused. So is an OpenCOOD run's, whose trainer recorded
+    its epochs beside the config."""
     from dataclasses import asdict
 
     import asg.workflows.harden as harden_mod
@@ -660,9 +660,15 @@ def test_a_run_folder_recording_opencood_epochs_resumes(tmp_path):
 
     today = {"fusion": "attfuse", "start_weights": "w.pt", "start_sha256": "ab", "point_stage": None,
              "config": asdict(TINY), "space": None, "detector": None}
-    old = json.loads(json.dumps(today))
-    old["config"]["opencood_epochs"] = 1
+    config = json.loads(json.dumps(today["config"]))
+    old = today | {"config": {**{k: v for k, v in config.items() if k not in ("asg", "opencood")}, **config["asg"],
+                              "opencood_epochs": 1}}
     claim(tmp_path / "h", old)
     claim(tmp_path / "h", today, as_today=harden_mod._as_today)  # no refusal
     with pytest.raises(InputError, match="steps"):
-        claim(tmp_path / "h", today | {"config": asdict(replace(TINY, steps=3))}, as_today=harden_mod._as_today)
+        claim(tmp_path / "h", today | {"config": asdict(TINY.with_trainer("asg", steps=3))}, as_today=harden_mod._as_today)
+    opencood = {"fusion": "opencood:m", "start": {"config": "ab"}, "config": asdict(TINY.with_trainer("opencood", epochs=2)),
+                "space": None, "detector": None}
+    old = opencood | {"config": old["config"], "opencood": {"epochs": 2}}
+    claim(tmp_path / "o", old)
+    claim(tmp_path / "o", opencood, as_today=harden_mod._as_today)  # no refusal

@@ -200,8 +200,8 @@ def test_opencood_is_refused_where_asg_would_train_it(capsys, tmp_path):
 
 def test_a_harden_config_setting_an_opencood_round_would_ignore_is_refused(capsys, tmp_path):
     """``asg harden --fusion opencood:DIR --config F``: a setting of asg's own trainer changed in F
-    (it would be ignored) is one line naming it, before anything is written; the settings a round
-    reads, a copy of train.yaml's block and the ``opencood`` block's epochs pass."""
+    (the block's asg part: it would be ignored) is one line naming it, before anything is written;
+    the loop's settings, a copy of train.yaml's block and the block's opencood part pass."""
     from asg.perception.targets import resolve_target
     from asg.training.config import train_block
     from asg.workflows.harden import HARDEN_BLOCK, load_harden_config
@@ -209,18 +209,23 @@ def test_a_harden_config_setting_an_opencood_round_would_ignore_is_refused(capsy
 
     model = make_model_dir(tmp_path / "m", "early")
     config, out = tmp_path / "harden.yaml", tmp_path / "out"
-    config.write_text(yaml.safe_dump({"harden": {"steps": 5, "lr": 0.01, "mix_with": ["normal"]},
-                                      "opencood": {"epochs": 2}}))
+    config.write_text(yaml.safe_dump({"harden": {"asg": {"steps": 5, "lr": 0.01}, "mix_with": ["normal"],
+                                                 "opencood": {"epochs": 2}}}))
     err = _refusal(capsys, "harden", "--fusion", f"opencood:{model}", "--rounds", "1", "--config", str(config),
                    "--out", str(out))
-    assert "lr, steps set asg's own trainer" in err and "mix_with" not in err.split(";")[0] and not out.exists()
-    trainer = round_trainer(resolve_target(f"opencood:{model}"), load_harden_config(), config_path=config)
+    assert "lr, steps of the block's asg part set the asg trainer" in err and "mix_with" not in err and not out.exists()
+    trainer = round_trainer(resolve_target(f"opencood:{model}"), load_harden_config(config), config_path=config)
     assert trainer.train_cfg.epochs == 2
     shipped = train_block(HARDEN_BLOCK, None)
-    trainer.check(None, shipped | {"mix_with": ["normal"], "data": "random", "guard_set": None}, shipped)
-    config.write_text(yaml.safe_dump({"opencood": {"epochs": 0}}))
+    trainer.check(None, shipped | {"mix_with": ["normal"], "data": "random", "guard_set": None,
+                                   "opencood": {"epochs": 2}}, shipped)
+    config.write_text(yaml.safe_dump({"harden": {"opencood": {"epochs": 0}}}))
     with pytest.raises(InputError, match="epochs"):
-        round_trainer(resolve_target(f"opencood:{model}"), load_harden_config(), config_path=config)
+        load_harden_config(config)
+    # and the other way round: OpenCOOD's part changed for a shipped model
+    with pytest.raises(InputError, match="epochs of the block's opencood part set the opencood trainer"):
+        round_trainer(resolve_target("attfuse"), load_harden_config()).check(
+            None, shipped | {"opencood": {"epochs": 3}}, shipped)
 
 
 def _set(key: str, value):
@@ -794,7 +799,7 @@ def test_finetune_trains_an_opencood_model_with_its_own_trainer(capsys, tmp_path
 def test_finetune_refuses_what_opencoods_trainer_would_ignore(capsys, tmp_path):
     """``--steps`` and ``--weights`` set asg's own trainer: one line each, before anything is written."""
     model = make_model_dir(tmp_path / "m", "early")
-    for extra, needle in ((["--steps", "5"], "steps set asg's own trainer"), (["--weights", str(tmp_path / "w.pt")], "--weights")):
+    for extra, needle in ((["--steps", "5"], "steps of the block's asg part set the asg trainer"), (["--weights", str(tmp_path / "w.pt")], "--weights")):
         err = _refusal(capsys, "finetune", "--fusion", f"opencood:{model}", "--on", "challenging-x-train",
                        "--out", str(tmp_path / "o"), *extra)
         assert needle in err and not (tmp_path / "o").exists()

@@ -23,9 +23,10 @@ def test_lidar_preset_mirrors_lidar_spec():
 
 
 def test_the_opencood_training_block_mirrors_its_config():
-    from asg.workflows.trainers.opencood import OpenCOODTrainConfig, load_opencood_train_config
+    from asg.training.config import OpenCOODTrainConfig, load_finetune_config
+    from asg.workflows.harden import load_harden_config
 
-    assert load_opencood_train_config() == OpenCOODTrainConfig()
+    assert load_harden_config().opencood == OpenCOODTrainConfig() == load_finetune_config().opencood
 
 
 def _optimizer_defaults(name: str) -> dict:

@@ -488,6 +488,6 @@ def test_the_training_lidar_is_checked_and_fine_tuning_keeps_the_shipped_one(tmp
     with pytest.raises(InputError, match="t.lidar"):
         check_train_config(TrainConfig(lidar="../v2xp"), "t")
     with pytest.raises(InputError, match="fine-tuning renders with the LiDAR its scenes are attacked and evaluated with"):
-        check_train_config(replace(load_finetune_config(), lidar="vlp16"), "t")
-    with pytest.raises(InputError, match="train.yaml:harden.lidar"):
-        load_harden_config(lidar="vlp16")
+        check_train_config(replace(load_finetune_config().asg, lidar="vlp16"), "t")
+    with pytest.raises(InputError, match="train.yaml:harden.asg.lidar"):
+        load_harden_config(asg={"lidar": "vlp16"})

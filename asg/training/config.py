@@ -1,7 +1,7 @@
 """Which weights each fusion model uses and how they are trained (configs/detectors/train.yaml)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -54,19 +54,48 @@ class TrainConfig:
 
 
 @dataclass(frozen=True)
-class FinetuneConfig(TrainConfig):
-    """``asg finetune``: a chunk from trained weights on a challenging set mixed with normal frames
-    (train.yaml's ``finetune`` block). ``dataset`` is unused: the challenging set is ``--on``."""
+class ChunkConfig(TrainConfig):
+    """asg's own trainer's chunk from trained weights on challenging scenes mixed with normal frames
+    (the ``asg`` part of train.yaml's ``finetune`` block; a hardening round's is
+    asg.workflows.harden.RoundChunkConfig). ``dataset`` is unused: the scenes are the challenging
+    set (``--on``) or the round's, the normal frames the train splits of the block's ``mix_with``."""
 
-    #: share of each batch's examples drawn from the challenging set; the rest come from
+    #: share of each batch's examples drawn from the challenging scenes; the rest come from
     #: ``mix_with`` (the train split of each, in equal shares)
     challenging_share: float = 0.5
-    mix_with: tuple[str, ...] = ("normal", "detector-train")
-    #: evaluated before and after (with the challenging val set of the attacked model)
-    eval_sets: tuple[str, ...] = ("normal-val", "heuristic")
     #: the views of the challenging scenes' examples ("ego": only the attacked one, the view the
     #: attack made hard; None: ``views``, as the normal frames)
     challenging_views: Views | None = None
+
+
+@dataclass(frozen=True)
+class OpenCOODTrainConfig:
+    """How OpenCOOD's trainer trains an OpenCOOD model folder (the ``opencood`` part of train.yaml's
+    ``finetune`` and ``harden`` blocks; its batch, rate and schedule come from the folder's own
+    config.yaml)."""
+    #: epochs a fine-tuning or a hardening round trains (one gained on its challenging set and
+    #: holdout where three lost per frame on normal-val: docs/results/README.md, OpenCOOD)
+    epochs: int = 1
+
+
+@dataclass(frozen=True)
+class FinetuneConfig:
+    """``asg finetune`` (train.yaml's ``finetune`` block): what a fine-tuning reads whatever trains
+    the target, and each trainer's own settings under the name of its kind
+    (asg.perception.targets.Training): ``asg`` for a shipped model, ``opencood`` for an OpenCOOD
+    model folder. A trainer reads its own part and no other."""
+
+    #: the data sets whose train splits are trained on beside the challenging scenes
+    mix_with: tuple[str, ...] = ("normal", "detector-train")
+    #: evaluated before and after (with the challenging val set of the attacked model)
+    eval_sets: tuple[str, ...] = ("normal-val", "heuristic")
+    asg: ChunkConfig = field(default_factory=ChunkConfig)
+    opencood: OpenCOODTrainConfig = field(default_factory=OpenCOODTrainConfig)
+
+    def with_trainer(self, kind: str, **changes) -> "FinetuneConfig":
+        """A copy whose part for the trainer of ``kind`` (a Training value) has ``changes``:
+        ``cfg.with_trainer("asg", steps=2)``."""
+        return replace(self, **{kind: replace(getattr(self, kind), **changes)})
 
 
 #: the train.yaml block of the branch fit (any weights): ``asg train --fusion F --iou-branch``
@@ -82,9 +111,63 @@ def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
 
 
 def load_finetune_config(path: Path | None = None) -> FinetuneConfig:
-    """The fine-tuning settings (train.yaml's ``finetune`` block), every number checked."""
-    return check_train_config(from_mapping(FinetuneConfig, train_block(FINETUNE_BLOCK, path), f"train.yaml:{FINETUNE_BLOCK}"),
-                              f"train.yaml:{FINETUNE_BLOCK}")
+    """The fine-tuning settings (train.yaml's ``finetune`` block, or ``path``'s), every number checked."""
+    where = f"{path or 'train.yaml'}:{FINETUNE_BLOCK}"
+    block = refuse_old_form(train_block(FINETUNE_BLOCK, path), where, FinetuneConfig)
+    return check_finetune_config(from_mapping(FinetuneConfig, block, where), where)
+
+
+#: the settings that moved from a finetune or harden block into its ``asg`` part (asg's own trainer)
+#: when each trainer's settings got a part of their own: named in the refusal of an old block
+_ASG_KEYS = frozenset({*TrainConfig.__dataclass_fields__, *ChunkConfig.__dataclass_fields__, "fit_stage"})
+
+
+def refuse_old_form(block: dict, where: str, loop_type: type) -> dict:
+    """``block`` (``loop_type``'s) as given, refused in one line if it sets asg's trainer's settings
+    at its top (the form before each trainer's settings had a part of their own: they now sit under
+    ``asg``)."""
+    moved = sorted(k for k in block if k in _ASG_KEYS and k not in loop_type.__dataclass_fields__)
+    if moved:
+        raise InputError(f"{where}: {', '.join(moved)} set asg's own trainer; they sit under the block's asg part "
+                         "now (asg: {steps: ..., lr: ...}; configs/detectors/train.yaml)")
+    return block
+
+
+def record_in_todays_form(record: dict, loop_type: type) -> dict:
+    """A finetune or harden run's run.json written before each trainer's settings had a part of
+    their own, in today's form: its ``config`` (``loop_type``'s, flat then) split into the loop's
+    settings and asg's trainer's (under ``asg``: every setting of its chunk, the seed included, which
+    was the loop's too); OpenCOOD's trainer's settings, once beside the config, under its
+    ``opencood``; ``opencood_epochs``, once in the harden block, dropped (the run read the
+    ``opencood`` block). A record in today's form is returned as it is."""
+    config = record.get("config")
+    if not isinstance(config, dict) or "asg" in config:
+        return record
+    loop = {f for f in loop_type.__dataclass_fields__ if f not in ("asg", "opencood")}
+    asg = set(loop_type.__dataclass_fields__["asg"].default_factory.__dataclass_fields__)
+    today = {**{k: v for k, v in config.items() if k in loop}, "asg": {k: v for k, v in config.items() if k in asg}}
+    rest = {k: v for k, v in record.items() if k != "opencood"}
+    if isinstance(record.get("opencood"), dict):
+        today["opencood"] = record["opencood"]
+    return {**rest, "config": today}
+
+
+def check_finetune_config(cfg: FinetuneConfig, where: str) -> FinetuneConfig:
+    """``cfg`` (a finetune block, or a harden block) if its sets and each trainer's part are in range
+    (one InputError naming the first that is not)."""
+    from sumo_scenarios import checks
+
+    from ..dataset_spec import check_train_source
+
+    check_train_config(cfg.asg, f"{where}.asg")
+    checks.number(cfg.opencood.epochs, f"{where}.opencood.epochs", 1, 1000)
+    for name in cfg.mix_with:
+        check_train_source(name, f"{where}.mix_with")
+    for name in cfg.eval_sets:
+        checks.safe_id(name, f"{where}.eval_sets: data set")
+    if cfg.asg.challenging_share < 1.0 and not cfg.mix_with:
+        raise InputError(f"{where}: asg.challenging_share below 1 needs sets in mix_with")
+    return cfg
 
 
 def check_train_config(cfg: TrainConfig, where: str):
@@ -92,12 +175,10 @@ def check_train_config(cfg: TrainConfig, where: str):
     least one step, example and checkpoint interval; a learning rate in (0, 1]; weight decay in
     [0, 1]; schedule fractions in (0, 1); a seed of 0 or more; a rotation of
     at most 180 deg and a scale of at most 0.5 in the augmentation; a corner-loss weight in [0, 100]; a
-    LiDAR preset that exists (fine-tuning: only the shipped one, the sensor its scenes are attacked and
-    evaluated with); for fine-tuning, a share in [0, 1] and data sets with a train split to mix with.
-    Checked when loaded, before any work."""
+    LiDAR preset that exists (a fine-tuning chunk: only the shipped one, the sensor its scenes are
+    attacked and evaluated with, and a share in [0, 1]). Checked when loaded, before any work."""
     from sumo_scenarios import checks
 
-    from ..dataset_spec import check_train_source
     from ..sensors.lidar_spec import load_lidar_spec
 
     checks.number(cfg.steps, f"{where}.steps", 1, 10_000_000)
@@ -117,17 +198,11 @@ def check_train_config(cfg: TrainConfig, where: str):
         raise InputError(f"{where}.pct_start: {cfg.pct_start:g} leaves no steps to anneal; give a fraction below 1")
     checks.safe_id(cfg.lidar, f"{where}.lidar")
     load_lidar_spec(cfg.lidar)
-    if isinstance(cfg, FinetuneConfig):
+    if isinstance(cfg, ChunkConfig):
         if cfg.lidar != DEFAULT_LIDAR:
             raise InputError(f"{where}.lidar: fine-tuning renders with the LiDAR its scenes are attacked and evaluated "
                              f"with ({DEFAULT_LIDAR}); '{cfg.lidar}' applies to asg train's blocks only")
         checks.number(cfg.challenging_share, f"{where}.challenging_share", 0.0, 1.0)
-        for name in cfg.mix_with:
-            check_train_source(name, f"{where}.mix_with")
-        for name in cfg.eval_sets:
-            checks.safe_id(name, f"{where}.eval_sets: data set")
-        if cfg.challenging_share < 1.0 and not cfg.mix_with:
-            raise InputError(f"{where}: challenging_share below 1 needs sets in mix_with")
     return cfg
 
 

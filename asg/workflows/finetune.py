@@ -5,11 +5,12 @@ Stages, each resumable and recorded in the output folder ``OUT`` (default runs/f
 
 1. **train**: one chunk from the model's weights (shipped, or ``--weights``) on batches mixing the
    challenging set with normal frames (train.yaml's ``finetune`` block: ``challenging_share`` of
-   each batch from the challenging set, the rest from the train split of the ``mix_with`` sets);
-   checkpoints in ``OUT/last.pt``; writes ``OUT/FUSION-ft.pt`` and its card ``OUT/FUSION-ft.json``.
-   An OpenCOOD model folder (``--fusion opencood:DIR``) is trained by OpenCOOD's own trainer
-   instead, ``epochs`` (train.yaml's ``opencood`` block) on the same scenes exported in the OPV2V
-   layout, into ``OUT/model`` (asg.workflows.trainers: the target's trainer, as a harden round's).
+   each batch from the challenging set (its ``asg`` part), the rest from the train split of the
+   ``mix_with`` sets); checkpoints in ``OUT/last.pt``; writes ``OUT/FUSION-ft.pt`` and its card
+   ``OUT/FUSION-ft.json``. An OpenCOOD model folder (``--fusion opencood:DIR``) is trained by
+   OpenCOOD's own trainer instead, ``epochs`` (the block's ``opencood`` part) on the same scenes
+   exported in the OPV2V layout, into ``OUT/model`` (asg.workflows.trainers: the target's trainer,
+   as a harden round's).
 2. **evaluate**: the model before and after on ``eval_sets`` and on ``challenging-FUSION-val`` (the
    val split attacked against the original model; built if missing), cached in ``OUT/eval/``.
 3. **re-attack**: the paper's protocol run again on normal-val against the fine-tuned weights
@@ -22,7 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
@@ -33,8 +34,8 @@ from sumo_scenarios.paths import runs_dir
 from ..cli_args import COUNT, executor_from_args, fusion_arg, training_run_args
 from ..io.run_record import claim, with_defaults
 from ..objective.pooled import FINETUNE_PAIR, REATTACK_PAIR, PooledAP, pair_json, pooled_pair
-from ..training.config import FINETUNE_BLOCK, FinetuneConfig, load_finetune_config, train_block
-from ..perception.targets import Target
+from ..training.config import FINETUNE_BLOCK, FinetuneConfig, load_finetune_config, record_in_todays_form, train_block
+from ..perception.targets import Target, Training
 from .trainers.base import Model
 from .trainers.chunk import MixedBatches, mixed_sources  # noqa: F401  (this module's API too: scripts)
 
@@ -65,10 +66,14 @@ def finetune(target: Target, on: str, out: Path | None = None, *, steps: int | N
     from .trainers import round_trainer
 
     fcfg = config or load_finetune_config()
-    fcfg = replace(fcfg, steps=steps) if steps else fcfg
+    fcfg = fcfg.with_trainer(Training.ASG.value, steps=steps) if steps else fcfg
     trainer = round_trainer(target, fcfg, threads, config_path)
+    shipped = train_block(FINETUNE_BLOCK, None)
     given = dict(train_block(FINETUNE_BLOCK, config_path)) if config_path else {}
-    trainer.check(weights, given | ({"steps": steps} if steps else {}), train_block(FINETUNE_BLOCK, None))
+    if steps:  # --steps sets asg's trainer
+        asg = Training.ASG.value
+        given[asg] = {**given.get(asg, shipped.get(asg, {})), "steps": steps}
+    trainer.check(weights, given, shipped)
     start = trainer.start(weights)
     out = Path(out) if out is not None else default_out(target)
     challenging_scenes(on)  # one clear line if the set is not built
@@ -76,9 +81,8 @@ def finetune(target: Target, on: str, out: Path | None = None, *, steps: int | N
 
     for set_name in fcfg.eval_sets:  # refused now, not after the training
         check_set_name(set_name)
-    settings = {"fusion": target.name, "on": on, **trainer.settings(start), "steps": fcfg.steps, "config": asdict(fcfg)}
-    claim(out, settings, force, what="a fine-tuning run",  # a setting added since: the default that reproduces it
-          as_today=lambda record: with_defaults(record, {"config": asdict(FinetuneConfig()), "point_stage": None}))
+    settings = {"fusion": target.name, "on": on, **trainer.settings(start), "steps": fcfg.asg.steps, "config": asdict(fcfg)}
+    claim(out, settings, force, what="a fine-tuning run", as_today=_as_today)
     name = finetuned_name(target)
     card_path = out / f"{name}.json"
     card = json.loads(card_path.read_text()) if card_path.is_file() else {}
@@ -97,6 +101,14 @@ def finetune(target: Target, on: str, out: Path | None = None, *, steps: int | N
         card["reattack"] = reattack(target, tuned, out / "reattack", executor, log)
         write_text_atomic(card_path, json.dumps(card, indent=1))
     return card
+
+
+def _as_today(record: dict) -> dict:
+    """A run.json written before today's settings, in today's form
+    (asg.training.config.record_in_todays_form), a setting added since taking the default that
+    reproduces it."""
+    return with_defaults(record_in_todays_form(record, FinetuneConfig), {"config": asdict(FinetuneConfig()),
+                                                                         "point_stage": None})
 
 
 def evaluate_before_after(target: Target, start: Model, tuned: Model, fcfg: FinetuneConfig, cache: Path,
@@ -160,7 +172,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     fusion_arg(p, "the model fine-tuned", required=True)
     p.add_argument("--on", default=None, metavar="SET",
                    help="challenging set to train on (default challenging-FUSION-train)")
-    p.add_argument("--steps", type=COUNT, default=None, help="override train.yaml's finetune steps")
+    p.add_argument("--steps", type=COUNT, default=None, help="override the steps of asg's trainer (train.yaml's finetune.asg.steps)")
     p.add_argument("--weights", type=Path, default=None, metavar="PATH",
                    help="start from this weights file instead of the shipped ones")
     p.add_argument("--out", type=Path, default=None, help="output folder (default runs/finetune/FUSION-ft)")

@@ -26,7 +26,7 @@ settings: a rerun with other settings is refused (``force`` starts over).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Literal, get_args
 
@@ -47,7 +47,8 @@ from .trainers import Model, round_trainer
 from .trainers.base import AVERAGED, is_kept  # (is_kept: this module's API too)
 from ..io.run_record import claim, with_defaults
 from ..perception.targets import Target
-from ..training.config import FinetuneConfig, train_block, check_train_config
+from ..training.config import (ChunkConfig, FinetuneConfig, check_finetune_config, record_in_todays_form, refuse_old_form,
+                               train_block)
 from ..scene import Scene
 
 #: the train.yaml block of ``asg harden``
@@ -58,13 +59,26 @@ DATA_KINDS: tuple[str, ...] = get_args(DataKind)
 
 
 @dataclass(frozen=True)
-class HardenConfig(FinetuneConfig):
-    """train.yaml's ``harden`` block: what each round attacks, evaluates and guards, read by every
-    kind (asg.workflows.trainers.base.SHARED_SETTINGS), and asg's own trainer's chunk a round
-    (FinetuneConfig's other fields, the round's scenes taking ``challenging_share`` of each batch,
-    and ``fit_stage``), which an OpenCOOD round refuses to be given (its trainer reads train.yaml's
-    ``opencood`` block)."""
+class RoundChunkConfig(ChunkConfig):
+    """asg's own trainer's chunk a hardening round (the ``asg`` part of train.yaml's ``harden``
+    block): a fine-tuning chunk whose challenging scenes are the round's, and its point stage."""
 
+    #: fit a point stage to each round's weights (and to their average when the guard averages them),
+    #: beside them (``round-k/weights.stage.pt``; train.yaml's ``point_stage`` block), so that the
+    #: round refines its own boxes rather than with the stage of the model it started from
+    #: (docs/harden.md, the point stage); False: every round uses its start's stage
+    fit_stage: bool = True
+
+
+@dataclass(frozen=True)
+class HardenConfig(FinetuneConfig):
+    """train.yaml's ``harden`` block: what each round attacks, evaluates and guards, read whatever
+    trains the target, and each trainer's own settings under its kind (``asg``: asg's trainer's
+    chunk a round, :class:`RoundChunkConfig`; ``opencood``: OpenCOOD's epochs a round)."""
+
+    asg: RoundChunkConfig = field(default_factory=RoundChunkConfig)
+    #: the seed of the pool's order (each round's slice of fresh scenes)
+    seed: int = 1
     scenes_per_round: int = 219
     #: data sets whose train split gives each round fresh scenes
     pool: tuple[str, ...] = ("normal", "detector-train")
@@ -83,11 +97,6 @@ class HardenConfig(FinetuneConfig):
     #: the round's weights (docs/harden.md, the guard), and kept if the guard keeps the average;
     #: None: dropped as it is
     guard_average: float | None = 0.5
-    #: fit a point stage to each round's weights (and to their average when the guard averages them),
-    #: beside them (``round-k/weights.stage.pt``; train.yaml's ``point_stage`` block), so that the
-    #: round refines its own boxes rather than with the stage of the model it started from
-    #: (docs/harden.md, the point stage); False: every round uses its start's stage
-    fit_stage: bool = True
 
 
 def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
@@ -96,10 +105,11 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
 
     from ..dataset_spec import check_train_source
 
-    data = dict(train_block(HARDEN_BLOCK, path))
+    where = f"{path or 'train.yaml'}:{HARDEN_BLOCK}"
+    data = dict(refuse_old_form(train_block(HARDEN_BLOCK, path), where, HardenConfig))
     data.update({k: v for k, v in overrides.items() if v is not None})
-    where = f"train.yaml:{HARDEN_BLOCK}"
-    cfg = check_train_config(from_mapping(HardenConfig, data, where), where)
+    cfg = check_finetune_config(from_mapping(HardenConfig, data, where), where)
+    checks.number(cfg.seed, f"{where}.seed", 0, 2**32 - 1)
     checks.number(cfg.scenes_per_round, f"{where}.scenes_per_round", 1, 100_000)
     if cfg.guard_average is not None and not (isinstance(cfg.guard_average, (int, float)) and 0.0 < cfg.guard_average < 1.0):
         raise InputError(f"{where}.guard_average must be a share between 0 and 1 (0.5: half the round's weights) "
@@ -203,13 +213,12 @@ def harden(target: Target, rounds: int, out: Path | None = None, *, weights: Pat
 
 
 def _as_today(record: dict) -> dict:
-    """A run.json written before today's settings, as today's code would write it: a setting added
-    since takes the default that reproduces what the run did (a run from before rounds fitted their
-    own point stage did not); ``opencood_epochs``, once in the harden block and read only by an
-    OpenCOOD round (now the ``opencood`` block's ``epochs``), dropped from an asg model's record."""
-    if isinstance(record.get("config"), dict) and "start_sha256" in record:
-        record = {**record, "config": {k: v for k, v in record["config"].items() if k != "opencood_epochs"}}
-    return with_defaults(record, {"config": asdict(HardenConfig()) | {"fit_stage": False}, "point_stage": None})
+    """A run.json written before today's settings, as today's code would write it: in today's form
+    (asg.training.config.record_in_todays_form), and a setting added since taking the default that
+    reproduces what the run did (a run from before rounds fitted their own point stage did not)."""
+    defaults = asdict(HardenConfig())
+    defaults["asg"]["fit_stage"] = False
+    return with_defaults(record_in_todays_form(record, HardenConfig), {"config": defaults, "point_stage": None})
 
 
 def _after_training(trainer, model, round_dir: Path, row: dict, log: Callable[[str], None]) -> None:
@@ -232,10 +241,9 @@ def _check_before_starting(cfg: HardenConfig, space: tuple[str, ...] | None) -> 
         check_set_name(set_name)
     if cfg.guard_set is not None:
         check_set_name(cfg.guard_set)
-        trained_on = {*cfg.pool, *cfg.mix_with, cfg.dataset}
-        if cfg.guard_set in trained_on:
-            raise InputError(f"train.yaml:{HARDEN_BLOCK}.guard_set '{cfg.guard_set}' is trained on (pool, mix_with "
-                             "or dataset); give a set no round trains on, e.g. holdout")
+        if cfg.guard_set in {*cfg.pool, *cfg.mix_with}:
+            raise InputError(f"train.yaml:{HARDEN_BLOCK}.guard_set '{cfg.guard_set}' is trained on (pool or mix_with); "
+                             "give a set no round trains on, e.g. holdout")
 
 
 def _log_guard(log: Callable[[str], None], k: int, gap: dict, outcome: str) -> None:

@@ -49,7 +49,8 @@ def held_out_loss(model, items, anchors, cfg) -> float:
 
 def main(round_dir: str, out: str, every: int = 50, held: int = 40) -> None:
     torch.set_num_threads(2)
-    hcfg = load_harden_config()
+    harden_cfg = load_harden_config()
+    hcfg = harden_cfg.asg  # asg's trainer's chunk a round
     cfg = load_detector_config()
     spec = load_lidar_spec("v2xp")
     torch.manual_seed(hcfg.seed)
@@ -59,7 +60,7 @@ def main(round_dir: str, out: str, every: int = 50, held: int = 40) -> None:
     opt = torch.optim.Adam(model.parameters(), lr=hcfg.lr, weight_decay=hcfg.weight_decay)
     sched = make_scheduler(opt, hcfg, hcfg.steps)
     scenes = [load_scene(p) for p in sorted((Path(round_dir) / "scenes").glob("*.yaml"))]
-    batches = mixed_sources("attfuse", {"round": scenes}, hcfg, print)
+    batches = mixed_sources("attfuse", {"round": scenes}, hcfg, harden_cfg.mix_with, print)
     anchors = model.anchors.numpy()
     held_out = {name: Batches(AGENT_CLOUDS, [make_sample(s, spec) for s in itertools.islice(scenes_of(name), held)]).items
                 for name in ("normal-val", "challenging-attfuse-val")}

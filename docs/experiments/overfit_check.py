@@ -34,7 +34,7 @@ from asg.perception.weights_io import WEIGHTS_DIR, load_state
 from asg.perception import build_detector
 from asg.scene import load_scene
 from asg.sensors import load_lidar_spec
-from asg.training.config import FinetuneConfig
+from asg.training.config import ChunkConfig
 from asg.perception.feeds import AGENT_CLOUDS
 from asg.training.loop import BRANCH_KEYS, Batches, Steps, make_scheduler, run_steps
 
@@ -71,7 +71,7 @@ def main(attack_dir: str, k: int, steps: int, lr: float, aug: str, out: str) -> 
     torch.manual_seed(0)
     model = build_network("attfuse", cfg)
     load_state(model, start, allow_missing=BRANCH_KEYS)
-    fcfg = FinetuneConfig(steps=steps, lr=lr, schedule="onecycle", pct_start=0.3, checkpoint_every=10 ** 9)
+    fcfg = ChunkConfig(steps=steps, lr=lr, schedule="onecycle", pct_start=0.3, checkpoint_every=10 ** 9)
     opt = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=fcfg.weight_decay)
     sched = make_scheduler(opt, fcfg, steps)
     batches = Batches(AGENT_CLOUDS, train_s, "all", augmentation)

@@ -18,10 +18,6 @@ from ...registry import Registry
 
 #: the stem of a round's model averaged with its start's (the guard's cure), in the round's folder
 AVERAGED = "averaged"
-#: the settings of the harden (and finetune) block every trainer reads: the round loop's, the
-#: evaluation sets, and the sets trained beside the new scenes; the others set asg's own trainer
-SHARED_SETTINGS = ("scenes_per_round", "pool", "data", "keep_previous", "noisy", "reattack", "guard_set",
-                   "guard_average", "eval_sets", "mix_with", "seed")
 #: the record of a training, in the folder it trained in (a resumed run reads it, not trains again)
 TRAINED = "trained.json"
 #: the round trainers, by the training kind of the target they train (its ``Training`` value)
@@ -47,18 +43,29 @@ class Model:
 
 class RoundTrainer:
     """Trains ``target`` round by round with the harden settings ``cfg``
-    (asg.workflows.harden.HardenConfig) on ``threads`` threads; ``config_path``: the ``--config``
-    file the settings came from (None: train.yaml), where a trainer reads a block of its own.
-    Subclasses answer every method but :meth:`log_start`."""
+    (asg.workflows.harden.HardenConfig; a fine-tuning's, asg.training.config.FinetuneConfig) on
+    ``threads`` threads, reading the loop's settings and its own part of the block (the one named
+    by its kind, ``cfg.asg`` or ``cfg.opencood``), no other trainer's; ``config_path``: the
+    ``--config`` file the settings came from (None: train.yaml). Subclasses answer every method but
+    :meth:`log_start`, and :meth:`check` after this class's."""
 
     def __init__(self, target: Target, cfg, threads: int = 2, config_path: Path | None = None):
         self.target, self.cfg, self.threads, self.config_path = target, cfg, threads, config_path
 
     def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
-        """Refuse (one InputError) before any work: a target whose own training settings it cannot
-        train with, a start ``weights`` it cannot take, or a harden block ``given`` (a ``--config`` file's; None: train.yaml's) that changes, from train.yaml's
-        ``shipped``, a setting this trainer does not read (it would be ignored)."""
-        raise NotImplementedError
+        """Refuse (one InputError) before any work: a block ``given`` (a ``--config`` file's; None:
+        train.yaml's) whose part for another trainer differs from train.yaml's ``shipped`` (it would
+        be ignored); a subclass then refuses a target whose own training settings it cannot train
+        with, or a start ``weights`` it cannot take."""
+        mine, given = self.target.training.value, given or {}
+        for kind in sorted(k for k in ROUND_TRAINERS.names() if k != mine and k in given):
+            theirs, default = given[kind], shipped.get(kind)
+            changed = sorted(k for k in theirs if theirs[k] != default.get(k)) if isinstance(theirs, dict) and \
+                isinstance(default, dict) else ([kind] if theirs != default else [])
+            if changed:
+                where = f"{self.config_path}: " if self.config_path else ""
+                raise InputError(f"{where}{', '.join(changed)} of the block's {kind} part set the {kind} trainer, which "
+                                 f"does not train '{self.target.name}': its trainer ({mine}) reads the block's {mine} part")
 
     def start(self, weights: Path | None) -> Model:
         """The model round 1 starts from (``weights``, else the target's own)."""

@@ -21,7 +21,7 @@ from ...perception.fusion import build_network, detector_config_of, feed_of
 from ...perception.weights_io import load_state
 from ...sensors import load_lidar_spec
 from ...training.checkpoint import load_checkpoint
-from ...training.config import FinetuneConfig
+from ...training.config import ChunkConfig
 from ...training.loop import (BRANCH_KEYS, Batches, Steps, augment_record, corner_record, draw_examples,
                               make_scheduler, run_steps)
 
@@ -46,7 +46,8 @@ class MixedBatches:
         return draw_examples(examples, rng, anchors, cfg, self.sources[0].feed, timer, self.augmentation)
 
 
-def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: Callable[[str], None]) -> MixedBatches:
+def mixed_sources(name: str, first: dict[str, list], fcfg: ChunkConfig, mix_with: tuple[str, ...],
+                  log: Callable[[str], None]) -> MixedBatches:
     """Mixed batches of ``first`` ({label: scenes}: ``challenging_share`` of each batch, split
     evenly among the labels that hold scenes) and the train split of each ``mix_with`` set (the
     rest, in equal shares), every scene rendered with the LiDAR."""
@@ -58,23 +59,25 @@ def mixed_sources(name: str, first: dict[str, list], fcfg: FinetuneConfig, log: 
     labels = [k for k, v in first.items() if v]
     views = fcfg.challenging_views or fcfg.views
     sources = [Batches(feed, [make_sample(s, spec) for s in first[k]], views) for k in labels]
-    for mix in fcfg.mix_with:
+    for mix in mix_with:
         if not (dataset_path(mix) / "index.json").is_file():
             log(f"building data set {mix} ...")
             build_dataset(mix)
         sources.append(Batches(feed, [make_sample(s, spec) for s in iter_frames(mix, "train")], fcfg.views))
-    rest = (1.0 - fcfg.challenging_share) / max(len(fcfg.mix_with), 1)
-    shares = [fcfg.challenging_share / max(len(labels), 1)] * len(labels) + [rest] * len(fcfg.mix_with)
-    batches = MixedBatches(sources, shares, (*labels, *fcfg.mix_with), fcfg.augment)
+    rest = (1.0 - fcfg.challenging_share) / max(len(mix_with), 1)
+    shares = [fcfg.challenging_share / max(len(labels), 1)] * len(labels) + [rest] * len(mix_with)
+    batches = MixedBatches(sources, shares, (*labels, *mix_with), fcfg.augment)
     counts = ", ".join(f"{n} {len(b.items)}" for n, b in zip(batches.labels, sources))
     log(f"training examples: {counts} ({time.perf_counter() - t0:.0f} s to render)")
     return batches
 
 
-def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: FinetuneConfig, total: int,
+def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: ChunkConfig, mix_with: tuple[str, ...],
               threads: int, log: Callable[[str], None], progress, sources: Callable[[], MixedBatches]) -> dict:
-    """Train ``total`` steps from the weights ``start`` on the batches ``sources()`` draws
-    (resuming ``ckpt``), write ``weights_out``; the record of the chunk for a card."""
+    """Train ``fcfg.steps`` steps from the weights ``start`` on the batches ``sources()`` draws (the
+    given scenes and the train splits of ``mix_with``), resuming ``ckpt``; write ``weights_out``;
+    the record of the chunk for a card."""
+    total = fcfg.steps
     cfg = detector_config_of(name)
     torch.set_num_threads(threads)
     torch.manual_seed(fcfg.seed)
@@ -101,7 +104,7 @@ def fit_chunk(name: str, start: Path, weights_out: Path, ckpt: Path, fcfg: Finet
         torch.save(model.state_dict(), tmp)
     ckpt.unlink(missing_ok=True)
     log(f"wrote {weights_out} after {total} steps, {wall_s / 60:.1f} min of training")
-    return {"mix_with": list(fcfg.mix_with), "challenging_share": fcfg.challenging_share,
+    return {"mix_with": list(mix_with), "challenging_share": fcfg.challenging_share,
             "examples": {n: len(b.items) for n, b in zip(batches.labels, batches.sources)},
             "steps": total, "batch_size": fcfg.batch_size, "lr": fcfg.lr, "schedule": fcfg.schedule,
             "seed": fcfg.seed, "views": fcfg.views, "challenging_views": fcfg.challenging_views or fcfg.views,

@@ -2,7 +2,8 @@
 and the train splits of ``mix_with`` exported in the OPV2V layout OpenCOOD reads (``asg export
 --format opv2v``, each group's scenario folders prefixed with its label), normal-val beside them for
 the trainer's validation loss, then ``round-k/model``: the start folder's config and checkpoint,
-trained ``epochs`` more epochs (train.yaml's ``opencood`` block) by OpenCOOD's ``tools/train.py``
+trained ``epochs`` more epochs (the ``opencood`` part of train.yaml's harden or finetune block) by
+OpenCOOD's ``tools/train.py``
 (asg.perception.opencood.trainer: resumable, it saves every epoch). The round's model is run as
 ``opencood:OUT/round-k/model``; the guard's average is a folder of its own (the two checkpoints'
 tensors averaged, the trained one's config)."""
@@ -11,74 +12,41 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
 from sumo_scenarios.atomic import atomic_dir, write_text_atomic
 from sumo_scenarios.errors import InputError
-from sumo_scenarios.strict import from_mapping, read_yaml
 
 from ...perception.targets import Training
-from .base import AVERAGED, ROUND_TRAINERS, SHARED_SETTINGS, TRAINED, Model, RoundTrainer
+from .base import AVERAGED, ROUND_TRAINERS, TRAINED, Model, RoundTrainer
 
-#: the train.yaml block of OpenCOOD's trainer
-OPENCOOD_BLOCK = "opencood"
 #: the set the trainer validates on (its validation loss), exported once a run
 VAL_SET = "normal-val"
 
 
-@dataclass(frozen=True)
-class OpenCOODTrainConfig:
-    """train.yaml's ``opencood`` block: how OpenCOOD's trainer trains an OpenCOOD model folder (the
-    rest, its batch, rate and schedule, from the folder's own config.yaml)."""
-    #: epochs a hardening round trains (one gained on its challenging set and holdout where three lost
-    #: per frame on normal-val: docs/results/README.md, OpenCOOD)
-    epochs: int = 1
-
-
-def load_opencood_train_config(path: Path | None = None) -> OpenCOODTrainConfig:
-    """train.yaml's (or ``path``'s, when it has one) ``opencood`` block, checked."""
-    from sumo_scenarios import checks
-
-    from ...training.config import train_block
-
-    where = f"train.yaml:{OPENCOOD_BLOCK}"
-    data = train_block(OPENCOOD_BLOCK, None)
-    if path is not None:
-        given = read_yaml(path)
-        if isinstance(given, dict) and OPENCOOD_BLOCK in given:
-            data = train_block(OPENCOOD_BLOCK, path)
-    cfg = from_mapping(OpenCOODTrainConfig, data, where)
-    checks.number(cfg.epochs, f"{where}.epochs", 1, 1000)
-    return cfg
-
-
 @ROUND_TRAINERS.register(Training.OPENCOOD.value)
 class OpenCOODRoundTrainer(RoundTrainer):
-    """An OpenCOOD model folder, trained by OpenCOOD's trainer."""
+    """An OpenCOOD model folder, trained by OpenCOOD's trainer with the block's ``opencood`` part
+    (asg.training.config.OpenCOODTrainConfig)."""
 
     def __init__(self, target, cfg, threads: int = 2, config_path: Path | None = None):
         super().__init__(target, cfg, threads, config_path)
-        self.train_cfg = load_opencood_train_config(config_path)
+        self.train_cfg = cfg.opencood
 
     def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
-        """The settings OpenCOOD's trainer reads from the folder's config.yaml (train_params, loss,
-        optimizer, lr_scheduler) first, then the start and the block."""
+        """The block, then the settings OpenCOOD's trainer reads from the folder's config.yaml
+        (train_params, loss, optimizer, lr_scheduler), then the start."""
         from ...perception.opencood.folder import read_hypes
         from ...perception.opencood.training_settings import check_trainable
 
+        super().check(weights, given, shipped)
         folder = self.target.model_dir
         check_trainable(read_hypes(folder), folder / "config.yaml")
         if weights is not None:
             raise InputError("--weights applies to asg's own models; an OpenCOOD model starts from its folder's "
                              "checkpoint (a further round of a run: --fusion opencood:OUT/round-K/model)")
-        ignored = sorted(k for k, v in (given or {}).items() if k not in SHARED_SETTINGS and v != shipped.get(k))
-        if ignored:
-            where = f"{self.config_path}: " if self.config_path else ""
-            raise InputError(f"{where}{', '.join(ignored)} set asg's own trainer; a round of an OpenCOOD model reads only "
-                             f"{', '.join(SHARED_SETTINGS)} of its block, and epochs of the {OPENCOOD_BLOCK} "
-                             "block (OpenCOOD's trainer takes the rest from the folder's config.yaml)")
 
     def start(self, weights: Path | None) -> Model:
         return self.model_at(self.target.model_dir)
@@ -96,7 +64,7 @@ class OpenCOODRoundTrainer(RoundTrainer):
         return {k: file_digest(p) for k, p in model.target.model_files().items()}
 
     def settings(self, start: Model) -> dict:
-        return {"start": self.digest(start), "opencood": asdict(self.train_cfg)}
+        return {"start": self.digest(start)}
 
     def prepare(self) -> None:
         """Nothing: the exports a round trains on are made by the round (:meth:`train`)."""

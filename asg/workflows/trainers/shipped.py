@@ -1,7 +1,7 @@
 """asg's own trainer as a hardening round's (asg.workflows.trainers.base): a shipped model's weights
-fine-tuned one chunk a round (asg.workflows.trainers.chunk.fit_chunk, the harden block's steps, rate and
-mixing), a point stage fitted to them (``fit_stage``: train.yaml's ``point_stage`` block), the
-guard's average of two weights files."""
+fine-tuned one chunk a round (asg.workflows.trainers.chunk.fit_chunk, the ``asg`` part of the harden
+block: steps, rate and mixing), a point stage fitted to them (its ``fit_stage``: train.yaml's
+``point_stage`` block), the guard's average of two weights files."""
 from __future__ import annotations
 
 import json
@@ -22,17 +22,19 @@ from .base import AVERAGED, ROUND_TRAINERS, TRAINED, Model, RoundTrainer, is_kep
 
 @ROUND_TRAINERS.register(Training.ASG.value)
 class ShippedRoundTrainer(RoundTrainer):
-    """A shipped model, trained by asg's trainer: every setting of its block is read (a fine-tuning's
-    settings fit no point stage: they have no ``fit_stage``)."""
+    """A shipped model, trained by asg's trainer with the block's ``asg`` part (a fine-tuning's fits
+    no point stage: it has no ``fit_stage``)."""
 
     def __init__(self, target, cfg, threads: int = 2, config_path: Path | None = None):
         super().__init__(target, cfg, threads, config_path)
         self.weights_name = target.shipped_weights
+        self.chunk = cfg.asg
         # checked (and its data set known) before any work
-        self.stage_cfg = stage_config(getattr(cfg, "fit_stage", False))
+        self.stage_cfg = stage_config(getattr(self.chunk, "fit_stage", False))
 
     def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
-        """Nothing to refuse: it reads every setting of its block; ``start`` checks the weights."""
+        """The block (this class's base); ``start`` checks the weights."""
+        super().check(weights, given, shipped)
 
     def start(self, weights: Path | None) -> Model:
         """``weights`` (a .pt, or a harden card: its last kept round's) or the shipped weights;
@@ -72,8 +74,9 @@ class ShippedRoundTrainer(RoundTrainer):
         """``folder/NAME.pt`` after ``steps`` steps (checkpoints in ``folder/last.pt``)."""
         weights, record = folder / f"{name}.pt", folder / TRAINED
         if not (weights.is_file() and record.is_file()):
-            trained = fit_chunk(self.weights_name, start.path, weights, folder / "last.pt", self.cfg, self.cfg.steps,
-                                self.threads, log, progress, lambda: mixed_sources(self.weights_name, scenes, self.cfg, log))
+            trained = fit_chunk(self.weights_name, start.path, weights, folder / "last.pt", self.chunk,
+                                self.cfg.mix_with, self.threads, log, progress,
+                                lambda: mixed_sources(self.weights_name, scenes, self.chunk, self.cfg.mix_with, log))
             write_text_atomic(record, json.dumps(trained, indent=1))  # kept for a round resumed after training
         return self.model_at(weights), json.loads(record.read_text())
 
