@@ -7,6 +7,8 @@ written has none: :func:`schema_of` tells its shape) and refuses one from a newe
     1  the final stage's AP under ``ap_challenging`` (and ``mean_scene_ap_challenging``); no
        after-ACS stage in the aggregate; no version written
     2  one key per stage (``ap_normal``, ``ap_after_acs``, ``ap_final``), ``by_method`` per yardstick
+    3  the normal stage spelled ``normal`` everywhere: a scene entry's ``collaborators`` (and in the
+       scene folder, ``normal.yaml`` and the detections' keys); 2 spelled it ``initial`` there
 ``run.json``: 1, the settings a run was claimed with (asg.io.run_record).
 ``index.json``: 1, ``name``, ``frames``, ``splits`` ({split: [scene id]}) and what built it.
 """
@@ -27,7 +29,7 @@ class SchemaFile(str, enum.Enum):
 
 
 #: the version each file is written in today
-CURRENT = {SchemaFile.SUMMARY: 2, SchemaFile.RUN: 1, SchemaFile.INDEX: 1}
+CURRENT = {SchemaFile.SUMMARY: 3, SchemaFile.RUN: 1, SchemaFile.INDEX: 1}
 
 
 def stamped(kind: SchemaFile, content: dict) -> dict:

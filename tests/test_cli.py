@@ -302,7 +302,7 @@ def test_generate_writes_the_run_folder_and_resumes(capsys, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     (entry,) = summary["scenes"]
     folder = out / "scenes" / entry["scene_id"]
-    for name in ("initial.yaml", "after_acs.yaml", "final.yaml", "history.csv", "initial.png", "after_acs.png",
+    for name in ("normal.yaml", "after_acs.yaml", "final.yaml", "history.csv", "normal.png", "after_acs.png",
                  "final.png", "detections.npz", "result.json"):
         assert (folder / name).is_file(), name
     assert len(list((folder / "clouds").glob("*.pcd"))) == 3

@@ -100,7 +100,7 @@ def _check(capsys, tmp_path, folders, source, space, level, executor):
     assert code == 0, err
     entry = json.loads((out / "summary.json").read_text())["scenes"][0]
     folder = out / "scenes" / entry["scene_id"]
-    initial, final = load_scene(folder / "initial.yaml"), load_scene(folder / "final.yaml")
+    initial, final = load_scene(folder / "normal.yaml"), load_scene(folder / "final.yaml")
     assert recheck(initial, final, level).ok
     assert sorted(entry["space"]["kinds"] if "space" in entry else ["poses"]) == sorted(space.split(","))
 

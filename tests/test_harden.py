@@ -332,7 +332,8 @@ def test_round_zero_of_other_start_weights_is_attacked_itself(tmp_path, data_roo
     ("a: &a [1, 1]\nb: &b [*a, *a]\nharden: [*b, *b]\n", "aliases"),
     ("harden: {seed: 1}\nharden: {seed: 2}\n", "written twice"),
     # the form before each trainer's settings had a part of their own
-    ("harden: {pool: [normal], steps: 10, lr: 1.0e-3}\n", "lr, steps set asg's own trainer; they sit under the block's asg part")])
+    ("harden: {pool: [normal], steps: 10, lr: 1.0e-3}\n", "lr, steps set asg's own trainer; they sit under the block's asg part"),
+    ("harden: {pool: [normal]}\nopencood: {epochs: 2}\n", "sit in the harden block's opencood part now")])
 def test_a_hostile_training_config_is_one_line_and_writes_nothing(capsys, tmp_path, data_root, text, needle):
     config = tmp_path / "train.yaml"
     config.write_text(text)

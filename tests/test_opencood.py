@@ -711,8 +711,8 @@ def test_harden_fine_tunes_an_opencood_model_with_its_own_trainer(capsys, tmp_pa
     model = make_model_dir(tmp_path / "m", "intermediate", score_threshold=THRESHOLD)
     config = tmp_path / "harden.yaml"
     config.write_text(yaml.safe_dump({"harden": {"eval_sets": ["normal-val"], "guard_set": None, "pool": ["normal"],
-                                                 "mix_with": ["normal"], "scenes_per_round": 1, "noisy": False},
-                                      "opencood": {"epochs": 1}}))
+                                                 "mix_with": ["normal"], "scenes_per_round": 1, "noisy": False,
+                                                 "opencood": {"epochs": 1}}}))
     out = tmp_path / "hard"
     argv = ["harden", "--fusion", f"opencood:{model}", "--rounds", "2", "--data", "random", "--config", str(config),
             "--out", str(out), "--workers", "1"]

@@ -575,9 +575,6 @@ def test_a_signal_to_the_group_while_it_starts_ends_it(tmp_path, command, moment
 
 
 _HARDEN_TINY = """harden:
-  steps: 30
-  batch_size: 1
-  checkpoint_every: 1
   mix_with: [normal]
   eval_sets: [normal-val]
   scenes_per_round: 1
@@ -585,7 +582,7 @@ _HARDEN_TINY = """harden:
   noisy: false
   reattack: false
   guard_set: null
-  fit_stage: false
+  asg: {steps: 30, batch_size: 1, checkpoint_every: 1, fit_stage: false}
 """
 
 

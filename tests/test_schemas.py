@@ -31,6 +31,34 @@ def test_a_summary_of_schema_1_reads_in_todays_shape_and_says_so(tmp_path):
     assert schema_of(SchemaFile.SUMMARY, {SCHEMA_KEY: 2, **today}, "x") == 2
 
 
+def test_a_run_folder_of_schema_2_reads_its_normal_stage_spelled_initial(tmp_path):
+    """Before each stage had one name the normal stage was ``initial`` in a scene folder (its scene
+    file, its detections) and in a scene entry's collaborators: such a folder reads as today's."""
+    import numpy as np
+
+    from asg.generator.run_folder import load_detections, load_done, stage_scene_path
+    from asg.generator.stages import Stage
+
+    folder = tmp_path / "scenes" / "s0"
+    folder.mkdir(parents=True)
+    (folder / "initial.yaml").write_text("x")
+    (folder / "final.yaml").write_text("x")
+    boxes = np.ones((1, 7), np.float32)
+    np.savez(folder / "detections.npz", **{f"{k}_{n}": boxes for k in ("initial", "final") for n in ("boxes", "scores", "gt")})
+    entry = {"scene_id": "s0", "ap_normal": {"0.7": 0.9}, "collaborators": {"initial": ["1"], "final": ["2"]}}
+    (folder / "result.json").write_text(json.dumps(entry))
+    assert stage_scene_path(folder, Stage.NORMAL) == folder / "initial.yaml"
+    assert stage_scene_path(folder, Stage.FINAL) == folder / "final.yaml"
+    assert set(load_detections(tmp_path, "s0")) == {Stage.NORMAL, Stage.FINAL}
+    assert load_done(tmp_path)["s0"]["collaborators"] == {"normal": ["1"], "final": ["2"]}
+    v2 = {SCHEMA_KEY: 2, "config": {}, "scenes": [entry], "aggregate": {"scenes": 1, "ap_final": {}}}
+    (tmp_path / "summary.json").write_text(json.dumps(v2))
+    summary, version = read_summary(tmp_path / "summary.json")
+    assert version == 2 and summary["scenes"][0]["collaborators"] == {"normal": ["1"], "final": ["2"]}
+    (folder / "normal.yaml").write_text("x")  # today's spelling wins where both are there
+    assert stage_scene_path(folder, Stage.NORMAL) == folder / "normal.yaml"
+
+
 @pytest.mark.parametrize("kind", list(SchemaFile))
 @pytest.mark.parametrize("version", [CURRENT[SchemaFile.SUMMARY] + 5, "2", True, 0])
 def test_a_version_this_asg_does_not_know_is_one_line(kind, version):

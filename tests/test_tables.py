@@ -144,7 +144,7 @@ def test_the_own_attack_row_is_scored_by_todays_detector(tmp_path, data_root):
     for npz in stored:  # the stale build: it detected nothing
         with np.load(npz) as z:
             arrays = dict(z)
-        for key in ("initial", "after_acs", "final"):
+        for key in ("normal", "after_acs", "final"):
             if f"{key}_boxes" in arrays:
                 arrays[f"{key}_boxes"] = np.zeros((0, 7), np.float32)
                 arrays[f"{key}_scores"] = np.zeros(0, np.float32)

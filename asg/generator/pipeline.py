@@ -32,7 +32,7 @@ Detections = tuple[np.ndarray, np.ndarray, np.ndarray]  # boxes (K, 7), scores (
 @dataclass(kw_only=True)
 class SceneResult:
     scene_id: str
-    initial: Scene
+    normal: Scene
     after_acs: Scene
     final: Scene
     ap_normal: dict[str, float]
@@ -50,7 +50,7 @@ class SceneResult:
     notes: list[str]
     acs_probabilities: dict[str, float] = field(default_factory=dict)
     bo_overhead_s: list[float] = field(default_factory=list)
-    #: (boxes, scores, ground truth) of the target model on the initial and final scene (ego frame)
+    #: (boxes, scores, ground truth) of the target model on each stage's scene (ego frame)
     detections: dict[str, "Detections"] = field(default_factory=dict)
     #: history.csv's columns for a member (units in the names) and each evaluation's values in them
     history_columns: list[str] = field(default_factory=list)
@@ -60,7 +60,7 @@ class SceneResult:
     inserted: tuple[str, ...] = ()
 
     def scene(self, stage: Stage) -> Scene:
-        return {Stage.NORMAL: self.initial, Stage.AFTER_ACS: self.after_acs, Stage.FINAL: self.final}[stage]
+        return {Stage.NORMAL: self.normal, Stage.AFTER_ACS: self.after_acs, Stage.FINAL: self.final}[stage]
 
     def ap(self, stage: Stage) -> dict[str, float]:
         return {Stage.NORMAL: self.ap_normal, Stage.AFTER_ACS: self.ap_after_acs, Stage.FINAL: self.ap_final}[stage]
@@ -113,17 +113,17 @@ class Generator:
         pick = sorted(rng.choice(len(cands), size=min(need, len(cands)), replace=False).tolist()) if cands else []
         return scene.with_collaborators([cands[i] for i in pick])
 
-    def normal_and_acs(self, initial: Scene, rng: np.random.Generator, notes: list[str]) -> tuple["Scored", "AcsOutcome"]:
-        """``initial`` scored, and the collaborator search from it (``cfg.acs`` off: ``initial``
-        itself). ``initial``'s frame is scored in one batch with the search's combinations: on
+    def normal_and_acs(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> tuple["Scored", "AcsOutcome"]:
+        """``scene`` (the normal stage's) scored, and the collaborator search from it (``cfg.acs``
+        off: ``scene`` itself). Its frame is scored in one batch with the search's combinations: on
         several candidate threads it takes a core that the combinations leave idle."""
         if self.cfg.acs == ACS_OFF:
-            normal = self.evaluate_scene(initial)
+            normal = self.evaluate_scene(scene)
             return normal, AcsOutcome(normal, {}, 0)
-        frame = render_frame(world_for(initial, self.spec))
-        combos = self.collaborator_combinations(initial, rng, notes)
+        frame = render_frame(world_for(scene, self.spec))
+        combos = self.collaborator_combinations(scene, rng, notes)
         judged = self.candidates.map(self._judged, [frame, *combos.frames])  # one batch
-        return Scored.of(initial, frame, judged[0]), combos.outcome(judged[1:])
+        return Scored.of(scene, frame, judged[0]), combos.outcome(judged[1:])
 
     def collaborator_search(self, scene: Scene, rng: np.random.Generator, notes: list[str]) -> "AcsOutcome":
         """The lowest-loss of the combinations ``cfg.acs``'s strategy proposes (asg.collaborators),
@@ -186,8 +186,8 @@ class Generator:
         t0 = time.perf_counter()
         rng = np.random.default_rng([seed, *(ord(ch) for ch in scene.scene_id[-16:])])
         notes: list[str] = []
-        initial = self.normal_collaborators(scene, rng, notes)
-        normal, acs = self.normal_and_acs(initial, rng, notes)
+        normal_scene = self.normal_collaborators(scene, rng, notes)
+        normal, acs = self.normal_and_acs(normal_scene, rng, notes)
         after = acs.best
         if after.loss > normal.loss:  # the paper's ACS samples among the candidates, not the scene's own pair
             notes.append(f"ACS ended easier than the scene began (loss {normal.loss:.3f} -> {after.loss:.3f}): "
@@ -208,7 +208,7 @@ class Generator:
         final = aps.best
         stages = {Stage.NORMAL: normal, Stage.AFTER_ACS: after, Stage.FINAL: final}
         return SceneResult(
-            scene_id=scene.scene_id, initial=initial, after_acs=after.scene, final=final.scene,
+            scene_id=scene.scene_id, normal=normal_scene, after_acs=after.scene, final=final.scene,
             ap_normal=normal.ap, ap_after_acs=after.ap, ap_final=final.ap, loss_normal=normal.loss,
             loss_final=final.loss, evaluations=1 + acs.combinations + len(aps.history),
             seconds=time.perf_counter() - t0, perturbed=aps.perturbed, delta=aps.delta, plausibility=plaus,

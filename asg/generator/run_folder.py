@@ -1,18 +1,19 @@
 """The run folder of ``asg generate`` and its summary.json (schema: docs/generate.md).
 
     OUT/summary.json                         scenes + aggregate (rewritten after every scene)
-    OUT/scenes/SCENE_ID/initial.yaml         the normal scene (its collaborators set)
+    OUT/scenes/SCENE_ID/normal.yaml          the normal scene (its collaborators set)
     OUT/scenes/SCENE_ID/after_acs.yaml       after the collaborator search
     OUT/scenes/SCENE_ID/final.yaml           after the perturbation search
     OUT/scenes/SCENE_ID/history.csv          step, the member in units (per space: columns named VEHICLE_dx_m, ...), loss, AP
     OUT/scenes/SCENE_ID/clouds/AGENT.pcd     final per-agent clouds (sensor frame), also .npy
-    OUT/scenes/SCENE_ID/{initial,after_acs,final}.png   bird's-eye pictures (perturbed vehicles circled)
+    OUT/scenes/SCENE_ID/{normal,after_acs,final}.png    bird's-eye pictures (perturbed vehicles circled)
     OUT/scenes/SCENE_ID/result.json          this scene's summary entry: written last, marks it done
     OUT/log/                                 the SUMO log of a town or net source, kept when a space
                                              reads the past (latency); scene files name it ../../log
 
 A scene folder is written under a temporary name and renamed when complete, so a run stopped
-midway resumes from the first scene without a result.json.
+midway resumes from the first scene without a result.json. A folder written before each stage had
+one name holds the normal stage as ``initial`` (``initial.yaml``, its detections): read the same.
 """
 from __future__ import annotations
 
@@ -49,7 +50,7 @@ def scene_entry(r: SceneResult) -> dict:
         **{stage.ap_key: r.ap(stage) for stage in Stage},
         "loss_normal": round(r.loss_normal, 6), "loss_final": round(r.loss_final, 6),
         "evaluations": r.evaluations, "seconds": round(r.seconds, 3),
-        "collaborators": {Stage.NORMAL: list(r.initial.collaborators), Stage.FINAL: list(r.after_acs.collaborators)},
+        "collaborators": {Stage.NORMAL: list(r.normal.collaborators), Stage.FINAL: list(r.after_acs.collaborators)},
         "perturbed": list(r.perturbed), "moved": list(r.moved), "delta": r.delta,
         "plausibility": r.plausibility.to_dict(), "notes": r.notes,
     } | ({"space": r.space} if r.space and r.space.get("kinds") != ["poses"] else {})
@@ -112,12 +113,22 @@ def _write_artifacts(work: Path, r: SceneResult) -> None:
 MAX_DETECTION_ARRAY_BYTES = 8 << 20
 
 
+def stage_scene_path(folder: Path, stage: Stage) -> Path:
+    """The scene file of ``stage`` in a scene folder: ``STAGE.yaml``, or its old spelling's in a
+    folder written before each stage had one name (:attr:`Stage.old_value`)."""
+    path = folder / f"{stage}.yaml"
+    old = folder / f"{stage.old_value}.yaml"
+    return old if not path.is_file() and old.is_file() else path
+
+
 def load_detections(out_dir: Path, scene_id: str) -> dict[str, tuple]:
-    """Each stage's (boxes (K, 7), scores (K,), ground truth (M, 7)) of a scene, ego frame."""
+    """Each stage's (boxes (K, 7), scores (K,), ground truth (M, 7)) of a scene, ego frame (a stage
+    under its old spelling in an older folder: :attr:`Stage.old_value`)."""
     path = out_dir / "scenes" / scene_id / "detections.npz"
     try:
         z = load_npz(path, MAX_DETECTION_ARRAY_BYTES)
-        return {k: (z[f"{k}_boxes"], z[f"{k}_scores"], z[f"{k}_gt"]) for k in Stage if f"{k}_boxes" in z}
+        found = {k: name for k in Stage for name in (k.value, k.old_value) if f"{name}_boxes" in z}
+        return {k: (z[f"{n}_boxes"], z[f"{n}_scores"], z[f"{n}_gt"]) for k, n in found.items()}
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
         raise InputError(f"{path}: not a scene's detections as asg writes them ({exc}); "
                          "regenerate the scene") from None
@@ -135,8 +146,17 @@ def load_done(out_dir: Path) -> dict[str, dict]:
         except (OSError, ValueError, EOFError, zipfile.BadZipFile):
             continue
         if isinstance(entry, dict) and entry.get("scene_id") == p.parent.name:
-            done[p.parent.name] = entry
+            done[p.parent.name] = entry_in_todays_form(entry)
     return done
+
+
+def entry_in_todays_form(entry: dict) -> dict:
+    """A scene entry (result.json, a summary's scene) written before each stage had one name, in
+    today's form: its ``collaborators`` name the normal stage ``normal``, not ``initial``."""
+    collaborators, old = entry.get("collaborators"), Stage.NORMAL.old_value
+    if isinstance(collaborators, dict) and old in collaborators and Stage.NORMAL.value not in collaborators:
+        entry["collaborators"] = {(Stage.NORMAL.value if k == old else k): v for k, v in collaborators.items()}
+    return entry
 
 
 def previous_wall_s(out_dir: Path) -> float:
@@ -239,8 +259,9 @@ def write_summary(out_dir: Path, entries: list[dict], config: dict, wall_s: floa
 
 def read_summary(path: Path, what: str = "the run") -> tuple[dict, int]:
     """(a run's summary.json in today's shape, the schema version the file was written in): a file of
-    schema 1 (the final stage's AP under ``ap_challenging``) has its keys renamed as today's;
-    InputError for a damaged file or one from a newer asg (asg.schemas)."""
+    schema 1 (the final stage's AP under ``ap_challenging``) or 2 (the normal stage's collaborators
+    under ``initial``) has its keys renamed as today's; InputError for a damaged file or one from a
+    newer asg (asg.schemas)."""
     from ..io.json_file import read_json
 
     summary = read_json(path, what)
@@ -255,6 +276,10 @@ def read_summary(path: Path, what: str = "the run") -> tuple[dict, int]:
                 for prefix in ("", "mean_scene_"):
                     if prefix + old in holder and prefix + new not in holder:
                         holder[prefix + new] = holder.pop(prefix + old)
+    if version < 3:
+        for entry in summary.get("scenes", []):
+            if isinstance(entry, dict):
+                entry_in_todays_form(entry)
     return summary, version
 
 

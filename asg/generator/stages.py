@@ -11,7 +11,7 @@ class Stage(str, enum.Enum):
     __str__ = str.__str__  # (enum.StrEnum from Python 3.11 on)
     __format__ = str.__format__
 
-    NORMAL = "initial"  # as sampled from the log
+    NORMAL = "normal"  # as sampled from the log, with its collaborators: the paper's normal scene
     AFTER_ACS = "after_acs"  # with the collaborators the collaborator search chose
     FINAL = "final"  # after the perturbation search: the challenging scene
 
@@ -19,6 +19,12 @@ class Stage(str, enum.Enum):
     def ap_key(self) -> str:
         """The key of its AP in a summary: a scene entry's AP and the aggregate's pooled AP."""
         return _AP_KEYS[self]
+
+    @property
+    def old_value(self) -> str:
+        """Its spelling in run folders written before each stage had one name (the normal stage's
+        scene file and detections were "initial"); read, never written."""
+        return _OLD_VALUES.get(self, self.value)
 
     @property
     def old_pooled_key(self) -> str:
@@ -29,3 +35,4 @@ class Stage(str, enum.Enum):
 
 _AP_KEYS = {Stage.NORMAL: "ap_normal", Stage.AFTER_ACS: "ap_after_acs", Stage.FINAL: "ap_final"}
 _OLD_POOLED_KEYS = {Stage.FINAL: "ap_challenging"}
+_OLD_VALUES = {Stage.NORMAL: "initial"}

@@ -6,7 +6,7 @@ RUN_DIR is an ``asg generate`` run folder, or any folder holding such run folder
 holds, per run: the configuration, the before/after AP table (pooled and per scene), plausibility
 (collisions, off the drivable area, out of range, as re-checked when written), the best loss so far
 against the evaluation count, and bird's-eye views of the scenes that lost the most AP@0.7 at each
-stage (initial, after ACS, final): the lanes, every sensing agent's LiDAR points coloured by agent
+stage (normal, after ACS, final): the lanes, every sensing agent's LiDAR points coloured by agent
 (rendered again from the stage's scene), the ego and its links to the collaborators, the ground
 truth and the detections in distinct colours, and each moved vehicle's displacement from where it
 was; below each scene's row, an interactive 3D view of its final stage (the fused cloud with
@@ -42,13 +42,13 @@ from ..objective.ap import Yardstick  # noqa: E402
 from ..scene import footprint_xy, load_scene  # noqa: E402
 from ..io.figures import points_above_ground  # noqa: E402
 from ..io.json_file import read_json  # noqa: E402
-from ..generator.run_folder import aggregate_ap, load_detections, read_summary  # noqa: E402
+from ..generator.run_folder import aggregate_ap, load_detections, read_summary, stage_scene_path  # noqa: E402
 from ..schemas import CURRENT, SchemaFile  # noqa: E402
 from ..generator.stages import Stage  # noqa: E402
 from .training import training_folders, training_section  # noqa: E402
 from .view3d import plotly_script, scene_view_html  # noqa: E402
 
-STAGES = ((Stage.NORMAL, "initial"), (Stage.AFTER_ACS, "after ACS"), (Stage.FINAL, "final"))
+STAGES = ((Stage.NORMAL, "normal"), (Stage.AFTER_ACS, "after ACS"), (Stage.FINAL, "final"))
 #: colours: ground truth, detections, moved vehicles
 GT_COLOUR, DET_COLOUR, MOVED_COLOUR = "#1a9850", "#d73027", "#4575b4"
 #: each sensing agent's points and marker (none red or green: those are the boxes')
@@ -193,7 +193,7 @@ def _ap_lost(entry: dict) -> float:
 
 
 def _scene_views(run: Path, entry: dict, index: int) -> str:
-    """The scene's row of bird's-eye views (initial, after ACS, final) and the 3D view of its final
+    """The scene's row of bird's-eye views (normal, after ACS, final) and the 3D view of its final
     stage (a ``<div>`` with id ``view3d-INDEX``)."""
     from ..sensors import load_lidar_spec, simulate_frame
 
@@ -205,16 +205,17 @@ def _scene_views(run: Path, entry: dict, index: int) -> str:
         raise InputError(f"{folder / 'detections.npz'}: more than {MAX_BOXES:,} boxes in a frame, which asg never "
                          "writes; regenerate the scene")
     fig, axes = plt.subplots(1, 3, figsize=(13.5, 4.8), dpi=80)
-    initial = load_scene(folder / "initial.yaml") if (folder / "initial.yaml").is_file() else None
+    normal_file = stage_scene_path(folder, Stage.NORMAL)
+    normal = load_scene(normal_file) if normal_file.is_file() else None
     view3d = ""
     for ax, (key, label) in zip(axes, STAGES):
-        scene_file = folder / f"{key}.yaml"
+        scene_file = stage_scene_path(folder, key)
         if key in dets and scene_file.is_file():
             ap = entry[key.ap_key]
             scene = load_scene(scene_file)
             frame = simulate_frame(scene, load_lidar_spec())
             _bev(ax, scene, frame, dets[key], entry.get("moved", []) if key == Stage.FINAL else [],
-                 initial if key == Stage.FINAL else None)
+                 normal if key == Stage.FINAL else None)
             ax.set_title(f"{label}: AP@0.7 {100 * ap['0.7']:.1f}", fontsize=10)
             if key == Stage.FINAL:
                 view3d = scene_view_html(frame, dets[key][0], f"view3d-{index}", AGENT_COLOURS, GT_COLOUR, DET_COLOUR)
@@ -228,11 +229,11 @@ def _scene_views(run: Path, entry: dict, index: int) -> str:
     return f"<figure>{_img(fig)}</figure>" + (f"<figure class=view3d>{view3d}{caption}</figure>" if view3d else "")
 
 
-def _bev(ax, scene, frame, detections: tuple, moved: list[str], initial=None) -> None:
+def _bev(ax, scene, frame, detections: tuple, moved: list[str], normal=None) -> None:
     """Lanes, buildings, every sensing agent's LiDAR points (``frame``, rendered from ``scene``),
     the links, ground truth (green), detections (red, dashed) and the sensing agents, all in the
     ego's frame (the frame the detections are in); moved vehicles circled, with an arrow from where
-    they stood in ``initial``; vehicles not in ``initial`` (inserted) in a square."""
+    they stood in ``normal`` (the normal stage's scene); vehicles not in it (inserted) in a square."""
     boxes, scores, gt = detections
     ego = scene.ego
     c, s = np.cos(ego.yaw_rad), np.sin(ego.yaw_rad)
@@ -258,12 +259,12 @@ def _bev(ax, scene, frame, detections: tuple, moved: list[str], initial=None) ->
         if any(a.agent_id == aid for a in scene.agents):
             p = at(aid)
             ax.add_patch(plt.Circle(p, 3.2, fill=False, color=MOVED_COLOUR, lw=1.5, zorder=4))
-            if initial is not None and any(a.agent_id == aid for a in initial.agents):
-                q = at(aid, initial)
+            if normal is not None and any(a.agent_id == aid for a in normal.agents):
+                q = at(aid, normal)
                 ax.annotate("", xy=p, xytext=q, arrowprops={"arrowstyle": "->", "color": MOVED_COLOUR, "lw": 1.2},
                             zorder=4)
-    if initial is not None:  # vehicles the search inserted (the insert space): a square around each
-        before = {a.agent_id for a in initial.agents}
+    if normal is not None:  # vehicles the search inserted (the insert space): a square around each
+        before = {a.agent_id for a in normal.agents}
         for a in scene.vehicles:
             if a.agent_id not in before:
                 ax.plot(*at(a.agent_id), marker="s", ms=14, mfc="none", mec=MOVED_COLOUR, mew=1.5, zorder=4)

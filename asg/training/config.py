@@ -113,7 +113,7 @@ def load_train_config(weights: str, path: Path | None = None) -> TrainConfig:
 def load_finetune_config(path: Path | None = None) -> FinetuneConfig:
     """The fine-tuning settings (train.yaml's ``finetune`` block, or ``path``'s), every number checked."""
     where = f"{path or 'train.yaml'}:{FINETUNE_BLOCK}"
-    block = refuse_old_form(train_block(FINETUNE_BLOCK, path), where, FinetuneConfig)
+    block = old_form_refused(path, FINETUNE_BLOCK, FinetuneConfig)
     return check_finetune_config(from_mapping(FinetuneConfig, block, where), where)
 
 
@@ -122,14 +122,20 @@ def load_finetune_config(path: Path | None = None) -> FinetuneConfig:
 _ASG_KEYS = frozenset({*TrainConfig.__dataclass_fields__, *ChunkConfig.__dataclass_fields__, "fit_stage"})
 
 
-def refuse_old_form(block: dict, where: str, loop_type: type) -> dict:
-    """``block`` (``loop_type``'s) as given, refused in one line if it sets asg's trainer's settings
-    at its top (the form before each trainer's settings had a part of their own: they now sit under
-    ``asg``)."""
+def old_form_refused(path: Path | None, name: str, loop_type: type) -> dict:
+    """Block ``name`` (``loop_type``'s) of train.yaml or ``path``, refused in one line in the form
+    from before each trainer's settings had a part of their own: asg's trainer's settings at the
+    block's top (they sit under its ``asg`` part now), or an ``opencood`` block of the file's own
+    (now the block's ``opencood`` part)."""
+    where = f"{path or 'train.yaml'}:{name}"
+    block = train_block(name, path)
     moved = sorted(k for k in block if k in _ASG_KEYS and k not in loop_type.__dataclass_fields__)
     if moved:
         raise InputError(f"{where}: {', '.join(moved)} set asg's own trainer; they sit under the block's asg part "
                          "now (asg: {steps: ..., lr: ...}; configs/detectors/train.yaml)")
+    if path is not None and "opencood" in read_yaml(path):
+        raise InputError(f"{path}: OpenCOOD's trainer's settings sit in the {name} block's opencood part now "
+                         f"({name}: {{opencood: {{epochs: ...}}}}), not in an opencood block of their own")
     return block
 
 

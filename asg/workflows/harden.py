@@ -11,9 +11,10 @@ of ``OUT/card.json`` and is never run again):
    against the current weights on those scenes; ``random``: the same scenes with one uniformly
    drawn plausible perturbation each (the same space, plausibility level and movers, no search);
    ``normal``: the scenes as they are (more normal frames);
-3. **train**: one chunk from the current weights on batches that mix this round's scenes (and, with
-   ``keep_previous``, every earlier round's) with the train splits of ``mix_with`` (against
-   forgetting), train.yaml's ``harden`` block; writes ``round-k/weights.pt``;
+3. **train**: the target's trainer (asg.workflows.trainers, with its part of train.yaml's
+   ``harden`` block) trains the current model on this round's scenes (and, with ``keep_previous``,
+   every earlier round's) beside the train splits of ``mix_with`` (against forgetting): asg's
+   trainer one chunk into ``round-k/weights.pt``, OpenCOOD's a few epochs into ``round-k/model``;
 4. **evaluate** on fixed sets: ``eval_sets``, ``challenging-F-val`` (the val split attacked against
    the original model) and, with ``noisy``, normal-val under the standard noisy V2X setting
    (asg.scene.noisy); with ``reattack``, the paper's protocol run on normal-val against the
@@ -47,8 +48,8 @@ from .trainers import Model, round_trainer
 from .trainers.base import AVERAGED, is_kept  # (is_kept: this module's API too)
 from ..io.run_record import claim, with_defaults
 from ..perception.targets import Target
-from ..training.config import (ChunkConfig, FinetuneConfig, check_finetune_config, record_in_todays_form, refuse_old_form,
-                               train_block)
+from ..training.config import (ChunkConfig, FinetuneConfig, check_finetune_config, old_form_refused,
+                               record_in_todays_form, train_block)
 from ..scene import Scene
 
 #: the train.yaml block of ``asg harden``
@@ -106,7 +107,7 @@ def load_harden_config(path: Path | None = None, **overrides) -> HardenConfig:
     from ..dataset_spec import check_train_source
 
     where = f"{path or 'train.yaml'}:{HARDEN_BLOCK}"
-    data = dict(refuse_old_form(train_block(HARDEN_BLOCK, path), where, HardenConfig))
+    data = dict(old_form_refused(path, HARDEN_BLOCK, HardenConfig))
     data.update({k: v for k, v in overrides.items() if v is not None})
     cfg = check_finetune_config(from_mapping(HardenConfig, data, where), where)
     checks.number(cfg.seed, f"{where}.seed", 0, 2**32 - 1)

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import yaml
 
+from asg.generator.run_folder import stage_scene_path
+from asg.generator.stages import Stage
 from asg.objective.ap import ap_by_method
 from asg.perception import build_detector, resolve_target
 from asg.scene.scene import load_scene
@@ -43,7 +45,7 @@ def main(work: Path, target_name: str, out: Path) -> None:
     rows = {"edited": [], "re-simulated": []}
     moved_counts = []
     for folder in sorted(p for p in runs.iterdir() if (p / "final.yaml").is_file()):
-        final, initial = load_scene(folder / "final.yaml"), load_scene(folder / "initial.yaml")
+        final, initial = load_scene(folder / "final.yaml"), load_scene(stage_scene_path(folder, Stage.NORMAL))
         scene_id = folder.name.rsplit("-", 1)[0]
         ids_file = next(work.glob(f"export-*/{scene_id}/ids.yaml"))
         ids = {str(k): str(v) for k, v in yaml.safe_load(ids_file.read_text())["ids"].items()}
