@@ -117,9 +117,11 @@ def load_finetune_config(path: Path | None = None) -> FinetuneConfig:
     return check_finetune_config(from_mapping(FinetuneConfig, block, where), where)
 
 
-#: the settings that moved from a finetune or harden block into its ``asg`` part (asg's own trainer)
-#: when each trainer's settings got a part of their own: named in the refusal of an old block
-_ASG_KEYS = frozenset({*TrainConfig.__dataclass_fields__, *ChunkConfig.__dataclass_fields__, "fit_stage"})
+def _loop_and_asg_settings(loop_type: type) -> tuple[set[str], set[str]]:
+    """The names of ``loop_type``'s own settings (a finetune or harden block's top) and of its
+    ``asg`` part's (asg's trainer's, which sat at the block's top before it had a part)."""
+    fields = loop_type.__dataclass_fields__
+    return set(fields) - {"asg", "opencood"}, set(fields["asg"].default_factory.__dataclass_fields__)
 
 
 def old_form_refused(path: Path | None, name: str, loop_type: type) -> dict:
@@ -129,7 +131,8 @@ def old_form_refused(path: Path | None, name: str, loop_type: type) -> dict:
     (now the block's ``opencood`` part)."""
     where = f"{path or 'train.yaml'}:{name}"
     block = train_block(name, path)
-    moved = sorted(k for k in block if k in _ASG_KEYS and k not in loop_type.__dataclass_fields__)
+    loop, asg = _loop_and_asg_settings(loop_type)
+    moved = sorted(k for k in block if k in asg and k not in loop)
     if moved:
         raise InputError(f"{where}: {', '.join(moved)} set asg's own trainer; they sit under the block's asg part "
                          "now (asg: {steps: ..., lr: ...}; configs/detectors/train.yaml)")
@@ -149,8 +152,7 @@ def record_in_todays_form(record: dict, loop_type: type) -> dict:
     config = record.get("config")
     if not isinstance(config, dict) or "asg" in config:
         return record
-    loop = {f for f in loop_type.__dataclass_fields__ if f not in ("asg", "opencood")}
-    asg = set(loop_type.__dataclass_fields__["asg"].default_factory.__dataclass_fields__)
+    loop, asg = _loop_and_asg_settings(loop_type)
     today = {**{k: v for k, v in config.items() if k in loop}, "asg": {k: v for k, v in config.items() if k in asg}}
     rest = {k: v for k, v in record.items() if k != "opencood"}
     if isinstance(record.get("opencood"), dict):

@@ -47,7 +47,7 @@ class RoundTrainer:
     ``threads`` threads, reading the loop's settings and its own part of the block (the one named
     by its kind, ``cfg.asg`` or ``cfg.opencood``), no other trainer's; ``config_path``: the
     ``--config`` file the settings came from (None: train.yaml). Subclasses answer every method but
-    :meth:`log_start`, and :meth:`check` after this class's."""
+    :meth:`log_start` and :meth:`check` (a subclass with more to refuse calls this class's first)."""
 
     def __init__(self, target: Target, cfg, threads: int = 2, config_path: Path | None = None):
         self.target, self.cfg, self.threads, self.config_path = target, cfg, threads, config_path
@@ -60,8 +60,10 @@ class RoundTrainer:
         mine, given = self.target.training.value, given or {}
         for kind in sorted(k for k in ROUND_TRAINERS.names() if k != mine and k in given):
             theirs, default = given[kind], shipped.get(kind)
-            changed = sorted(k for k in theirs if theirs[k] != default.get(k)) if isinstance(theirs, dict) and \
-                isinstance(default, dict) else ([kind] if theirs != default else [])
+            if isinstance(theirs, dict) and isinstance(default, dict):
+                changed = sorted(k for k in theirs if theirs[k] != default.get(k))
+            else:
+                changed = [kind] if theirs != default else []
             if changed:
                 where = f"{self.config_path}: " if self.config_path else ""
                 raise InputError(f"{where}{', '.join(changed)} of the block's {kind} part set the {kind} trainer, which "

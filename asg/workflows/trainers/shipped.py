@@ -32,10 +32,6 @@ class ShippedRoundTrainer(RoundTrainer):
         # checked (and its data set known) before any work
         self.stage_cfg = stage_config(getattr(self.chunk, "fit_stage", False))
 
-    def check(self, weights: Path | None, given: dict | None, shipped: dict) -> None:
-        """The block (this class's base); ``start`` checks the weights."""
-        super().check(weights, given, shipped)
-
     def start(self, weights: Path | None) -> Model:
         """``weights`` (a .pt, or a harden card: its last kept round's) or the shipped weights;
         InputError if missing or not loadable by the target's detector."""
